@@ -1,0 +1,21 @@
+//! Engine-free core of `bevy_soft_tissue`.
+//!
+//! Everything physical or geometric lives here, with no Bevy dependency, so it can be
+//! tested headless, benchmarked from the `soft-tissue` command-line tool and reused outside
+//! Bevy. The Bevy plugin (the root package) is a thin adapter over these modules.
+//!
+//! Modules, one concern each:
+//! - [`mesh`]: tetrahedral meshes, derived topology, validation, quality, mesh files
+//!   ([`mesh::io`]) and generated organ shapes ([`mesh::generate`]).
+//! - [`material`]: the physical parameters of the paper's methods, with units.
+//! - [`scenario`]: the paper's two scenes (cylinders, organs) as serialisable data.
+//!
+//! Conventions: SI-like units chosen by the scene (the paper's scenes are unit-free, see
+//! [`scenario`]), `f64` throughout the core, `f32` only at the render boundary in the plugin.
+
+pub mod material;
+pub mod mesh;
+pub mod scenario;
+
+/// Three-component vector used for positions, displacements and forces (`f64`).
+pub type Vec3 = nalgebra::Vector3<f64>;

@@ -1,0 +1,173 @@
+//! Element quality measures.
+
+use crate::Vec3;
+use serde::{Deserialize, Serialize};
+
+/// Quality statistics over all tetrahedra of a mesh.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct QualityReport {
+    /// Smallest dihedral angle of any tet, degrees (regular tet: 70.53).
+    pub min_dihedral_deg: f64,
+    /// Largest dihedral angle of any tet, degrees.
+    pub max_dihedral_deg: f64,
+    /// Largest aspect ratio: longest edge over `2 sqrt(6)` times the inradius (1 for a
+    /// regular tet, growing without bound as a tet flattens).
+    pub max_aspect_ratio: f64,
+    /// Mean aspect ratio.
+    pub mean_aspect_ratio: f64,
+    /// Smallest radius ratio `3 r_in / r_circ` (1 regular, 0 flat).
+    pub min_radius_ratio: f64,
+    /// Smallest tet volume.
+    pub min_volume: f64,
+    /// Largest tet volume.
+    pub max_volume: f64,
+    /// Index of the tet with the smallest dihedral angle.
+    pub worst_tet: usize,
+}
+
+impl QualityReport {
+    /// Computes the statistics. `tets` must be non-empty and index into `positions`.
+    pub fn compute(positions: &[Vec3], tets: &[[u32; 4]]) -> Self {
+        let mut r = QualityReport {
+            min_dihedral_deg: f64::INFINITY,
+            max_dihedral_deg: 0.0,
+            max_aspect_ratio: 0.0,
+            mean_aspect_ratio: 0.0,
+            min_radius_ratio: f64::INFINITY,
+            min_volume: f64::INFINITY,
+            max_volume: 0.0,
+            worst_tet: 0,
+        };
+        for (i, t) in tets.iter().enumerate() {
+            let p = t.map(|n| positions[n as usize]);
+            let angles = tet_dihedral_angles(&p);
+            let (lo, hi) = angles.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &a| {
+                (lo.min(a), hi.max(a))
+            });
+            if lo < r.min_dihedral_deg {
+                r.min_dihedral_deg = lo;
+                r.worst_tet = i;
+            }
+            r.max_dihedral_deg = r.max_dihedral_deg.max(hi);
+            let m = tet_measures(&p);
+            let aspect = m.longest_edge / (2.0 * 6f64.sqrt() * m.inradius);
+            r.max_aspect_ratio = r.max_aspect_ratio.max(aspect);
+            r.mean_aspect_ratio += aspect;
+            r.min_radius_ratio = r.min_radius_ratio.min(3.0 * m.inradius / m.circumradius);
+            r.min_volume = r.min_volume.min(m.volume);
+            r.max_volume = r.max_volume.max(m.volume);
+        }
+        r.mean_aspect_ratio /= tets.len().max(1) as f64;
+        r
+    }
+}
+
+/// The six dihedral angles of a tetrahedron in degrees, at edges 01, 02, 03, 12, 13, 23.
+pub fn tet_dihedral_angles(p: &[Vec3; 4]) -> [f64; 6] {
+    // Outward face normals; face i is opposite corner i.
+    let n = super::topology::TET_FACES.map(|f| {
+        let [a, b, c] = f.map(|i| p[i]);
+        let v = (b - a).cross(&(c - a));
+        let len = v.norm();
+        if len > 0.0 { v / len } else { v }
+    });
+    // The edge (i, j) is shared by the faces opposite the two other corners k, l; the
+    // dihedral angle is pi minus the angle between their outward normals.
+    let pairs = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
+    pairs.map(|(i, j)| {
+        let others: Vec<usize> = (0..4).filter(|&k| k != i && k != j).collect();
+        let c = n[others[0]].dot(&n[others[1]]).clamp(-1.0, 1.0);
+        180.0 - c.acos().to_degrees()
+    })
+}
+
+/// Radius ratio `3 r_in / r_circ` of a tetrahedron (1 regular, 0 flat).
+pub fn tet_radius_ratio(p: &[Vec3; 4]) -> f64 {
+    let m = tet_measures(p);
+    3.0 * m.inradius / m.circumradius
+}
+
+struct TetMeasures {
+    volume: f64,
+    inradius: f64,
+    circumradius: f64,
+    longest_edge: f64,
+}
+
+fn tet_measures(p: &[Vec3; 4]) -> TetMeasures {
+    let volume = super::tet_signed_volume(p).abs();
+    let area: f64 = super::topology::TET_FACES
+        .iter()
+        .map(|f| {
+            let [a, b, c] = f.map(|i| p[i]);
+            0.5 * (b - a).cross(&(c - a)).norm()
+        })
+        .sum();
+    let inradius = if area > 0.0 { 3.0 * volume / area } else { 0.0 };
+    // Circumradius: |a|^2 (b x c) + |b|^2 (c x a) + |c|^2 (a x b) over 12 V, relative to p0.
+    let (a, b, c) = (p[1] - p[0], p[2] - p[0], p[3] - p[0]);
+    let num = b.cross(&c) * a.norm_squared()
+        + c.cross(&a) * b.norm_squared()
+        + a.cross(&b) * c.norm_squared();
+    let circumradius = if volume > 0.0 {
+        num.norm() / (12.0 * volume)
+    } else {
+        f64::INFINITY
+    };
+    let mut longest_edge: f64 = 0.0;
+    for i in 0..4 {
+        for j in i + 1..4 {
+            longest_edge = longest_edge.max((p[i] - p[j]).norm());
+        }
+    }
+    TetMeasures {
+        volume,
+        inradius,
+        circumradius,
+        longest_edge,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn regular() -> [Vec3; 4] {
+        [
+            Vec3::new(1.0, 1.0, 1.0),
+            Vec3::new(1.0, -1.0, -1.0),
+            Vec3::new(-1.0, 1.0, -1.0),
+            Vec3::new(-1.0, -1.0, 1.0),
+        ]
+    }
+
+    #[test]
+    fn regular_tet_measures_match_closed_form() {
+        let p = regular();
+        let expected = (1.0f64 / 3.0).acos().to_degrees(); // 70.5288 degrees
+        for a in tet_dihedral_angles(&p) {
+            assert!((a - expected).abs() < 1e-10, "{a}");
+        }
+        assert!((tet_radius_ratio(&p) - 1.0).abs() < 1e-12);
+        let q = QualityReport::compute(&p, &[[0, 1, 2, 3]]);
+        assert!((q.max_aspect_ratio - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn corner_tet_has_right_and_acute_angles() {
+        // Unit corner tet: three right dihedral angles at the edges through the origin, and
+        // acos(1/sqrt 3) = 54.7356 degrees at the edges of the slanted face.
+        let p = [
+            Vec3::zeros(),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(0.0, 0.0, 1.0),
+        ];
+        let a = tet_dihedral_angles(&p);
+        let slanted = (1.0f64 / 3f64.sqrt()).acos().to_degrees();
+        for k in 0..3 {
+            assert!((a[k] - 90.0).abs() < 1e-10);
+            assert!((a[k + 3] - slanted).abs() < 1e-10);
+        }
+    }
+}
