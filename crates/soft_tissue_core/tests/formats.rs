@@ -1,0 +1,543 @@
+//! Mesh file formats: reading reference files written by an independent implementation
+//! (meshio, see tests/fixtures/make_fixtures.py), round trips through our writers, every
+//! malformed case with its location, the real-world files in ../shared/meshes when present,
+//! and a no-panic sweep over truncated and corrupted inputs.
+
+use soft_tissue_core::Vec3;
+use soft_tissue_core::mesh::TetMesh;
+use soft_tissue_core::mesh::generate::Organ;
+use soft_tissue_core::mesh::io::{
+    self, FormatError, Location, MeshFormat, SurfaceMesh, WriteOptions, parse_obj, parse_tet_mesh,
+    parse_tetgen, write_obj,
+};
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+fn fixtures() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures")
+}
+
+struct Reference {
+    positions: Vec<Vec3>,
+    tets: BTreeSet<[usize; 4]>,
+}
+
+fn reference() -> Reference {
+    let text = std::fs::read_to_string(fixtures().join("reference.json")).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let positions = v["positions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            let p: Vec<f64> = p
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap())
+                .collect();
+            Vec3::new(p[0], p[1], p[2])
+        })
+        .collect();
+    let tets = v["tets"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| {
+            let mut t: Vec<usize> = t
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_u64().unwrap() as usize)
+                .collect();
+            t.sort_unstable();
+            [t[0], t[1], t[2], t[3]]
+        })
+        .collect();
+    Reference { positions, tets }
+}
+
+fn tet_set(m: &TetMesh) -> BTreeSet<[usize; 4]> {
+    m.tets()
+        .iter()
+        .map(|t| {
+            let mut t = t.map(|v| v as usize);
+            t.sort_unstable();
+            t
+        })
+        .collect()
+}
+
+/// Same nodes (same order) and the same tets as vertex sets.
+fn assert_same(m: &TetMesh, r: &Reference, tol: f64, what: &str) {
+    assert_eq!(m.node_count(), r.positions.len(), "{what}: node count");
+    for (i, (a, b)) in m.positions().iter().zip(&r.positions).enumerate() {
+        assert!(
+            (a - b).amax() <= tol,
+            "{what}: node {i} differs: {a:?} vs {b:?}"
+        );
+    }
+    assert_eq!(tet_set(m), r.tets, "{what}: tetrahedra differ");
+}
+
+#[test]
+fn reads_meshio_reference_files_of_every_format() {
+    let r = reference();
+    let cases = [
+        // meshio writes ASCII coordinates with 17 significant digits (%.16e): last-bit
+        // rounding differences are expected there; binary files must be exact.
+        ("block_v22_ascii.msh", 1e-15),
+        ("block_v22_binary.msh", 0.0),
+        ("block_v41_ascii.msh", 1e-15),
+        ("block_v41_binary.msh", 0.0),
+        ("block_ascii.vtk", 1e-15),
+        ("block_binary.vtk", 0.0),
+        // meshio's ASCII VTU writer keeps 12 significant digits.
+        ("block_ascii.vtu", 1e-11),
+        ("block_base64.vtu", 0.0),
+        ("block.node", 1e-15),
+    ];
+    for (file, tol) in cases {
+        let loaded =
+            io::read_tet_mesh(fixtures().join(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
+        assert_same(&loaded.mesh, &r, tol, file);
+        if !file.ends_with(".node") {
+            let skipped = loaded
+                .notes
+                .iter()
+                .find(|n| n.starts_with("skipped"))
+                .unwrap_or_else(|| panic!("{file}: no skip note in {:?}", loaded.notes));
+            assert!(skipped.contains("1 lines"), "{file}: {skipped}");
+            assert!(skipped.contains("2 triangles"), "{file}: {skipped}");
+        }
+        // 3 x 2 x 2 cubes of edge 0.37 (jittered by at most 0.02): the volume is near 12 * 0.37^3.
+        let v = loaded.mesh.volume();
+        assert!(
+            (v - 12.0 * 0.37f64.powi(3)).abs() < 0.05,
+            "{file}: volume {v}"
+        );
+    }
+}
+
+#[test]
+fn hexahedra_and_wedges_are_split_conformingly() {
+    let loaded = io::read_tet_mesh(fixtures().join("hex_wedge.vtu")).unwrap();
+    let m = &loaded.mesh;
+    assert!((m.volume() - 1.5).abs() < 1e-12, "volume {}", m.volume());
+    // The boundary of a conforming split is closed: every edge in exactly two triangles.
+    assert_closed(m);
+    // Outer boundary: hex has 5 free faces (10 triangles), wedge 2 triangles + 2 quads (6).
+    assert_eq!(m.surface().triangles().len(), 16);
+}
+
+fn assert_closed(m: &TetMesh) {
+    let mut edges = std::collections::BTreeMap::new();
+    for t in m.surface().triangles() {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *edges.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+        }
+    }
+    assert!(edges.values().all(|&c| c == 2), "surface is not closed");
+}
+
+fn sample_mesh() -> TetMesh {
+    Organ::Cylinder.generate(0.7).unwrap()
+}
+
+#[test]
+fn writers_round_trip_exactly() {
+    let m = sample_mesh();
+    let r = Reference {
+        positions: m.positions().to_vec(),
+        tets: tet_set(&m),
+    };
+    for format in [MeshFormat::Gmsh, MeshFormat::VtkLegacy, MeshFormat::Vtu] {
+        for binary in [false, true] {
+            let bytes = io::write_tet_mesh_bytes(&m, format, WriteOptions { binary }, "x").unwrap();
+            let back = parse_tet_mesh(&bytes, format, "x")
+                .unwrap_or_else(|e| panic!("{format:?} {binary}: {e}"));
+            assert_same(&back.mesh, &r, 0.0, &format!("{format:?} binary={binary}"));
+            assert!(back.notes.is_empty(), "{:?}", back.notes);
+        }
+    }
+    let (node, ele) = io::write_tetgen_bytes(&m);
+    let back = parse_tetgen(&node, "x.node", &ele, "x.ele").unwrap();
+    assert_same(&back.mesh, &r, 0.0, "tetgen");
+
+    // Through files, with the extension choosing the format.
+    let dir = std::env::temp_dir().join(format!("st-formats-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for name in ["a.msh", "a.vtk", "a.vtu", "a.node"] {
+        let p = dir.join(name);
+        io::write_tet_mesh(&m, &p, WriteOptions::default()).unwrap();
+        assert_same(&io::read_tet_mesh(&p).unwrap().mesh, &r, 0.0, name);
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn obj_round_trip_and_polygon_faces() {
+    let m = sample_mesh();
+    let s = SurfaceMesh::boundary_of(&m);
+    let back = parse_obj(&write_obj(&s), "s.obj").unwrap();
+    assert_eq!(back, s);
+    // Quads are fan-triangulated, v/vt/vn forms and negative indices resolve.
+    let text = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3/1/1 4/1/1\nf -4//1 -2//1 -1//1\n";
+    let q = parse_obj(text.as_bytes(), "q.obj").unwrap();
+    assert_eq!(q.triangles, vec![[0, 1, 2], [0, 2, 3], [0, 2, 3]]);
+}
+
+#[test]
+fn gmsh_version_1_and_2_0() {
+    let v1 = "$NOD\n4\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n$ENDNOD\n$ELM\n2\n1 4 1 1 4 1 2 3 4\n2 1 1 1 2 1 2\n$ENDELM\n";
+    let m = parse_tet_mesh(v1.as_bytes(), MeshFormat::Gmsh, "v1.msh").unwrap();
+    assert_eq!(m.mesh.tet_count(), 1);
+    assert!((m.mesh.volume() - 1.0 / 6.0).abs() < 1e-15);
+    assert!(m.notes.iter().any(|n| n.contains("1 lines")));
+    // Version "2" (2.0) with sparse node tags.
+    let v2 = "$MeshFormat\n2 0 8\n$EndMeshFormat\n$Nodes\n4\n10 0 0 0\n20 1 0 0\n30 0 1 0\n40 0 0 1\n$EndNodes\n$Elements\n1\n7 4 2 0 1 10 20 30 40\n$EndElements\n";
+    let m = parse_tet_mesh(v2.as_bytes(), MeshFormat::Gmsh, "v2.msh").unwrap();
+    assert_eq!(m.mesh.tet_count(), 1);
+}
+
+fn parse_err(text: &str, format: MeshFormat) -> FormatError {
+    match parse_tet_mesh(text.as_bytes(), format, "bad") {
+        Ok(_) => panic!("accepted malformed input:\n{text}"),
+        Err(e) => e,
+    }
+}
+
+fn assert_line(e: &FormatError, line: usize, needle: &str) {
+    match e {
+        FormatError::Parse {
+            location, message, ..
+        } => {
+            assert_eq!(*location, Location::Line(line), "{e}");
+            assert!(message.contains(needle), "'{e}' lacks '{needle}'");
+        }
+        other => panic!("expected a parse error at line {line}, got: {other}"),
+    }
+    assert!(e.to_string().starts_with("bad: "), "{e}");
+}
+
+const V22: &str = "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n4\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n$EndNodes\n$Elements\n1\n1 4 2 0 1 1 2 3 4\n$EndElements\n";
+
+#[test]
+fn gmsh_malformed_inputs_name_the_line() {
+    assert!(parse_tet_mesh(V22.as_bytes(), MeshFormat::Gmsh, "ok").is_ok());
+    // Truncated inside the node list.
+    let e = parse_err(&V22[..60], MeshFormat::Gmsh);
+    assert!(e.to_string().contains("end"), "{e}");
+    // Count that disagrees with the data.
+    assert_line(
+        &parse_err(&V22.replace("$Nodes\n4", "$Nodes\n5"), MeshFormat::Gmsh),
+        10,
+        "declares 5 nodes but ends after 4",
+    );
+    assert_line(
+        &parse_err(&V22.replace("$Nodes\n4", "$Nodes\n3"), MeshFormat::Gmsh),
+        9,
+        "expected $EndNodes",
+    );
+    // Bad number.
+    assert_line(
+        &parse_err(&V22.replace("3 0 1 0", "3 0 x1 0"), MeshFormat::Gmsh),
+        8,
+        "'x1' is not a number",
+    );
+    // Wrong element arity.
+    assert_line(
+        &parse_err(
+            &V22.replace("1 4 2 0 1 1 2 3 4", "1 4 2 0 1 1 2 3"),
+            MeshFormat::Gmsh,
+        ),
+        13,
+        "needs 4 nodes",
+    );
+    // Unknown node tag.
+    assert_line(
+        &parse_err(
+            &V22.replace("1 2 3 4\n$End", "1 2 3 9\n$End"),
+            MeshFormat::Gmsh,
+        ),
+        13,
+        "node tag 9",
+    );
+    // Unsupported version.
+    assert_line(
+        &parse_err(&V22.replace("2.2 0 8", "4 0 8"), MeshFormat::Gmsh),
+        2,
+        "4.0 is not supported",
+    );
+    // Not a Gmsh file at all.
+    assert_line(
+        &parse_err("hello\n", MeshFormat::Gmsh),
+        1,
+        "expected a section",
+    );
+    // No tetrahedra: a clear error.
+    let surface_only = V22.replace("1 4 2 0 1 1 2 3 4", "1 2 2 0 1 1 2 3");
+    let e = parse_err(&surface_only, MeshFormat::Gmsh);
+    assert!(
+        matches!(e, FormatError::Unsupported { .. }) && e.to_string().contains("no tetrahedra"),
+        "{e}"
+    );
+    // A degenerate element is named by its tag in the file.
+    let flat = V22
+        .replace("4 0 0 1\n", "4 0.3 0.3 0\n")
+        .replace("1 4 2 0 1 1 2 3 4", "77 4 2 0 1 1 2 3 4");
+    let e = parse_err(&flat, MeshFormat::Gmsh);
+    assert!(
+        e.to_string().starts_with("bad: element 77: tetrahedron 0"),
+        "{e}"
+    );
+}
+
+#[test]
+fn gmsh_binary_truncation_names_the_byte() {
+    let bytes = std::fs::read(fixtures().join("block_v22_binary.msh")).unwrap();
+    let e = parse_tet_mesh(&bytes[..200], MeshFormat::Gmsh, "bad").unwrap_err();
+    assert!(
+        matches!(
+            e,
+            FormatError::Parse {
+                location: Location::Byte(_),
+                ..
+            }
+        ),
+        "{e}"
+    );
+    let bytes = std::fs::read(fixtures().join("block_v41_binary.msh")).unwrap();
+    let e = parse_tet_mesh(&bytes[..bytes.len() - 300], MeshFormat::Gmsh, "bad").unwrap_err();
+    assert!(e.to_string().contains("bad: "), "{e}");
+}
+
+const VTK: &str = "# vtk DataFile Version 3.0\nt\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 float\n0 0 0 1 0 0\n0 1 0 0 0 1\nCELLS 1 5\n4 0 1 2 3\nCELL_TYPES 1\n10\n";
+
+#[test]
+fn vtk_malformed_inputs_name_the_problem() {
+    assert!(parse_tet_mesh(VTK.as_bytes(), MeshFormat::VtkLegacy, "ok").is_ok());
+    assert_line(
+        &parse_err(&VTK.replace("0 0 1\n", "0 0 q\n"), MeshFormat::VtkLegacy),
+        7,
+        "'q' is not a number",
+    );
+    assert_line(
+        &parse_err(&VTK.replace("POINTS 4", "POINTS 5"), MeshFormat::VtkLegacy),
+        8,
+        "'CELLS' is not a number",
+    );
+    let e = parse_err(
+        &VTK.replace("CELLS 1 5", "CELLS 1 6"),
+        MeshFormat::VtkLegacy,
+    );
+    assert!(e.to_string().contains("CELLS"), "{e}");
+    let e = parse_err(
+        &VTK.replace("4 0 1 2 3", "4 0 1 2 9"),
+        MeshFormat::VtkLegacy,
+    );
+    assert!(
+        e.to_string()
+            .contains("cell 0 refers to point 9, but there are 4 points"),
+        "{e}"
+    );
+    let e = parse_err(
+        &VTK.replace("4 0 1 2 3", "3 0 1 2 3"),
+        MeshFormat::VtkLegacy,
+    );
+    assert!(e.to_string().contains("CELLS"), "{e}");
+    let e = parse_err(
+        &VTK.replace("CELLS 1 5\n4 0 1 2 3", "CELLS 1 4\n3 0 1 2"),
+        MeshFormat::VtkLegacy,
+    );
+    assert!(
+        e.to_string()
+            .contains("cell 0 of type 10 (tetra) has 3 points, needs 4"),
+        "{e}"
+    );
+    let e = parse_err(&VTK[..VTK.len() - 3], MeshFormat::VtkLegacy);
+    assert!(
+        e.to_string()
+            .contains("file ends after 0 of the 1 values of CELL_TYPES"),
+        "{e}"
+    );
+    let e = parse_err(
+        &VTK.replace("UNSTRUCTURED_GRID", "POLYDATA"),
+        MeshFormat::VtkLegacy,
+    );
+    assert!(
+        e.to_string().contains("no tetrahedra") && e.to_string().contains("POLYDATA"),
+        "{e}"
+    );
+    assert_line(
+        &parse_err("# not vtk\n", MeshFormat::VtkLegacy),
+        1,
+        "not a legacy VTK file",
+    );
+    // Binary data cut short.
+    let bytes = std::fs::read(fixtures().join("block_binary.vtk")).unwrap();
+    let e = parse_tet_mesh(&bytes[..300], MeshFormat::VtkLegacy, "bad").unwrap_err();
+    assert!(
+        matches!(
+            e,
+            FormatError::Parse {
+                location: Location::Byte(_),
+                ..
+            }
+        ),
+        "{e}"
+    );
+}
+
+#[test]
+fn vtu_malformed_inputs_are_errors() {
+    let text = std::fs::read_to_string(fixtures().join("block_ascii.vtu")).unwrap();
+    let e = parse_tet_mesh(
+        text[..text.len() / 2].as_bytes(),
+        MeshFormat::Vtu,
+        "bad.vtu",
+    )
+    .unwrap_err();
+    assert!(e.to_string().starts_with("bad.vtu: "), "{e}");
+    let poly = "<?xml version=\"1.0\"?>\n<VTKFile type=\"PolyData\" version=\"0.1\" byte_order=\"LittleEndian\"><PolyData><Piece NumberOfPoints=\"3\" NumberOfVerts=\"0\" NumberOfLines=\"0\" NumberOfStrips=\"0\" NumberOfPolys=\"1\"><Points><DataArray type=\"Float32\" NumberOfComponents=\"3\" format=\"ascii\">0 0 0 1 0 0 0 1 0</DataArray></Points><Polys><DataArray type=\"Int32\" Name=\"connectivity\" format=\"ascii\">0 1 2</DataArray><DataArray type=\"Int32\" Name=\"offsets\" format=\"ascii\">3</DataArray></Polys></Piece></PolyData></VTKFile>";
+    let e = parse_tet_mesh(poly.as_bytes(), MeshFormat::Vtu, "surf.vtu").unwrap_err();
+    assert!(e.to_string().contains("no tetrahedra"), "{e}");
+}
+
+#[test]
+fn tetgen_and_obj_malformed_inputs_name_the_line() {
+    let node = "# c\n4 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n";
+    let ele = "1 4 0\n1 1 2 3 4\n";
+    assert!(parse_tetgen(node.as_bytes(), "a.node", ele.as_bytes(), "a.ele").is_ok());
+    let e = parse_tetgen(
+        node.replace("4 3 0 0", "5 3 0 0").as_bytes(),
+        "a.node",
+        ele.as_bytes(),
+        "a.ele",
+    )
+    .unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("a.node: line 7: file ends after 4 of the 5 declared points"),
+        "{e}"
+    );
+    let e = parse_tetgen(
+        node.as_bytes(),
+        "a.node",
+        "1 4 0\n1 1 2 3 8\n".as_bytes(),
+        "a.ele",
+    )
+    .unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("a.ele: line 2: tetrahedron 1 refers to point 8"),
+        "{e}"
+    );
+    let e = parse_tetgen(
+        node.as_bytes(),
+        "a.node",
+        "1 4 0\n1 1 2 3\n".as_bytes(),
+        "a.ele",
+    )
+    .unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("line 2: a tetrahedron line needs 5 fields, found 4"),
+        "{e}"
+    );
+    let e = parse_tetgen(
+        node.replace("2 1 0 0", "2 1 0 z").as_bytes(),
+        "a.node",
+        ele.as_bytes(),
+        "a.ele",
+    )
+    .unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("a.node: line 4: z: 'z' is not a number"),
+        "{e}"
+    );
+
+    let e = parse_obj(b"v 0 0 0\nv 1 0 0\nf 1 2 3\n", "c.obj").unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("c.obj: line 3: face refers to vertex 3, but there are 2 vertices"),
+        "{e}"
+    );
+    let e = parse_obj(b"v 0 0\n", "c.obj").unwrap_err();
+    assert!(e.to_string().contains("c.obj: line 1"), "{e}");
+}
+
+#[test]
+fn real_world_meshes_from_shared_folder() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/meshes");
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        eprintln!("skipped: {} is not present", dir.display());
+        return;
+    };
+    let mut seen = 0;
+    for entry in entries {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_string_lossy().to_string();
+        let loaded = io::read_tet_mesh(&path);
+        if name.contains("bad") {
+            // Meant to be bad: either a clear error or loaded with warnings.
+            match loaded {
+                Ok(l) => assert!(!l.notes.is_empty(), "{name} loaded without a warning"),
+                Err(e) => assert!(e.to_string().contains(&name), "{e}"),
+            }
+        } else {
+            let l = loaded.unwrap_or_else(|e| panic!("{e}"));
+            assert!(l.mesh.tet_count() > 0 && l.mesh.volume() > 0.0, "{name}");
+            assert_closed(&l.mesh);
+        }
+        seen += 1;
+    }
+    assert!(seen > 0);
+}
+
+/// Every parser must return (never panic) on truncated and corrupted copies of valid files.
+#[test]
+fn no_panic_on_truncated_or_corrupted_input() {
+    let mut inputs: Vec<(Vec<u8>, MeshFormat)> = Vec::new();
+    for entry in std::fs::read_dir(fixtures()).unwrap() {
+        let p = entry.unwrap().path();
+        if let Some(f) = MeshFormat::from_path(&p)
+            && f != MeshFormat::TetGen
+        {
+            inputs.push((std::fs::read(&p).unwrap(), f));
+        }
+    }
+    inputs.push((V22.as_bytes().to_vec(), MeshFormat::Gmsh));
+    inputs.push((VTK.as_bytes().to_vec(), MeshFormat::VtkLegacy));
+    let mut state = 0x9E37_79B9_7F4A_7C15u64;
+    let mut next = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    for (bytes, format) in &inputs {
+        for cut in (0..bytes.len()).step_by((bytes.len() / 97).max(1)) {
+            let _ = parse_tet_mesh(&bytes[..cut], *format, "t");
+        }
+        for _ in 0..300 {
+            let mut b = bytes.clone();
+            for _ in 0..1 + next() % 4 {
+                let i = (next() % b.len() as u64) as usize;
+                b[i] = match next() % 4 {
+                    0 => b'9',
+                    1 => b'\n',
+                    2 => b'-',
+                    _ => (next() & 0xff) as u8,
+                };
+            }
+            let _ = parse_tet_mesh(&b, *format, "t");
+        }
+    }
+    let obj = write_obj(&SurfaceMesh::boundary_of(&sample_mesh()));
+    for cut in (0..obj.len()).step_by(97) {
+        let _ = parse_obj(&obj[..cut], "t");
+    }
+}
