@@ -153,7 +153,7 @@ pub enum SceneError {
         /// File name.
         file: String,
         /// Parser error with position.
-        source: ron::error::SpannedError,
+        source: Box<ron::error::SpannedError>,
     },
     /// A body's settings are inconsistent or out of range.
     #[error("body {index} ({name}): {message}")]
@@ -264,7 +264,7 @@ impl Scene {
     pub fn from_ron(text: &str, file: &str) -> Result<Scene, SceneError> {
         let scene: Scene = ron::from_str(text).map_err(|source| SceneError::Ron {
             file: file.to_string(),
-            source,
+            source: Box::new(source),
         })?;
         scene.validate()?;
         Ok(scene)

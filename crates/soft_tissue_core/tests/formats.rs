@@ -394,7 +394,7 @@ fn vtk_malformed_inputs_name_the_problem() {
 fn vtu_malformed_inputs_are_errors() {
     let text = std::fs::read_to_string(fixtures().join("block_ascii.vtu")).unwrap();
     let e = parse_tet_mesh(
-        text[..text.len() / 2].as_bytes(),
+        &text.as_bytes()[..text.len() / 2],
         MeshFormat::Vtu,
         "bad.vtu",
     )

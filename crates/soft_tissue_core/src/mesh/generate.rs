@@ -225,7 +225,7 @@ pub fn stuff_fn(
     let size = bounds.1 - bounds.0 + Vec3::repeat(3.0 * h);
     let n = size.map(|s| (s / h).ceil() as usize + 1);
     let cells = n.x * n.y * n.z;
-    if !(cells < MAX_LATTICE_VERTICES) {
+    if cells >= MAX_LATTICE_VERTICES {
         return Err(GenerateError::Spacing {
             spacing: h,
             reason: format!("the lattice would have {cells} cells"),
@@ -625,8 +625,8 @@ impl Builder {
             self.val.push(-1.0);
             self.emit([cn, a[0], a[1], a[2]]);
             self.emit([cn, b[0], b[1], b[2]]);
-            for i in 0..3 {
-                self.pyramid(cn, quad(i), diag[i]);
+            for (i, &d) in diag.iter().enumerate() {
+                self.pyramid(cn, quad(i), d);
             }
             return;
         }

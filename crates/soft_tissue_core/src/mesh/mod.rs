@@ -313,7 +313,7 @@ impl TetMesh {
             let p = nodes.map(|n| positions[n]);
             let volume = tet_signed_volume(&p);
             let ratio = volume_ratio(&p, volume);
-            if !(ratio.abs() >= options.degenerate_ratio) {
+            if ratio.is_nan() || ratio.abs() < options.degenerate_ratio {
                 return Err(MeshError::DegenerateTet {
                     tet: t,
                     nodes: *nodes,

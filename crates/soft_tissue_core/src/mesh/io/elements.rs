@@ -148,26 +148,30 @@ mod tests {
 
     #[test]
     fn wedge_and_pyramid_volumes() {
-        let mut raw = RawMesh::default();
-        raw.positions = vec![
-            Vec3::new(0.0, 0.0, 0.0),
-            Vec3::new(1.0, 0.0, 0.0),
-            Vec3::new(0.0, 1.0, 0.0),
-            Vec3::new(0.0, 0.0, 2.0),
-            Vec3::new(1.0, 0.0, 2.0),
-            Vec3::new(0.0, 1.0, 2.0),
-        ];
+        let mut raw = RawMesh {
+            positions: vec![
+                Vec3::new(0.0, 0.0, 0.0),
+                Vec3::new(1.0, 0.0, 0.0),
+                Vec3::new(0.0, 1.0, 0.0),
+                Vec3::new(0.0, 0.0, 2.0),
+                Vec3::new(1.0, 0.0, 2.0),
+                Vec3::new(0.0, 1.0, 2.0),
+            ],
+            ..Default::default()
+        };
         split(&mut raw, VolumeKind::Wedge, &[0, 1, 2, 3, 4, 5], 0);
         let m = TetMesh::new(raw.positions.clone(), raw.tets.clone()).unwrap();
         assert!((m.volume() - 1.0).abs() < 1e-12); // 0.5 * 2
-        let mut raw = RawMesh::default();
-        raw.positions = vec![
-            Vec3::new(0.0, 0.0, 0.0),
-            Vec3::new(1.0, 0.0, 0.0),
-            Vec3::new(1.0, 1.0, 0.0),
-            Vec3::new(0.0, 1.0, 0.0),
-            Vec3::new(0.5, 0.5, 3.0),
-        ];
+        let mut raw = RawMesh {
+            positions: vec![
+                Vec3::new(0.0, 0.0, 0.0),
+                Vec3::new(1.0, 0.0, 0.0),
+                Vec3::new(1.0, 1.0, 0.0),
+                Vec3::new(0.0, 1.0, 0.0),
+                Vec3::new(0.5, 0.5, 3.0),
+            ],
+            ..Default::default()
+        };
         split(&mut raw, VolumeKind::Pyramid, &[0, 1, 2, 3, 4], 0);
         let m = TetMesh::new(raw.positions, raw.tets).unwrap();
         assert!((m.volume() - 1.0).abs() < 1e-12); // 1 * 3 / 3

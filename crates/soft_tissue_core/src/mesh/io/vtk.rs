@@ -494,7 +494,7 @@ pub(crate) fn parse_xml(data: &[u8], name: &str) -> Res<LoadedMesh> {
                 format!("piece {pi}: points are not numeric"),
             )
         })?;
-        if p.len() % 3 != 0 {
+        if !p.len().is_multiple_of(3) {
             return Err(FormatError::parse(
                 name,
                 super::Location::File,

@@ -1,0 +1,129 @@
+//! The `soft-tissue` binary end to end: JSON output, exit codes, conversion, generation.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_soft-tissue"))
+}
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("st-cli-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn info_json_has_the_documented_fields() {
+    let out = bin()
+        .args(["mesh", "info", "--json"])
+        .arg(root().join("tests/fixtures/block_v41_binary.msh"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["nodes"], 36);
+    assert_eq!(v["tets"], 72);
+    assert_eq!(v["components"], 1);
+    // A 3 x 2 x 2 block of cubes: 2 * (6 + 6 + 4) quads, 2 triangles each.
+    assert_eq!(v["surface_triangles"], 64);
+    assert!(v["volume"].as_f64().unwrap() > 0.5);
+    assert_eq!(v["bbox_min"].as_array().unwrap().len(), 3);
+    assert_eq!(v["bbox_max"].as_array().unwrap().len(), 3);
+    let warnings = v["warnings"].as_array().unwrap();
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("skipped"))
+    );
+}
+
+#[test]
+fn bad_input_exits_non_zero_with_the_error() {
+    let dir = tmp("bad");
+    let f = dir.join("broken.msh");
+    std::fs::write(
+        &f,
+        "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n2\n1 0 0 0\n",
+    )
+    .unwrap();
+    let out = bin().args(["mesh", "info"]).arg(&f).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("broken.msh") && err.contains("line"), "{err}");
+    let out = bin()
+        .args(["mesh", "info", "does-not-exist.vtk"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn convert_and_generate() {
+    let dir = tmp("conv");
+    let out = bin()
+        .args(["mesh", "generate", "spleen", "--out"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let vtk = dir.join("spleen.vtk");
+    for target in ["spleen.msh", "spleen.vtu", "spleen.node", "spleen.obj"] {
+        let out = bin()
+            .args(["mesh", "convert", "--binary"])
+            .arg(&vtk)
+            .arg(dir.join(target))
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{target}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    // Converted volume files describe the same mesh.
+    let info = |p: PathBuf| -> serde_json::Value {
+        let out = bin()
+            .args(["mesh", "info", "--json"])
+            .arg(p)
+            .output()
+            .unwrap();
+        assert!(out.status.success());
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let a = info(vtk);
+    for f in ["spleen.msh", "spleen.vtu", "spleen.ele"] {
+        let b = info(dir.join(f));
+        for key in [
+            "nodes",
+            "tets",
+            "surface_triangles",
+            "volume",
+            "bbox_min",
+            "bbox_max",
+        ] {
+            assert_eq!(a[key], b[key], "{f}: {key}");
+        }
+    }
+    let out = bin()
+        .args(["mesh", "generate", "kidney", "--out"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown body 'kidney'"));
+    std::fs::remove_dir_all(dir).ok();
+}
