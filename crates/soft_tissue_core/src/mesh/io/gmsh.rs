@@ -483,14 +483,9 @@ fn nodes_v41_ascii(c: &mut Cursor<'_>) -> Res<Nodes> {
         }
         debug_assert_eq!(out.tags.len() - first, n);
     }
-    if out.tags.len() != total {
-        return Err(c.err_at(
-            at,
-            format!(
-                "the header declares {total} nodes, the blocks hold {}",
-                out.tags.len()
-            ),
-        ));
+    let found = out.tags.len();
+    if found != total {
+        return Err(c.err_at(at, total_mismatch("nodes", total, found)));
     }
     expect_end(c, "$EndNodes", total, "nodes")?;
     Ok(out)
@@ -528,17 +523,17 @@ fn nodes_v41_binary(c: &mut Cursor<'_>, h: Header) -> Res<Nodes> {
             out.positions.push(p);
         }
     }
-    if out.tags.len() != total {
-        return Err(c.err_byte(
-            header_at,
-            format!(
-                "the header declares {total} nodes, the blocks hold {}",
-                out.tags.len()
-            ),
-        ));
+    let found = out.tags.len();
+    if found != total {
+        return Err(c.err_byte(header_at, total_mismatch("nodes", total, found)));
     }
     expect_end(c, "$EndNodes", total, "nodes")?;
     Ok(out)
+}
+
+/// Message for MSH 4.1 blocks that do not add up to the header's total.
+fn total_mismatch(what: &str, total: usize, found: usize) -> String {
+    format!("the header declares {total} {what}, the blocks hold {found}")
 }
 
 fn check_arity(c: &Cursor<'_>, at: usize, tag: u64, ty: u32, found: usize) -> Res<()> {
@@ -684,14 +679,9 @@ fn elements_v41_ascii(c: &mut Cursor<'_>) -> Res<Elements> {
             out.push(tag, ty, ids, at);
         }
     }
-    if out.tag.len() != total {
-        return Err(c.err_at(
-            at,
-            format!(
-                "the header declares {total} elements, the blocks hold {}",
-                out.tag.len()
-            ),
-        ));
+    let found = out.tag.len();
+    if found != total {
+        return Err(c.err_at(at, total_mismatch("elements", total, found)));
     }
     expect_end(c, "$EndElements", total, "elements")?;
     Ok(out)
@@ -727,14 +717,9 @@ fn elements_v41_binary(c: &mut Cursor<'_>, h: Header) -> Res<Elements> {
             out.push(tag, ty, ids[..nn].iter().copied(), at);
         }
     }
-    if out.tag.len() != total {
-        return Err(c.err_byte(
-            header_at,
-            format!(
-                "the header declares {total} elements, the blocks hold {}",
-                out.tag.len()
-            ),
-        ));
+    let found = out.tag.len();
+    if found != total {
+        return Err(c.err_byte(header_at, total_mismatch("elements", total, found)));
     }
     expect_end(c, "$EndElements", total, "elements")?;
     Ok(out)

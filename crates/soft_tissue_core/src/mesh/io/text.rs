@@ -208,32 +208,22 @@ impl<'a, 'c> LineFields<'a, 'c> {
     }
 
     pub fn usize(&self, i: usize, what: &str) -> Res<usize> {
-        let tok = self.tok(i, what)?;
-        parse_usize(tok).ok_or_else(|| {
-            self.cursor.err_at(
-                self.start,
-                format!("{what}: '{}' is not a non-negative integer", show(tok)),
-            )
-        })
+        self.parsed(i, what, "a non-negative integer", parse_usize)
     }
 
     pub fn i64(&self, i: usize, what: &str) -> Res<i64> {
-        let tok = self.tok(i, what)?;
-        parse_i64(tok).ok_or_else(|| {
-            self.cursor.err_at(
-                self.start,
-                format!("{what}: '{}' is not an integer", show(tok)),
-            )
-        })
+        self.parsed(i, what, "an integer", parse_i64)
     }
 
     pub fn f64(&self, i: usize, what: &str) -> Res<f64> {
+        self.parsed(i, what, "a number", parse_f64)
+    }
+
+    fn parsed<T>(&self, i: usize, what: &str, kind: &str, parse: fn(&[u8]) -> Option<T>) -> Res<T> {
         let tok = self.tok(i, what)?;
-        parse_f64(tok).ok_or_else(|| {
-            self.cursor.err_at(
-                self.start,
-                format!("{what}: '{}' is not a number", show(tok)),
-            )
+        parse(tok).ok_or_else(|| {
+            self.cursor
+                .err_at(self.start, format!("{what}: '{}' is not {kind}", show(tok)))
         })
     }
 
