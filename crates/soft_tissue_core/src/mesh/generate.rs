@@ -312,7 +312,7 @@ pub fn stuff_fn(
 /// volume, the new tets tile the same star (a cone from `w` over the star's boundary), so the
 /// mesh stays conforming.
 pub fn coarsen_interior(mesh: &TetMesh, min_dihedral_deg: f64) -> Result<TetMesh, MeshError> {
-    let mut pos = mesh.positions().to_vec();
+    let pos = mesh.positions();
     let mut tets: Vec<[usize; 4]> = mesh.tets().iter().map(|t| t.map(|v| v as usize)).collect();
     let mut alive = vec![true; tets.len()];
     let mut star: Vec<Vec<usize>> = vec![Vec::new(); pos.len()];
@@ -405,7 +405,6 @@ pub fn coarsen_interior(mesh: &TetMesh, min_dihedral_deg: f64) -> Result<TetMesh
             map[v]
         }));
     }
-    pos.clear();
     TetMesh::new(positions, out)
 }
 

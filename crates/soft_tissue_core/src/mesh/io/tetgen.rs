@@ -3,7 +3,7 @@
 //! corners.
 
 use super::text::{Cursor, LineFields, Res};
-use super::{FormatError, LoadedMesh, RawMesh};
+use super::{LoadedMesh, RawMesh};
 use crate::Vec3;
 use crate::mesh::TetMesh;
 use std::collections::HashMap;
@@ -147,18 +147,7 @@ pub(crate) fn parse(node: &[u8], node_name: &str, ele: &[u8], ele_name: &str) ->
     if let Some((at, _)) = content_line(&mut c) {
         return Err(c.err_at(at, format!("more tetrahedron lines than the {m} declared")));
     }
-    raw.finish(ele_name).map_err(|e| match e {
-        FormatError::Mesh {
-            file,
-            element,
-            source,
-        } => FormatError::Mesh {
-            file,
-            element,
-            source,
-        },
-        other => other,
-    })
+    raw.finish(ele_name)
 }
 
 /// Writes the `.node` and `.ele` contents (1-based numbering, TetGen's default).

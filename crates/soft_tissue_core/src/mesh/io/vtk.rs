@@ -74,10 +74,8 @@ fn add_cells<'c>(
                 ),
             ));
         }
-        if matches!(u, CellUse::Skip(_)) {
-            if let CellUse::Skip(what) = u {
-                raw.skip(what);
-            }
+        if let CellUse::Skip(what) = u {
+            raw.skip(what);
             continue;
         }
         let mut idx = [0usize; 27];
