@@ -405,6 +405,14 @@ fn vtu_malformed_inputs_are_errors() {
     assert!(e.to_string().contains("no tetrahedra"), "{e}");
 }
 
+/// Regression: a VTU Piece without <Points> made vtkio panic (found by the `vtu` fuzz target).
+#[test]
+fn vtu_piece_without_points_is_an_error_not_a_panic() {
+    let bytes = std::fs::read(fixtures().join("regressions/vtu_piece_without_points.vtu")).unwrap();
+    let e = parse_tet_mesh(&bytes, MeshFormat::Vtu, "crash.vtu").unwrap_err();
+    assert!(e.to_string().starts_with("crash.vtu: "), "{e}");
+}
+
 #[test]
 fn tetgen_and_obj_malformed_inputs_name_the_line() {
     let node = "# c\n4 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n";

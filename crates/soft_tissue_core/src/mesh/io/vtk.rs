@@ -452,7 +452,22 @@ fn build(
 /// Parses a VTK XML unstructured grid (`.vtu`) through `vtkio`.
 pub(crate) fn parse_xml(data: &[u8], name: &str) -> Res<LoadedMesh> {
     use vtkio::model::{DataSet, Piece, VertexNumbers};
-    let vtk = vtkio::Vtk::parse_xml(data).map_err(|e| {
+    // vtkio 0.7.0-rc2 unwraps optional elements while converting XML to its model (found by
+    // fuzzing: a Piece without <Points> panics in xml.rs). Until that is fixed upstream, a
+    // panic inside vtkio becomes an error here. With `panic = "abort"` this guard cannot help.
+    let parsed = std::panic::catch_unwind(|| vtkio::Vtk::parse_xml(data)).map_err(|payload| {
+        let why = payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown".into());
+        FormatError::parse(
+            name,
+            super::Location::File,
+            format!("malformed VTK XML: a required element is missing (vtkio failed: {why})"),
+        )
+    })?;
+    let vtk = parsed.map_err(|e| {
         FormatError::parse(name, super::Location::File, format!("invalid VTK XML: {e}"))
     })?;
     let pieces = match vtk.data {
