@@ -455,6 +455,14 @@ pub(crate) fn parse_xml(data: &[u8], name: &str) -> Res<LoadedMesh> {
     // vtkio 0.7.0-rc2 unwraps optional elements while converting XML to its model (found by
     // fuzzing: a Piece without <Points> panics in xml.rs). Until that is fixed upstream, a
     // panic inside vtkio becomes an error here. With `panic = "abort"` this guard cannot help.
+    let count = |needle: &[u8]| data.windows(needle.len()).filter(|w| *w == needle).count();
+    if count(b"<Points") < count(b"<Piece ") {
+        return Err(FormatError::parse(
+            name,
+            super::Location::File,
+            "malformed VTK XML: a <Piece> has no <Points>",
+        ));
+    }
     let parsed = std::panic::catch_unwind(|| vtkio::Vtk::parse_xml(data)).map_err(|payload| {
         let why = payload
             .downcast_ref::<&str>()
