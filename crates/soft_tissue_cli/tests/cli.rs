@@ -11,6 +11,17 @@ fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
+/// Runs the binary and returns its stdout, failing the test with stderr on a non-zero exit.
+fn run_ok(args: &[&std::ffi::OsStr]) -> Vec<u8> {
+    let out = bin().args(args).output().unwrap();
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out.stdout
+}
+
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("st-cli-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();
@@ -19,17 +30,14 @@ fn tmp(name: &str) -> PathBuf {
 
 #[test]
 fn info_json_has_the_documented_fields() {
-    let out = bin()
-        .args(["mesh", "info", "--json"])
-        .arg(root().join("tests/fixtures/block_v41_binary.msh"))
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let fixture = root().join("tests/fixtures/block_v41_binary.msh");
+    let stdout = run_ok(&[
+        "mesh".as_ref(),
+        "info".as_ref(),
+        "--json".as_ref(),
+        fixture.as_os_str(),
+    ]);
+    let v: serde_json::Value = serde_json::from_slice(&stdout).unwrap();
     assert_eq!(v["nodes"], 36);
     assert_eq!(v["tets"], 72);
     assert_eq!(v["components"], 1);
@@ -70,39 +78,33 @@ fn bad_input_exits_non_zero_with_the_error() {
 #[test]
 fn convert_and_generate() {
     let dir = tmp("conv");
-    let out = bin()
-        .args(["mesh", "generate", "spleen", "--out"])
-        .arg(&dir)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    run_ok(&[
+        "mesh".as_ref(),
+        "generate".as_ref(),
+        "spleen".as_ref(),
+        "--out".as_ref(),
+        dir.as_os_str(),
+    ]);
     let vtk = dir.join("spleen.vtk");
     for target in ["spleen.msh", "spleen.vtu", "spleen.node", "spleen.obj"] {
-        let out = bin()
-            .args(["mesh", "convert", "--binary"])
-            .arg(&vtk)
-            .arg(dir.join(target))
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{target}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        let out = dir.join(target);
+        run_ok(&[
+            "mesh".as_ref(),
+            "convert".as_ref(),
+            "--binary".as_ref(),
+            vtk.as_os_str(),
+            out.as_os_str(),
+        ]);
     }
     // Converted volume files describe the same mesh.
     let info = |p: PathBuf| -> serde_json::Value {
-        let out = bin()
-            .args(["mesh", "info", "--json"])
-            .arg(p)
-            .output()
-            .unwrap();
-        assert!(out.status.success());
-        serde_json::from_slice(&out.stdout).unwrap()
+        serde_json::from_slice(&run_ok(&[
+            "mesh".as_ref(),
+            "info".as_ref(),
+            "--json".as_ref(),
+            p.as_os_str(),
+        ]))
+        .unwrap()
     };
     let a = info(vtk);
     for f in ["spleen.msh", "spleen.vtu", "spleen.ele"] {

@@ -328,34 +328,25 @@ fn vtk_malformed_inputs_name_the_problem() {
         8,
         "'CELLS' is not a number",
     );
-    let e = parse_err(
-        &VTK.replace("CELLS 1 5", "CELLS 1 6"),
-        MeshFormat::VtkLegacy,
-    );
-    assert!(e.to_string().contains("CELLS"), "{e}");
-    let e = parse_err(
-        &VTK.replace("4 0 1 2 3", "4 0 1 2 9"),
-        MeshFormat::VtkLegacy,
-    );
-    assert!(
-        e.to_string()
-            .contains("cell 0 refers to point 9, but there are 4 points"),
-        "{e}"
-    );
-    let e = parse_err(
-        &VTK.replace("4 0 1 2 3", "3 0 1 2 3"),
-        MeshFormat::VtkLegacy,
-    );
-    assert!(e.to_string().contains("CELLS"), "{e}");
-    let e = parse_err(
-        &VTK.replace("CELLS 1 5\n4 0 1 2 3", "CELLS 1 4\n3 0 1 2"),
-        MeshFormat::VtkLegacy,
-    );
-    assert!(
-        e.to_string()
-            .contains("cell 0 of type 10 (tetra) has 3 points, needs 4"),
-        "{e}"
-    );
+    // (replace this, with this, the message must contain)
+    let cases = [
+        ("CELLS 1 5", "CELLS 1 6", "CELLS"),
+        (
+            "4 0 1 2 3",
+            "4 0 1 2 9",
+            "cell 0 refers to point 9, but there are 4 points",
+        ),
+        ("4 0 1 2 3", "3 0 1 2 3", "CELLS"),
+        (
+            "CELLS 1 5\n4 0 1 2 3",
+            "CELLS 1 4\n3 0 1 2",
+            "cell 0 of type 10 (tetra) has 3 points, needs 4",
+        ),
+    ];
+    for (from, to, needle) in cases {
+        let e = parse_err(&VTK.replace(from, to), MeshFormat::VtkLegacy);
+        assert!(e.to_string().contains(needle), "{e}");
+    }
     let e = parse_err(&VTK[..VTK.len() - 3], MeshFormat::VtkLegacy);
     assert!(
         e.to_string()

@@ -252,6 +252,9 @@ pub fn stuff_fn(
     };
 
     // Warping: a vertex violated by a cut point on one of its edges moves onto the closest one.
+    // Cut points are bisected from the inside end and kept: an edge whose two ends are not
+    // warped keeps its cut point for the stencils below.
+    let mut known_cuts: HashMap<(usize, usize), Vec3> = HashMap::new();
     for v in 0..total {
         if val[v] == 0.0 {
             continue;
@@ -261,7 +264,11 @@ pub fn stuff_fn(
             if val[w] == 0.0 || (val[w] < 0.0) == (val[v] < 0.0) {
                 continue;
             }
-            let c = cut(v, w, &pos, &val);
+            let key = (v.min(w), v.max(w));
+            let c = *known_cuts.entry(key).or_insert_with(|| {
+                let (i, o) = if val[v] < 0.0 { (v, w) } else { (w, v) };
+                cut(i, o, &pos, &val)
+            });
             let len = if long { h } else { h * 3f64.sqrt() * 0.5 };
             let alpha = if long { ALPHA_LONG } else { ALPHA_SHORT };
             let d = (c - pos[v]).norm();
@@ -278,6 +285,7 @@ pub fn stuff_fn(
     let mut b = Builder {
         pos,
         val,
+        known_cuts,
         cuts: HashMap::new(),
         tets: Vec::new(),
     };
@@ -533,6 +541,8 @@ impl Lattice {
 struct Builder {
     pos: Vec<Vec3>,
     val: Vec<f64>,
+    /// Cut points already bisected during warping, by edge.
+    known_cuts: HashMap<(usize, usize), Vec3>,
     cuts: HashMap<(usize, usize), usize>,
     tets: Vec<[usize; 4]>,
 }
@@ -560,8 +570,13 @@ impl Builder {
             return n;
         }
         // Always bisect from the inside end so both orders give the same point.
-        let (i, o) = if self.val[a] < 0.0 { (a, b) } else { (b, a) };
-        let p = cut(i, o, &self.pos, &self.val);
+        let p = match self.known_cuts.get(&key) {
+            Some(&p) => p,
+            None => {
+                let (i, o) = if self.val[a] < 0.0 { (a, b) } else { (b, a) };
+                cut(i, o, &self.pos, &self.val)
+            }
+        };
         let n = self.pos.len();
         self.pos.push(p);
         self.val.push(0.0);
