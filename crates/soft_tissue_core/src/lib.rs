@@ -8,13 +8,21 @@
 //! - [`mesh`]: tetrahedral meshes, derived topology, validation, quality, mesh files
 //!   ([`mesh::io`]) and generated organ shapes ([`mesh::generate`]).
 //! - [`material`]: the physical parameters of the paper's methods, with units.
+//! - [`fem`]: linear and corotational tetrahedral FEM with implicit Euler.
+//! - [`msd`]: mass-spring-damper bodies with RK4, symplectic and implicit Euler.
+//! - [`boundary`]: fixed nodes and soft anchors shared by the solvers.
+//! - [`linalg`]: block-sparse matrices, sparse Cholesky (`faer`), preconditioned CG.
 //! - [`scenario`]: the paper's two scenes (cylinders, organs) as serialisable data.
 //!
 //! Conventions: SI-like units chosen by the scene (the paper's scenes are unit-free, see
 //! [`scenario`]), `f64` throughout the core, `f32` only at the render boundary in the plugin.
 
+pub mod boundary;
+pub mod fem;
+pub mod linalg;
 pub mod material;
 pub mod mesh;
+pub mod msd;
 pub mod scenario;
 
 /// Three-component vector used for positions, displacements and forces (`f64`).

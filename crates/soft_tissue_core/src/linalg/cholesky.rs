@@ -1,0 +1,188 @@
+//! Sparse Cholesky factorization of a [`BlockSparse`] system with fixed degrees of freedom,
+//! through `faer` (fill-reducing AMD ordering, symbolic analysis once, numeric factorization
+//! when the values change, allocation-free solves).
+
+use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::linalg::cholesky::llt::factor::{LltError, LltRegularization};
+use faer::sparse::linalg::cholesky::{
+    CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
+    factorize_symbolic_cholesky,
+};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMat};
+use faer::{Conj, MatMut, Par, Side};
+
+use super::{BlockSparse, LinalgError};
+
+const ENTRY_ZERO: u32 = u32::MAX;
+const ENTRY_ONE: u32 = u32::MAX - 1;
+
+/// `L L^T` factorization of the scalar matrix behind a [`BlockSparse`], where the rows and
+/// columns of fixed degrees of freedom are replaced by the identity (so a right-hand side that
+/// is zero there gives a solution that is zero there).
+pub struct SparseCholesky {
+    dim: usize,
+    symbolic_a: SymbolicSparseColMat<usize>,
+    /// For each stored upper-triangle entry: the flat index `9 * block + (a + 3 b)` into the
+    /// block storage, or a sentinel for a fixed entry (zero, or one on the diagonal).
+    source: Vec<u32>,
+    a_values: Vec<f64>,
+    symbolic: SymbolicCholesky<usize>,
+    l_values: Vec<f64>,
+    factored: bool,
+    stack: MemBuffer,
+}
+
+impl std::fmt::Debug for SparseCholesky {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SparseCholesky")
+            .field("dim", &self.dim)
+            .field("a_nnz", &self.a_values.len())
+            .field("l_nnz", &self.l_values.len())
+            .finish()
+    }
+}
+
+impl SparseCholesky {
+    /// Symbolic analysis of the pattern of `matrix` with `fixed[dof]` marking the eliminated
+    /// degrees of freedom (`3 * node + axis`).
+    ///
+    /// # Panics
+    /// If `fixed.len() != 3 * matrix.nodes()`.
+    pub fn new(matrix: &BlockSparse, fixed: &[bool]) -> Result<Self, LinalgError> {
+        let n = matrix.nodes();
+        let dim = 3 * n;
+        assert_eq!(fixed.len(), dim, "one fixed flag per degree of freedom");
+        // Upper triangle by column: for scalar column c = 3j + b, rows r = 3i + a <= c with
+        // block (i, j) stored. The block row i of column j is block column i of row j (the
+        // pattern is symmetric), so walk row j of the block matrix.
+        let mut col_ptr = Vec::with_capacity(dim + 1);
+        let mut row_idx = Vec::new();
+        let mut source = Vec::new();
+        col_ptr.push(0usize);
+        for j in 0..n {
+            let (cols, range) = matrix.row(j);
+            for b in 0..3 {
+                let c = 3 * j + b;
+                for (&i, _k) in cols.iter().zip(range.clone()) {
+                    let i = i as usize;
+                    if i > j {
+                        break;
+                    }
+                    // Block (i, j) is the transpose of block (j, i) = storage k of row j; use
+                    // block (i, j) itself for clarity.
+                    let kij = matrix.block_index(i, j).expect("symmetric pattern");
+                    for a in 0..3 {
+                        let r = 3 * i + a;
+                        if r > c {
+                            continue;
+                        }
+                        row_idx.push(r);
+                        source.push(if fixed[r] || fixed[c] {
+                            if r == c { ENTRY_ONE } else { ENTRY_ZERO }
+                        } else {
+                            (9 * kij + a + 3 * b) as u32
+                        });
+                    }
+                }
+                col_ptr.push(row_idx.len());
+            }
+        }
+        let symbolic_a = SymbolicSparseColMat::new_checked(dim, dim, col_ptr, None, row_idx);
+        let symbolic = factorize_symbolic_cholesky(
+            symbolic_a.as_ref(),
+            Side::Upper,
+            SymmetricOrdering::Amd,
+            CholeskySymbolicParams::default(),
+        )
+        .map_err(|e| LinalgError::Symbolic(format!("{e:?}")))?;
+        let req = StackReq::any_of(&[
+            symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
+            symbolic.solve_in_place_scratch::<f64>(1, Par::Seq),
+        ]);
+        let stack = MemBuffer::try_new(req).map_err(|_| LinalgError::OutOfMemory)?;
+        let l_values = vec![0.0; symbolic.len_val()];
+        let a_values = vec![0.0; source.len()];
+        Ok(SparseCholesky {
+            dim,
+            symbolic_a,
+            source,
+            a_values,
+            symbolic,
+            l_values,
+            factored: false,
+            stack,
+        })
+    }
+
+    /// Number of scalar unknowns.
+    pub fn dim(&self) -> usize {
+        self.dim
+    }
+
+    /// Number of stored entries of the factor `L`.
+    pub fn factor_nnz(&self) -> usize {
+        self.l_values.len()
+    }
+
+    /// Numeric factorization of the current values of `matrix` (same pattern as at
+    /// construction). On failure the previous factorization is discarded.
+    pub fn factorize(&mut self, matrix: &BlockSparse) -> Result<(), LinalgError> {
+        let blocks = matrix.blocks();
+        for (v, &s) in self.a_values.iter_mut().zip(&self.source) {
+            *v = match s {
+                ENTRY_ZERO => 0.0,
+                ENTRY_ONE => 1.0,
+                s => {
+                    let s = s as usize;
+                    blocks[s / 9][s % 9]
+                }
+            };
+        }
+        if let Some(bad) = self.a_values.iter().position(|v| !v.is_finite()) {
+            self.factored = false;
+            return Err(LinalgError::NonFinite {
+                dof: self.symbolic_a.row_idx()[bad],
+            });
+        }
+        let a = SparseColMatRef::new(self.symbolic_a.as_ref(), &self.a_values);
+        let result = self.symbolic.factorize_numeric_llt(
+            &mut self.l_values,
+            a,
+            Side::Upper,
+            LltRegularization::default(),
+            Par::Seq,
+            MemStack::new(&mut self.stack),
+            Default::default(),
+        );
+        match result {
+            Ok(_) => {
+                self.factored = true;
+                Ok(())
+            }
+            Err(LltError::NonPositivePivot { index }) => {
+                self.factored = false;
+                let dof = match self.symbolic.perm() {
+                    Some(p) => p.arrays().0[index],
+                    None => index,
+                };
+                Err(LinalgError::NotPositiveDefinite { dof })
+            }
+        }
+    }
+
+    /// Solves `A x = rhs` in place. Does nothing but return an error when no factorization is
+    /// held.
+    ///
+    /// # Panics
+    /// If `rhs.len() != self.dim()`.
+    pub fn solve_in_place(&mut self, rhs: &mut [f64]) -> Result<(), LinalgError> {
+        if !self.factored {
+            return Err(LinalgError::NotFactored);
+        }
+        let llt = LltRef::new(&self.symbolic, &self.l_values);
+        let dim = self.dim;
+        let rhs = MatMut::from_column_major_slice_mut(rhs, dim, 1);
+        llt.solve_in_place_with_conj(Conj::No, rhs, Par::Seq, MemStack::new(&mut self.stack));
+        Ok(())
+    }
+}

@@ -1,0 +1,39 @@
+//! Sparse linear algebra for the implicit solvers: block-sparse 3x3 matrices with a fixed
+//! pattern, a sparse Cholesky factorization (`faer`), and preconditioned conjugate gradients.
+
+mod bsr;
+mod cholesky;
+mod pcg;
+
+pub use bsr::BlockSparse;
+pub use cholesky::SparseCholesky;
+pub use pcg::{CgStats, ImplicitSystem};
+
+/// A failure of the linear algebra, naming the degree of freedom (`3 * node + axis`).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LinalgError {
+    /// The matrix is not positive definite: a pivot was zero or negative.
+    #[error(
+        "matrix not positive definite at degree of freedom {dof} (node {}, axis {}): the body may lack constraints against rigid motion, or a parameter is non-physical",
+        dof / 3, dof % 3
+    )]
+    NotPositiveDefinite {
+        /// Degree of freedom whose pivot failed.
+        dof: usize,
+    },
+    /// A matrix entry is NaN or infinite.
+    #[error("matrix entry for degree of freedom {dof} (node {}, axis {}) is not finite", dof / 3, dof % 3)]
+    NonFinite {
+        /// Degree of freedom (row) of the entry.
+        dof: usize,
+    },
+    /// A solve was attempted before a successful factorization.
+    #[error("no factorization is held (the last one failed or none was made)")]
+    NotFactored,
+    /// The symbolic analysis failed.
+    #[error("symbolic analysis failed: {0}")]
+    Symbolic(String),
+    /// The workspace could not be allocated.
+    #[error("out of memory allocating the factorization workspace")]
+    OutOfMemory,
+}

@@ -1,0 +1,950 @@
+//! Mass-spring-damper bodies (paper section III-C, eq. 6-7).
+//!
+//! Node `i` obeys `m_i a_i = -gamma v_i + sum_j g_ij + f_i` with Hooke springs
+//! `g_ij = k (|x_j - x_i| - L_ij) (x_j - x_i) / |x_j - x_i|` (plus gravity and soft anchors).
+//! Springs come from the tetrahedron edges, optionally with bending springs joining the two
+//! opposite nodes of face-adjacent tetrahedra (they resist shear and volume loss).
+//!
+//! Integrators: classical RK4 (the paper), symplectic Euler, and linearised implicit Euler
+//! (`(M + h gamma + h^2 K) dv = h (f - h K v)`, `K` the spring Jacobian with its compressive
+//! transverse part clamped so it stays positive semi-definite), solved by CG preconditioned with
+//! the rest-state Cholesky factorization. Explicit integrators have a stability limit, bounded
+//! from the stiffness and masses when the body is built; a step longer than the limit is split
+//! into equal substeps, or refused with [`MsdError::TimeStepTooLarge`], as configured. Nothing
+//! allocates in a step; a step that would produce NaN is rolled back and reported.
+
+// Index loops over parallel per-node arrays read clearer than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
+
+use nalgebra::Matrix3;
+use serde::{Deserialize, Serialize};
+
+use crate::Vec3;
+use crate::boundary::{Boundary, BoundaryError};
+use crate::linalg::{BlockSparse, CgStats, ImplicitSystem, LinalgError};
+use crate::material::MsdParams;
+use crate::mesh::TetMesh;
+
+/// Time integrator of an MSD body.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum MsdIntegrator {
+    /// Classical fourth-order Runge-Kutta (the paper). Explicit: has a stability limit.
+    #[default]
+    Rk4,
+    /// Symplectic (semi-implicit) Euler: velocity first, then position. Explicit.
+    SymplecticEuler,
+    /// Linearised backward Euler with a sparse solve: stable for stiff springs and long steps.
+    ImplicitEuler,
+}
+
+/// Which springs a mesh gives.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum SpringSet {
+    /// One spring per tetrahedron edge (the paper).
+    #[default]
+    Edges,
+    /// Edges plus a spring between the opposite nodes of every pair of face-adjacent
+    /// tetrahedra.
+    EdgesAndBending,
+}
+
+/// What an explicit integrator does with a step longer than its stability limit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ExplicitLimit {
+    /// Split the step into equal substeps below the limit, at most this many.
+    Substep {
+        /// Largest number of substeps per step before refusing.
+        max_substeps: u32,
+    },
+    /// Refuse the step with an error.
+    Refuse,
+}
+
+impl Default for ExplicitLimit {
+    fn default() -> Self {
+        ExplicitLimit::Substep { max_substeps: 64 }
+    }
+}
+
+/// Settings of an MSD body.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MsdConfig {
+    /// Integrator. Default RK4.
+    pub integrator: MsdIntegrator,
+    /// Stiffness of every mesh spring, force / length (mesh constructor only).
+    pub stiffness: f64,
+    /// Total mass, lumped onto nodes by volume share (mesh constructor only).
+    pub mass: f64,
+    /// Per-node damping `gamma`, force * time / length.
+    pub damping: f64,
+    /// Springs made from a mesh. Default: edges.
+    pub springs: SpringSet,
+    /// Time step, time.
+    pub dt: f64,
+    /// Gravity, length / time^2. Default zero.
+    pub gravity: Vec3,
+    /// Policy above the explicit stability limit. Default: up to 64 substeps.
+    pub explicit_limit: ExplicitLimit,
+    /// Relative residual at which the implicit CG stops. Default 1e-6.
+    pub cg_tolerance: f64,
+    /// Iteration cap of the implicit CG. Default 50.
+    pub cg_max_iterations: u32,
+}
+
+impl MsdConfig {
+    /// RK4 with the paper's parameters and time step.
+    pub fn paper(params: &MsdParams, dt: f64) -> Self {
+        MsdConfig {
+            integrator: MsdIntegrator::Rk4,
+            stiffness: params.stiffness,
+            mass: params.mass,
+            damping: params.damping,
+            springs: SpringSet::Edges,
+            dt,
+            gravity: Vec3::zeros(),
+            explicit_limit: ExplicitLimit::default(),
+            cg_tolerance: 1e-6,
+            cg_max_iterations: 50,
+        }
+    }
+
+    /// Checks every field; the error names it.
+    pub fn validate(&self) -> Result<(), MsdError> {
+        let bad =
+            |field: &'static str, message: String| Err(MsdError::InvalidConfig { field, message });
+        let pos = |v: f64| v.is_finite() && v > 0.0;
+        if !(self.stiffness.is_finite() && self.stiffness >= 0.0) {
+            return bad(
+                "stiffness",
+                format!("must be >= 0, found {}", self.stiffness),
+            );
+        }
+        if !pos(self.mass) {
+            return bad("mass", format!("must be positive, found {}", self.mass));
+        }
+        if !(self.damping.is_finite() && self.damping >= 0.0) {
+            return bad("damping", format!("must be >= 0, found {}", self.damping));
+        }
+        if !pos(self.dt) {
+            return bad("dt", format!("must be positive, found {}", self.dt));
+        }
+        if !self.gravity.iter().all(|g| g.is_finite()) {
+            return bad(
+                "gravity",
+                format!("must be finite, found {:?}", self.gravity),
+            );
+        }
+        if let ExplicitLimit::Substep { max_substeps: 0 } = self.explicit_limit {
+            return bad("explicit_limit", "max_substeps must be at least 1".into());
+        }
+        if !pos(self.cg_tolerance) {
+            return bad(
+                "cg_tolerance",
+                format!("must be positive, found {}", self.cg_tolerance),
+            );
+        }
+        if self.cg_max_iterations == 0 {
+            return bad("cg_max_iterations", "must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// A spring between two nodes.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Spring {
+    /// First node.
+    pub a: u32,
+    /// Second node.
+    pub b: u32,
+    /// Stiffness, force / length.
+    pub stiffness: f64,
+    /// Rest length.
+    pub rest_length: f64,
+}
+
+/// An MSD failure, naming what and where.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MsdError {
+    /// A configuration field is out of range.
+    #[error("MSD config field `{field}` {message}")]
+    InvalidConfig {
+        /// The field.
+        field: &'static str,
+        /// What is wrong.
+        message: String,
+    },
+    /// A spring is malformed.
+    #[error("spring {spring}: {message}")]
+    BadSpring {
+        /// Index of the spring.
+        spring: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// A node is malformed (mass not positive, position not finite).
+    #[error("node {node}: {message}")]
+    BadNode {
+        /// The node.
+        node: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// The boundary conditions do not fit.
+    #[error(transparent)]
+    Boundary(#[from] BoundaryError),
+    /// The step of an explicit integrator is above its stability limit and the policy refuses
+    /// it (or would need more substeps than allowed).
+    #[error(
+        "time step {dt} exceeds the {integrator:?} stability limit {limit:.3e} (would need {needed} substeps, {allowed} allowed); use a smaller dt, more substeps or the implicit integrator"
+    )]
+    TimeStepTooLarge {
+        /// Integrator.
+        integrator: MsdIntegrator,
+        /// Requested step.
+        dt: f64,
+        /// Estimated limit.
+        limit: f64,
+        /// Substeps that would be needed.
+        needed: u64,
+        /// Substeps allowed by the policy (0 when refusing).
+        allowed: u32,
+    },
+    /// A linear solve failed (implicit integrator).
+    #[error("MSD linear solve failed: {0}")]
+    Linalg(#[from] LinalgError),
+    /// A value given, or produced by a step, is NaN or infinite; a step that produces one is
+    /// rolled back.
+    #[error("{what} of node {node} is not finite")]
+    NonFinite {
+        /// `"external force"`, `"position"`, `"velocity"`.
+        what: &'static str,
+        /// The node.
+        node: usize,
+    },
+}
+
+/// What the last step did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct MsdStepStats {
+    /// Substeps taken (1 when none were needed).
+    pub substeps: u32,
+    /// Implicit integrator: the CG solve.
+    pub cg: CgStats,
+}
+
+/// A mass-spring-damper body.
+#[derive(Debug)]
+pub struct MsdBody {
+    config: MsdConfig,
+    rest: Vec<Vec3>,
+    x: Vec<Vec3>,
+    v: Vec<Vec3>,
+    f_ext: Vec<Vec3>,
+    mass: Vec<f64>,
+    springs: Vec<Spring>,
+    fixed: Vec<[bool; 3]>,
+    anchor_k: Vec<f64>,
+    anchor_target: Vec<Vec3>,
+    /// Bound on the largest angular frequency (rad / time) and damping rate (1 / time).
+    omega_max: f64,
+    damping_rate: f64,
+    // Workspaces.
+    kx: [Vec<Vec3>; 4],
+    kv: [Vec<Vec3>; 4],
+    xt: Vec<Vec3>,
+    vt: Vec<Vec3>,
+    backup_x: Vec<Vec3>,
+    backup_v: Vec<Vec3>,
+    implicit: Option<Implicit>,
+    stats: MsdStepStats,
+}
+
+#[derive(Debug)]
+struct Implicit {
+    system: ImplicitSystem,
+    /// Per spring: block indices (aa, bb, ab, ba).
+    blocks: Vec<[u32; 4]>,
+    rhs: Vec<Vec3>,
+    dv: Vec<Vec3>,
+}
+
+impl MsdBody {
+    /// An MSD on the nodes and edges of a tetrahedral mesh, at rest in the mesh's shape.
+    pub fn from_mesh(
+        mesh: &TetMesh,
+        config: MsdConfig,
+        boundary: &Boundary,
+    ) -> Result<Self, MsdError> {
+        config.validate()?;
+        let positions = mesh.positions().to_vec();
+        let n = positions.len();
+        let mut share = vec![0.0; n];
+        for (tet, vol) in mesh.tets().iter().zip(mesh.tet_volumes()) {
+            for &i in tet {
+                share[i as usize] += vol.abs() / 4.0;
+            }
+        }
+        let total: f64 = share.iter().sum();
+        let min_share = share
+            .iter()
+            .copied()
+            .filter(|&s| s > 0.0)
+            .fold(f64::INFINITY, f64::min);
+        let masses: Vec<f64> = share
+            .iter()
+            .map(|&s| config.mass * if s > 0.0 { s } else { min_share } / total)
+            .collect();
+        let mut pairs: Vec<[u32; 2]> = mesh.edges().to_vec();
+        if config.springs == SpringSet::EdgesAndBending {
+            let edges: std::collections::HashSet<[u32; 2]> = pairs.iter().copied().collect();
+            let tets = mesh.tets();
+            let mut extra = std::collections::BTreeSet::new();
+            for (t, nb) in mesh.tet_neighbors().iter().enumerate() {
+                for &u in nb {
+                    let u = u as usize;
+                    if u >= tets.len() || u < t {
+                        continue;
+                    }
+                    let a = tets[t].iter().find(|i| !tets[u].contains(i));
+                    let b = tets[u].iter().find(|i| !tets[t].contains(i));
+                    if let (Some(&a), Some(&b)) = (a, b) {
+                        let key = [a.min(b), a.max(b)];
+                        if !edges.contains(&key) {
+                            extra.insert(key);
+                        }
+                    }
+                }
+            }
+            pairs.extend(extra);
+        }
+        let springs = pairs
+            .iter()
+            .map(|&[a, b]| Spring {
+                a,
+                b,
+                stiffness: config.stiffness,
+                rest_length: (positions[b as usize] - positions[a as usize]).norm(),
+            })
+            .collect();
+        MsdBody::new(positions, masses, springs, config, boundary)
+    }
+
+    /// An MSD from explicit nodes (positions are the initial state), masses and springs.
+    /// `config.stiffness` and `config.mass` are not used.
+    pub fn new(
+        positions: Vec<Vec3>,
+        masses: Vec<f64>,
+        springs: Vec<Spring>,
+        config: MsdConfig,
+        boundary: &Boundary,
+    ) -> Result<Self, MsdError> {
+        config.validate()?;
+        let n = positions.len();
+        if masses.len() != n {
+            return Err(MsdError::InvalidConfig {
+                field: "masses",
+                message: format!("has {} entries for {n} nodes", masses.len()),
+            });
+        }
+        for (i, (p, &m)) in positions.iter().zip(&masses).enumerate() {
+            if !p.iter().all(|c| c.is_finite()) {
+                return Err(MsdError::BadNode {
+                    node: i,
+                    message: format!("position {p:?} is not finite"),
+                });
+            }
+            if !(m.is_finite() && m > 0.0) {
+                return Err(MsdError::BadNode {
+                    node: i,
+                    message: format!("mass {m} must be positive"),
+                });
+            }
+        }
+        for (s, sp) in springs.iter().enumerate() {
+            let msg = if sp.a as usize >= n || sp.b as usize >= n {
+                Some(format!(
+                    "joins nodes {} and {}, but there are {n} nodes",
+                    sp.a, sp.b
+                ))
+            } else if sp.a == sp.b {
+                Some(format!("joins node {} to itself", sp.a))
+            } else if !(sp.stiffness.is_finite() && sp.stiffness >= 0.0) {
+                Some(format!("stiffness {} must be >= 0", sp.stiffness))
+            } else if !(sp.rest_length.is_finite() && sp.rest_length >= 0.0) {
+                Some(format!("rest length {} must be >= 0", sp.rest_length))
+            } else {
+                None
+            };
+            if let Some(message) = msg {
+                return Err(MsdError::BadSpring { spring: s, message });
+            }
+        }
+        let (fixed, anchor_k) = boundary.resolve(n)?;
+        let zeros = vec![Vec3::zeros(); n];
+        let mut body = MsdBody {
+            config,
+            rest: positions.clone(),
+            anchor_target: positions.clone(),
+            x: positions,
+            v: zeros.clone(),
+            f_ext: zeros.clone(),
+            mass: masses,
+            springs,
+            fixed,
+            anchor_k,
+            omega_max: 0.0,
+            damping_rate: 0.0,
+            kx: [zeros.clone(), zeros.clone(), zeros.clone(), zeros.clone()],
+            kv: [zeros.clone(), zeros.clone(), zeros.clone(), zeros.clone()],
+            xt: zeros.clone(),
+            vt: zeros.clone(),
+            backup_x: zeros.clone(),
+            backup_v: zeros,
+            implicit: None,
+            stats: MsdStepStats::default(),
+        };
+        body.estimate_limits();
+        if config.integrator == MsdIntegrator::ImplicitEuler {
+            body.build_implicit()?;
+        }
+        Ok(body)
+    }
+
+    fn estimate_limits(&mut self) {
+        // Gershgorin bound on the eigenvalues of M^-1/2 K M^-1/2 (spring blocks have norm <= k
+        // at rest and under tension), plus anchors.
+        let n = self.x.len();
+        let mut row = vec![0.0; n];
+        for s in &self.springs {
+            let (a, b) = (s.a as usize, s.b as usize);
+            let cross = s.stiffness / (self.mass[a] * self.mass[b]).sqrt();
+            row[a] += s.stiffness / self.mass[a] + cross;
+            row[b] += s.stiffness / self.mass[b] + cross;
+        }
+        let mut w2: f64 = 0.0;
+        let mut rate: f64 = 0.0;
+        for i in 0..n {
+            w2 = w2.max(row[i] + self.anchor_k[i] / self.mass[i]);
+            rate = rate.max(self.config.damping / self.mass[i]);
+        }
+        self.omega_max = w2.sqrt();
+        self.damping_rate = rate;
+    }
+
+    /// Estimated largest stable step of the configured explicit integrator (infinite for the
+    /// implicit one). RK4 is stable for `|lambda h| < 2.78` on the negative real axis and
+    /// `< 2.83` on the imaginary axis; symplectic Euler for `omega h < 2`. The bound uses
+    /// `omega_max + gamma / m_min` with a margin (2.5 and 1.9).
+    pub fn stable_dt(&self) -> f64 {
+        let rho = self.omega_max + self.damping_rate;
+        if rho == 0.0 {
+            return f64::INFINITY;
+        }
+        match self.config.integrator {
+            MsdIntegrator::Rk4 => 2.5 / rho,
+            MsdIntegrator::SymplecticEuler => 1.9 / rho,
+            MsdIntegrator::ImplicitEuler => f64::INFINITY,
+        }
+    }
+
+    fn build_implicit(&mut self) -> Result<(), MsdError> {
+        let n = self.x.len();
+        let matrix =
+            BlockSparse::from_pairs(n, self.springs.iter().map(|s| [s.a as usize, s.b as usize]));
+        let blocks = self
+            .springs
+            .iter()
+            .map(|s| {
+                let (a, b) = (s.a as usize, s.b as usize);
+                [
+                    matrix.diag_index(a),
+                    matrix.diag_index(b),
+                    matrix.block_index(a, b).expect("pattern"),
+                    matrix.block_index(b, a).expect("pattern"),
+                ]
+                .map(|k| k as u32)
+            })
+            .collect();
+        let system = ImplicitSystem::new(identity_like(matrix), self.fixed.clone())?;
+        let mut imp = Implicit {
+            system,
+            blocks,
+            rhs: vec![Vec3::zeros(); n],
+            dv: vec![Vec3::zeros(); n],
+        };
+        // Rest-state matrix as the preconditioner.
+        self.assemble_implicit(&mut imp, true);
+        imp.system.refactor()?;
+        self.implicit = Some(imp);
+        Ok(())
+    }
+
+    /// `M + h gamma I + h^2 (K + Ka)` into the implicit system (at rest positions if `rest`).
+    fn assemble_implicit(&self, imp: &mut Implicit, rest: bool) {
+        let h = self.config.dt;
+        let x = if rest { &self.rest } else { &self.x };
+        let m = &mut imp.system.matrix;
+        m.set_zero();
+        let blocks = m.blocks_mut();
+        for (s, idx) in self.springs.iter().zip(&imp.blocks) {
+            let k = spring_jacobian(s, &x[s.a as usize], &x[s.b as usize]) * (h * h);
+            blocks[idx[0] as usize] += k;
+            blocks[idx[1] as usize] += k;
+            blocks[idx[2] as usize] -= k;
+            blocks[idx[3] as usize] -= k;
+        }
+        for i in 0..self.x.len() {
+            let d = m.diag_index(i);
+            let diag = self.mass[i] + h * self.config.damping + h * h * self.anchor_k[i];
+            m.blocks_mut()[d] += Matrix3::identity() * diag;
+        }
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &MsdConfig {
+        &self.config
+    }
+
+    /// Changes the integrator at run time (builds the implicit system on first use).
+    pub fn set_integrator(&mut self, integrator: MsdIntegrator) -> Result<(), MsdError> {
+        self.config.integrator = integrator;
+        if integrator == MsdIntegrator::ImplicitEuler && self.implicit.is_none() {
+            self.build_implicit()?;
+        }
+        Ok(())
+    }
+
+    /// Changes the time step (refactorizes the implicit preconditioner if built).
+    pub fn set_dt(&mut self, dt: f64) -> Result<(), MsdError> {
+        let mut c = self.config;
+        c.dt = dt;
+        c.validate()?;
+        self.config = c;
+        if let Some(mut imp) = self.implicit.take() {
+            self.assemble_implicit(&mut imp, true);
+            let r = imp.system.refactor();
+            self.implicit = Some(imp);
+            r?;
+        }
+        Ok(())
+    }
+
+    /// Changes the explicit-limit policy.
+    pub fn set_explicit_limit(&mut self, policy: ExplicitLimit) -> Result<(), MsdError> {
+        let mut c = self.config;
+        c.explicit_limit = policy;
+        c.validate()?;
+        self.config = c;
+        Ok(())
+    }
+
+    /// Changes gravity.
+    pub fn set_gravity(&mut self, gravity: Vec3) -> Result<(), MsdError> {
+        let mut c = self.config;
+        c.gravity = gravity;
+        c.validate()?;
+        self.config = c;
+        Ok(())
+    }
+
+    /// Number of nodes.
+    pub fn node_count(&self) -> usize {
+        self.x.len()
+    }
+
+    /// The springs.
+    pub fn springs(&self) -> &[Spring] {
+        &self.springs
+    }
+
+    /// Rest positions.
+    pub fn rest_positions(&self) -> &[Vec3] {
+        &self.rest
+    }
+
+    /// Current positions.
+    pub fn positions(&self) -> &[Vec3] {
+        &self.x
+    }
+
+    /// Current positions, to set.
+    pub fn positions_mut(&mut self) -> &mut [Vec3] {
+        &mut self.x
+    }
+
+    /// Current velocities.
+    pub fn velocities(&self) -> &[Vec3] {
+        &self.v
+    }
+
+    /// Current velocities, to set.
+    pub fn velocities_mut(&mut self) -> &mut [Vec3] {
+        &mut self.v
+    }
+
+    /// Node masses.
+    pub fn masses(&self) -> &[f64] {
+        &self.mass
+    }
+
+    /// External force accumulator; forces act during the next step and are then cleared.
+    pub fn external_forces_mut(&mut self) -> &mut [Vec3] {
+        &mut self.f_ext
+    }
+
+    /// Adds an external force on a node for the next step. Ignores a node out of range.
+    pub fn add_force(&mut self, node: usize, force: Vec3) {
+        if let Some(f) = self.f_ext.get_mut(node) {
+            *f += force;
+        }
+    }
+
+    /// Targets of the soft anchors (rest positions unless set).
+    pub fn anchor_targets_mut(&mut self) -> &mut [Vec3] {
+        &mut self.anchor_target
+    }
+
+    /// What the last step did.
+    pub fn last_step(&self) -> MsdStepStats {
+        self.stats
+    }
+
+    /// Kinetic energy.
+    pub fn kinetic_energy(&self) -> f64 {
+        0.5 * self
+            .v
+            .iter()
+            .zip(&self.mass)
+            .map(|(v, m)| m * v.norm_squared())
+            .sum::<f64>()
+    }
+
+    /// Largest node speed.
+    pub fn max_speed(&self) -> f64 {
+        self.v.iter().map(|v| v.norm()).fold(0.0, f64::max)
+    }
+
+    /// Energy stored in the springs and anchors.
+    pub fn elastic_energy(&self) -> f64 {
+        spring_energy(&self.springs, &self.x)
+            + self
+                .x
+                .iter()
+                .zip(&self.anchor_target)
+                .zip(&self.anchor_k)
+                .map(|((x, t), k)| 0.5 * k * (x - t).norm_squared())
+                .sum::<f64>()
+    }
+
+    /// Spring and anchor forces at positions `x` (no damping, gravity or external force),
+    /// written to `out`. For checks.
+    pub fn spring_forces(&self, x: &[Vec3], out: &mut [Vec3]) {
+        out.fill(Vec3::zeros());
+        add_spring_forces(&self.springs, x, out);
+        for i in 0..x.len() {
+            out[i] -= self.anchor_k[i] * (x[i] - self.anchor_target[i]);
+        }
+    }
+
+    /// The exact Jacobian `-d f / d x` of the spring and anchor forces at `x`, as a dense
+    /// `3n x 3n` matrix in row-major order. For checks on small bodies.
+    pub fn stiffness_dense(&self, x: &[Vec3]) -> Vec<f64> {
+        let n = x.len();
+        let mut k = vec![0.0; 9 * n * n];
+        let mut add = |i: usize, j: usize, m: &Matrix3<f64>, s: f64| {
+            for r in 0..3 {
+                for c in 0..3 {
+                    k[(3 * i + r) * 3 * n + 3 * j + c] += s * m[(r, c)];
+                }
+            }
+        };
+        for sp in &self.springs {
+            let (a, b) = (sp.a as usize, sp.b as usize);
+            let d = x[b] - x[a];
+            let l = d.norm();
+            if l == 0.0 {
+                continue;
+            }
+            let u = d / l;
+            let uu = u * u.transpose();
+            let m = (uu + (Matrix3::identity() - uu) * (1.0 - sp.rest_length / l)) * sp.stiffness;
+            add(a, a, &m, 1.0);
+            add(b, b, &m, 1.0);
+            add(a, b, &m, -1.0);
+            add(b, a, &m, -1.0);
+        }
+        for i in 0..n {
+            add(i, i, &(Matrix3::identity() * self.anchor_k[i]), 1.0);
+        }
+        k
+    }
+
+    /// Puts the body back at rest in its rest shape.
+    pub fn reset(&mut self) {
+        self.x.copy_from_slice(&self.rest);
+        self.v.fill(Vec3::zeros());
+        self.f_ext.fill(Vec3::zeros());
+        if let Some(imp) = &mut self.implicit {
+            imp.dv.fill(Vec3::zeros());
+        }
+    }
+
+    /// `out = a(x, v)`: accelerations, zero on fixed components.
+    fn accelerations(&self, x: &[Vec3], v: &[Vec3], out: &mut [Vec3]) {
+        let g = self.config.gravity;
+        let gamma = self.config.damping;
+        for i in 0..x.len() {
+            out[i] = self.f_ext[i] + self.mass[i] * g
+                - gamma * v[i]
+                - self.anchor_k[i] * (x[i] - self.anchor_target[i]);
+        }
+        add_spring_forces(&self.springs, x, out);
+        for i in 0..x.len() {
+            out[i] /= self.mass[i];
+            for a in 0..3 {
+                if self.fixed[i][a] {
+                    out[i][a] = 0.0;
+                }
+            }
+        }
+    }
+
+    fn check_inputs(&self) -> Result<(), MsdError> {
+        for (i, f) in self.f_ext.iter().enumerate() {
+            if !f.iter().all(|c| c.is_finite()) {
+                return Err(MsdError::NonFinite {
+                    what: "external force",
+                    node: i,
+                });
+            }
+        }
+        for i in 0..self.x.len() {
+            if !self.x[i].iter().all(|c| c.is_finite()) {
+                return Err(MsdError::NonFinite {
+                    what: "position",
+                    node: i,
+                });
+            }
+            if !self.v[i].iter().all(|c| c.is_finite()) {
+                return Err(MsdError::NonFinite {
+                    what: "velocity",
+                    node: i,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Number of substeps the next step will take, or the error if the policy refuses it.
+    pub fn substeps_needed(&self) -> Result<u32, MsdError> {
+        let limit = self.stable_dt();
+        let dt = self.config.dt;
+        if dt <= limit {
+            return Ok(1);
+        }
+        let needed = (dt / limit).ceil() as u64;
+        let allowed = match self.config.explicit_limit {
+            ExplicitLimit::Substep { max_substeps } => max_substeps,
+            ExplicitLimit::Refuse => 0,
+        };
+        if needed > allowed as u64 {
+            return Err(MsdError::TimeStepTooLarge {
+                integrator: self.config.integrator,
+                dt,
+                limit,
+                needed,
+                allowed,
+            });
+        }
+        Ok(needed as u32)
+    }
+
+    /// Advances by one time step `config().dt`. On error the state is unchanged.
+    pub fn step(&mut self) -> Result<MsdStepStats, MsdError> {
+        self.check_inputs()?;
+        let substeps = self.substeps_needed()?;
+        self.backup_x.copy_from_slice(&self.x);
+        self.backup_v.copy_from_slice(&self.v);
+        let h = self.config.dt / substeps as f64;
+        let mut stats = MsdStepStats {
+            substeps,
+            cg: CgStats::default(),
+        };
+        let result = match self.config.integrator {
+            MsdIntegrator::Rk4 => {
+                for _ in 0..substeps {
+                    self.rk4(h);
+                }
+                Ok(())
+            }
+            MsdIntegrator::SymplecticEuler => {
+                for _ in 0..substeps {
+                    self.symplectic(h);
+                }
+                Ok(())
+            }
+            MsdIntegrator::ImplicitEuler => self.implicit_step().map(|cg| stats.cg = cg),
+        };
+        let bad = (0..self.x.len()).find_map(|i| {
+            if !self.x[i].iter().all(|c| c.is_finite()) {
+                Some(("position", i))
+            } else if !self.v[i].iter().all(|c| c.is_finite()) {
+                Some(("velocity", i))
+            } else {
+                None
+            }
+        });
+        if result.is_err() || bad.is_some() {
+            self.x.copy_from_slice(&self.backup_x);
+            self.v.copy_from_slice(&self.backup_v);
+            result?;
+            let (what, node) = bad.expect("checked");
+            return Err(MsdError::NonFinite { what, node });
+        }
+        self.f_ext.fill(Vec3::zeros());
+        self.stats = stats;
+        Ok(stats)
+    }
+
+    fn rk4(&mut self, h: f64) {
+        let n = self.x.len();
+        let mut kx = std::mem::take(&mut self.kx);
+        let mut kv = std::mem::take(&mut self.kv);
+        let mut xt = std::mem::take(&mut self.xt);
+        let mut vt = std::mem::take(&mut self.vt);
+        // Stage 1
+        kx[0].copy_from_slice(&self.v);
+        self.accelerations(&self.x, &self.v, &mut kv[0]);
+        // Stages 2-4
+        for (s, c) in [(1usize, 0.5 * h), (2, 0.5 * h), (3, h)] {
+            for i in 0..n {
+                xt[i] = self.x[i] + c * kx[s - 1][i];
+                vt[i] = self.v[i] + c * kv[s - 1][i];
+            }
+            kx[s].copy_from_slice(&vt);
+            self.accelerations(&xt, &vt, &mut kv[s]);
+        }
+        for i in 0..n {
+            let dx = (kx[0][i] + 2.0 * kx[1][i] + 2.0 * kx[2][i] + kx[3][i]) * (h / 6.0);
+            let dv = (kv[0][i] + 2.0 * kv[1][i] + 2.0 * kv[2][i] + kv[3][i]) * (h / 6.0);
+            for a in 0..3 {
+                if self.fixed[i][a] {
+                    self.v[i][a] = 0.0;
+                } else {
+                    self.x[i][a] += dx[a];
+                    self.v[i][a] += dv[a];
+                }
+            }
+        }
+        self.kx = kx;
+        self.kv = kv;
+        self.xt = xt;
+        self.vt = vt;
+    }
+
+    fn symplectic(&mut self, h: f64) {
+        let mut acc = std::mem::take(&mut self.xt);
+        self.accelerations(&self.x, &self.v, &mut acc);
+        for i in 0..self.x.len() {
+            for a in 0..3 {
+                if self.fixed[i][a] {
+                    self.v[i][a] = 0.0;
+                } else {
+                    self.v[i][a] += h * acc[i][a];
+                    self.x[i][a] += h * self.v[i][a];
+                }
+            }
+        }
+        self.xt = acc;
+    }
+
+    fn implicit_step(&mut self) -> Result<CgStats, MsdError> {
+        let mut imp = self.implicit.take().expect("built with the integrator");
+        let h = self.config.dt;
+        self.assemble_implicit(&mut imp, false);
+        // rhs = h (f(x, v) - h (K + Ka) v), with f including damping; (K + Ka) v from the
+        // assembled matrix: A v = (m + h gamma) v + h^2 (K + Ka) v.
+        let mut av = std::mem::take(&mut self.xt);
+        imp.system.matrix.mul(&self.v, &mut av);
+        let g = self.config.gravity;
+        let gamma = self.config.damping;
+        for i in 0..self.x.len() {
+            imp.rhs[i] = self.f_ext[i] + self.mass[i] * g
+                - gamma * self.v[i]
+                - self.anchor_k[i] * (self.x[i] - self.anchor_target[i]);
+        }
+        add_spring_forces(&self.springs, &self.x, &mut imp.rhs);
+        for i in 0..self.x.len() {
+            let kv = (av[i] - (self.mass[i] + h * gamma) * self.v[i]) / (h * h);
+            imp.rhs[i] = h * (imp.rhs[i] - h * kv);
+        }
+        self.xt = av;
+        let stats = imp.system.solve_cg(
+            &imp.rhs,
+            &mut imp.dv,
+            self.config.cg_tolerance,
+            self.config.cg_max_iterations,
+        );
+        if stats.is_ok() {
+            for i in 0..self.x.len() {
+                for a in 0..3 {
+                    if self.fixed[i][a] {
+                        self.v[i][a] = 0.0;
+                    } else {
+                        self.v[i][a] += imp.dv[i][a];
+                        self.x[i][a] += h * self.v[i][a];
+                    }
+                }
+            }
+        }
+        self.implicit = Some(imp);
+        Ok(stats?)
+    }
+}
+
+fn identity_like(mut m: BlockSparse) -> BlockSparse {
+    for i in 0..m.nodes() {
+        let d = m.diag_index(i);
+        m.blocks_mut()[d] = Matrix3::identity();
+    }
+    m
+}
+
+/// Spring Jacobian block `k (u u^T + max(0, 1 - L/l) (I - u u^T))` (positive semi-definite).
+fn spring_jacobian(s: &Spring, xa: &Vec3, xb: &Vec3) -> Matrix3<f64> {
+    let d = xb - xa;
+    let l = d.norm();
+    if l == 0.0 || l.is_nan() {
+        return Matrix3::identity() * s.stiffness;
+    }
+    let u = d / l;
+    let uu = u * u.transpose();
+    let t = (1.0 - s.rest_length / l).max(0.0);
+    (uu + (Matrix3::identity() - uu) * t) * s.stiffness
+}
+
+fn add_spring_forces(springs: &[Spring], x: &[Vec3], out: &mut [Vec3]) {
+    for s in springs {
+        let (a, b) = (s.a as usize, s.b as usize);
+        let d = x[b] - x[a];
+        let l = d.norm();
+        if l == 0.0 || l.is_nan() {
+            // Coincident nodes: the direction is undefined; no force rather than NaN.
+            continue;
+        }
+        let f = d * (s.stiffness * (l - s.rest_length) / l);
+        out[a] += f;
+        out[b] -= f;
+    }
+}
+
+fn spring_energy(springs: &[Spring], x: &[Vec3]) -> f64 {
+    springs
+        .iter()
+        .map(|s| {
+            let l = (x[s.b as usize] - x[s.a as usize]).norm();
+            0.5 * s.stiffness * (l - s.rest_length).powi(2)
+        })
+        .sum()
+}
