@@ -590,6 +590,7 @@ impl FemBody {
                 .collect(),
         };
         let mut k = self.k_rest.clone();
+        k.set_zero();
         assemble_stiffness(
             &mut k,
             &self.tets,

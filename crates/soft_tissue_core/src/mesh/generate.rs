@@ -880,3 +880,58 @@ impl std::str::FromStr for Organ {
             })
     }
 }
+
+/// A structured box mesh from `min` to `max` with `cells` cubes along each axis, each split
+/// into six tetrahedra around its main diagonal (Kuhn subdivision; conforming because every
+/// cube is split the same way). For beams, patch tests and convergence studies.
+pub fn block(min: Vec3, max: Vec3, cells: [usize; 3]) -> Result<TetMesh, MeshError> {
+    let [nx, ny, nz] = cells.map(|c| c.max(1));
+    let idx = |i: usize, j: usize, k: usize| i + (nx + 1) * (j + (ny + 1) * k);
+    let mut positions = Vec::with_capacity((nx + 1) * (ny + 1) * (nz + 1));
+    for k in 0..=nz {
+        for j in 0..=ny {
+            for i in 0..=nx {
+                let t = Vec3::new(
+                    i as f64 / nx as f64,
+                    j as f64 / ny as f64,
+                    k as f64 / nz as f64,
+                );
+                positions.push(min + (max - min).component_mul(&t));
+            }
+        }
+    }
+    const PERMS: [[usize; 3]; 6] = [
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
+    let mut tets = Vec::with_capacity(6 * nx * ny * nz);
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                for p in PERMS {
+                    let mut c = [i, j, k];
+                    let mut tet = [idx(i, j, k), 0, 0, idx(i + 1, j + 1, k + 1)];
+                    for (s, &axis) in p.iter().take(2).enumerate() {
+                        c[axis] += 1;
+                        tet[s + 1] = idx(c[0], c[1], c[2]);
+                    }
+                    let v = super::tet_signed_volume(&[
+                        positions[tet[0]],
+                        positions[tet[1]],
+                        positions[tet[2]],
+                        positions[tet[3]],
+                    ]);
+                    if v < 0.0 {
+                        tet.swap(1, 2);
+                    }
+                    tets.push(tet);
+                }
+            }
+        }
+    }
+    TetMesh::new(positions, tets)
+}
