@@ -28,6 +28,50 @@ enum Command {
     /// Write the paper's scenes as RON files.
     #[command(subcommand)]
     Scene(SceneCommand),
+    /// Time the precise solvers per step on a mesh under a load that keeps it deforming
+    /// (bottom 10 % fixed, gravity, a swinging force on the top 5 %).
+    Bench(BenchArgs),
+}
+
+#[derive(Args)]
+struct BenchArgs {
+    /// Mesh file (.msh, .vtk, .vtu, .node).
+    #[arg(
+        long,
+        conflicts_with = "generated",
+        required_unless_present = "generated"
+    )]
+    mesh: Option<PathBuf>,
+    /// A generated body: cylinder, liver, spleen, stomach, pancreas.
+    #[arg(long)]
+    generated: Option<String>,
+    /// Resolution of a generated body (1 = the paper's mesh size).
+    #[arg(long, default_value_t = 1.0)]
+    resolution: f64,
+    /// fem-linear, fem-corotational, msd-rk4, msd-symplectic, msd-implicit, or all.
+    #[arg(long, default_value = "all")]
+    method: String,
+    /// Material and scene: the paper's cylinder (with gravity) or organ (gravity off) FEM
+    /// parameters; MSD always uses the paper's cylinder MSD. Default: cylinder for a body
+    /// named cylinder, organ otherwise.
+    #[arg(long)]
+    params: Option<String>,
+    /// Timed steps.
+    #[arg(long, default_value_t = 1000)]
+    steps: usize,
+    /// CG relative tolerance of the implicit methods (default: the method's own, 1e-4 for
+    /// corotational FEM, 1e-6 for implicit MSD).
+    #[arg(long)]
+    cg_tolerance: Option<f64>,
+    /// CG iteration cap of the implicit methods (default: the method's own).
+    #[arg(long)]
+    cg_max_iterations: Option<u32>,
+    /// Untimed steps before timing.
+    #[arg(long, default_value_t = 100)]
+    warmup: usize,
+    /// Print one JSON object (an array with --method all).
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Subcommand)]
@@ -90,6 +134,7 @@ fn main() -> ExitCode {
         }) => convert(&input, &output, binary),
         Command::Mesh(MeshCommand::Generate(args)) => generate(&args),
         Command::Scene(SceneCommand::Export { out }) => export_scenes(&out),
+        Command::Bench(args) => bench(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -213,6 +258,146 @@ fn export_scenes(out: &Path) -> Res {
         let path = out.join(format!("{}.ron", s.name));
         std::fs::write(&path, s.to_ron())?;
         println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+/// The machine and build, for every timing printed.
+fn machine() -> serde_json::Value {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|t| {
+            t.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|s| s.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown".into());
+    let cores = std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1);
+    let profile = if cfg!(debug_assertions) {
+        "debug"
+    } else {
+        "release"
+    };
+    serde_json::json!({ "cpu": cpu, "cores": cores, "profile": profile, "threads_used": 1 })
+}
+
+fn bench(args: &BenchArgs) -> Res {
+    use soft_tissue_core::bench::{BenchBody, BenchMethod};
+    use soft_tissue_core::scenario::{CYLINDER_FEM, CYLINDER_MSD, ORGAN_FEM};
+    let (mesh, name) = match (&args.mesh, &args.generated) {
+        (Some(path), _) => {
+            let loaded = io::read_tet_mesh(path)?;
+            let stem = path
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            (loaded.mesh, stem)
+        }
+        (None, Some(body)) => {
+            let organ: Organ = body.parse()?;
+            (organ.generate(args.resolution)?, organ.name().to_string())
+        }
+        (None, None) => return Err("give --mesh FILE or --generated NAME".into()),
+    };
+    let params = args.params.clone().unwrap_or_else(|| {
+        if name == "cylinder" {
+            "cylinder".into()
+        } else {
+            "organ".into()
+        }
+    });
+    let fem = match params.as_str() {
+        "cylinder" => CYLINDER_FEM,
+        "organ" => ORGAN_FEM,
+        other => {
+            return Err(format!("unknown --params '{other}': expected cylinder or organ").into());
+        }
+    };
+    let methods: Vec<BenchMethod> = if args.method == "all" {
+        BenchMethod::ALL.to_vec()
+    } else {
+        vec![args.method.parse::<BenchMethod>()?]
+    };
+    let machine = machine();
+    let mut reports = Vec::new();
+    for method in methods {
+        let gravity = params == "cylinder";
+        let mut body = BenchBody::new(
+            &mesh,
+            method,
+            (&fem.params, fem.dt),
+            (&CYLINDER_MSD.params, CYLINDER_MSD.dt),
+            gravity,
+        )?;
+        if args.cg_tolerance.is_some() || args.cg_max_iterations.is_some() {
+            let (tol, cap) = match method {
+                BenchMethod::MsdImplicit => (1e-6, 50),
+                _ => (1e-4, 20),
+            };
+            body.set_cg(
+                args.cg_tolerance.unwrap_or(tol),
+                args.cg_max_iterations.unwrap_or(cap),
+            )?;
+        }
+        let report = body.run(method, &mesh, args.warmup, args.steps)?;
+        reports.push(report);
+    }
+    if args.json {
+        let items: Vec<serde_json::Value> = reports
+            .iter()
+            .map(|r| {
+                let mut v = serde_json::to_value(r).expect("plain data");
+                v["mesh"] = serde_json::json!(name);
+                v["params"] = serde_json::json!(params);
+                v["machine"] = machine.clone();
+                v
+            })
+            .collect();
+        let out = if items.len() == 1 {
+            items[0].clone()
+        } else {
+            serde_json::Value::Array(items)
+        };
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        println!(
+            "{name}: {} nodes, {} tets; {} params; machine: {}, {} cores, {} build, 1 thread",
+            mesh.node_count(),
+            mesh.tet_count(),
+            params,
+            machine["cpu"].as_str().unwrap_or("?"),
+            machine["cores"],
+            machine["profile"].as_str().unwrap_or("?")
+        );
+        println!(
+            "{:<18} {:>7} {:>10} {:>10} {:>10} {:>10} {:>8} {:>9} {:>8}",
+            "method",
+            "dt",
+            "min us",
+            "median us",
+            "p99 us",
+            "mean us",
+            "cg it",
+            "substeps",
+            "max def"
+        );
+        for r in &reports {
+            println!(
+                "{:<18} {:>7} {:>10.1} {:>10.1} {:>10.1} {:>10.1} {:>8.2} {:>9.2} {:>7.1}%",
+                r.method,
+                r.dt,
+                r.min_us,
+                r.median_us,
+                r.p99_us,
+                r.mean_us,
+                r.mean_cg_iterations,
+                r.mean_substeps,
+                100.0 * r.max_displacement_ratio
+            );
+        }
     }
     Ok(())
 }

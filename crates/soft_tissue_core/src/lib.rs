@@ -17,6 +17,7 @@
 //! Conventions: SI-like units chosen by the scene (the paper's scenes are unit-free, see
 //! [`scenario`]), `f64` throughout the core, `f32` only at the render boundary in the plugin.
 
+pub mod bench;
 pub mod boundary;
 pub mod fem;
 pub mod linalg;

@@ -37,6 +37,9 @@ use crate::linalg::{BlockSparse, CgStats, ImplicitSystem, LinalgError};
 use crate::material::FemParams;
 use crate::mesh::TetMesh;
 
+/// Correction angle (radians) below which a warm-started element rotation is accepted.
+const ROTATION_TOLERANCE: f64 = 1e-4;
+
 /// Which elastic model a FEM body uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub enum FemModel {
@@ -101,7 +104,7 @@ impl FemConfig {
             gravity: Vec3::zeros(),
             cg_tolerance: 1e-4,
             cg_max_iterations: 20,
-            rotation_iterations: 4,
+            rotation_iterations: 1,
         }
     }
 
@@ -242,6 +245,8 @@ pub struct FemBody {
     anchor_k: Vec<f64>,
     anchor_target: Vec<Vec3>,
     quats: Vec<UnitQuaternion<f64>>,
+    /// Rotation matrices of `quats`.
+    rots: Vec<Matrix3<f64>>,
     /// Rest elastic stiffness `K` (no anchors, no constraints).
     k_rest: BlockSparse,
     /// System matrix and the factorization of its rest value.
@@ -360,6 +365,7 @@ impl FemBody {
             mass,
             fixed,
             anchor_k,
+            rots: vec![Matrix3::identity(); identity.len()],
             quats: identity,
             k_rest,
             system,
@@ -389,6 +395,21 @@ impl FemBody {
         if model != self.config.model {
             self.config.model = model;
             self.dv.fill(Vec3::zeros());
+            if model == FemModel::Corotational {
+                self.sync_rotations();
+            }
+        }
+    }
+
+    /// Recomputes every element rotation from the current positions, from a cold start and
+    /// to convergence. Call after setting positions far from the last step's (state transfer,
+    /// teleporting); steps only refine the rotations incrementally.
+    pub fn sync_rotations(&mut self) {
+        for t in 0..self.tets.len() {
+            let p = self.tets[t].map(|i| self.x[i as usize]);
+            let r = rotation::rotation_of(&element::deformation_gradient(&p, &self.grads[t]));
+            self.rots[t] = r;
+            self.quats[t] = UnitQuaternion::from_matrix(&r);
         }
     }
 
@@ -534,6 +555,7 @@ impl FemBody {
         self.f_ext.fill(Vec3::zeros());
         self.dv.fill(Vec3::zeros());
         self.quats.fill(UnitQuaternion::identity());
+        self.rots.fill(Matrix3::identity());
     }
 
     /// Elastic plus anchor forces at positions `x` for `model` (rotations extracted to
@@ -719,50 +741,73 @@ impl FemBody {
     fn corotational_forces_and_matrix(&mut self) -> u32 {
         let h = self.config.dt;
         let c = self.config.stiffness_damping * h + h * h;
+        let (lambda, mu) = (self.lambda, self.mu);
         let mut worst = 0;
-        let mut fe = [Vec3::zeros(); 4];
+        self.system.matrix.set_zero();
+        let blocks = self.system.matrix.blocks_mut();
         for t in 0..self.tets.len() {
             let tet = self.tets[t];
+            let b = &self.grads[t];
             let p = tet.map(|i| self.x[i as usize]);
-            let def = element::deformation_gradient(&p, &self.grads[t]);
+            let def = element::deformation_gradient(&p, b);
             let it = rotation::extract_rotation(
                 &def,
                 &mut self.quats[t],
+                &mut self.rots[t],
                 self.config.rotation_iterations,
-                1e-9,
+                ROTATION_TOLERANCE,
             );
+            let r = self.rots[t];
             worst = worst.max(it);
-            let r = *self.quats[t].to_rotation_matrix().matrix();
-            element::element_forces(
-                &p,
-                &self.grads[t],
-                self.volumes[t],
-                self.lambda,
-                self.mu,
-                &r,
-                &mut fe,
-            );
+            // Forces: f_a = -V R sigma(sym(R^T F) - I) b_a.
+            let vol = self.volumes[t];
+            let s = r.transpose() * def;
+            let eps = (s + s.transpose()) * 0.5 - Matrix3::identity();
+            let p_mat = r * element::stress(&eps, lambda, mu) * (-vol);
             for a in 0..4 {
-                self.rhs[tet[a] as usize] += fe[a];
+                self.rhs[tet[a] as usize] += p_mat * b[a];
+            }
+            // Warped stiffness, scaled by c, through the scatter map:
+            // K_ab = V (lambda c_a c_b^T + mu c_b c_a^T + mu (b_a . b_b) I), c = R b.
+            let cr = [r * b[0], r * b[1], r * b[2], r * b[3]];
+            let sc = &self.scatter[t];
+            let (vl, vm) = (vol * c * lambda, vol * c * mu);
+            for a in 0..4 {
+                let ca = [cr[a].x, cr[a].y, cr[a].z];
+                for bb in a..4 {
+                    let cb = [cr[bb].x, cr[bb].y, cr[bb].z];
+                    let d = vm * b[a].dot(&b[bb]);
+                    // P = c_a c_b^T; K_ab = vl P + vm P^T + d I, K_ba = K_ab^T.
+                    let mut p = [0.0f64; 9];
+                    for j in 0..3 {
+                        for i in 0..3 {
+                            p[3 * j + i] = ca[i] * cb[j];
+                        }
+                    }
+                    let k_ab = blocks[sc[4 * a + bb] as usize].as_mut_slice();
+                    for j in 0..3 {
+                        for i in 0..3 {
+                            k_ab[3 * j + i] += vl * p[3 * j + i] + vm * p[3 * i + j];
+                        }
+                        k_ab[4 * j] += d;
+                    }
+                    if a != bb {
+                        let k_ba = blocks[sc[4 * bb + a] as usize].as_mut_slice();
+                        for j in 0..3 {
+                            for i in 0..3 {
+                                k_ba[3 * j + i] += vl * p[3 * i + j] + vm * p[3 * j + i];
+                            }
+                            k_ba[4 * j] += d;
+                        }
+                    }
+                }
             }
         }
-        self.system.matrix.set_zero();
-        assemble_stiffness(
-            &mut self.system.matrix,
-            &self.tets,
-            &self.grads,
-            &self.volumes,
-            &self.scatter,
-            self.lambda,
-            self.mu,
-            &self.quats,
-            c,
-        );
         let alpha = self.config.mass_damping;
         for i in 0..self.x.len() {
             let d = self.system.matrix.diag_index(i);
             let diag = (1.0 + h * alpha) * self.mass[i] + h * h * self.anchor_k[i];
-            self.system.matrix.blocks_mut()[d] += Matrix3::identity() * diag;
+            self.system.matrix.blocks_mut()[d] += Matrix3::from_diagonal_element(diag);
         }
         worst
     }

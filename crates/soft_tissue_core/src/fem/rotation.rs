@@ -9,15 +9,21 @@
 //! returns a unit quaternion, never divides by zero, keeps the previous rotation for flat or
 //! zero `F`, and converges in one or two iterations when warm-started from the last step.
 
-use nalgebra::{Matrix3, UnitQuaternion};
+use nalgebra::{Matrix3, Quaternion, UnitQuaternion};
 
 use crate::Vec3;
 
-/// Updates `q` towards the rotation of `f`, for at most `max_iterations` iterations or until
-/// the correction angle is below `tolerance` radians. Returns the iterations taken.
+/// Updates `q` (and `r`, its rotation matrix, which the caller keeps with it) towards the
+/// rotation of `f`, for at most `max_iterations` updates or until the correction angle is
+/// below `tolerance` radians. Returns the updates made.
+///
+/// Small corrections (below 0.1 rad, the usual case when warm-started) use the first-order
+/// quaternion update `q <- normalize((1, omega / 2) q)`, whose angle error is third order and
+/// is removed by the next iteration or step; larger ones use the exact exponential map.
 pub fn extract_rotation(
     f: &Matrix3<f64>,
     q: &mut UnitQuaternion<f64>,
+    r: &mut Matrix3<f64>,
     max_iterations: u32,
     tolerance: f64,
 ) -> u32 {
@@ -33,20 +39,25 @@ pub fn extract_rotation(
         return 0;
     }
     for it in 0..max_iterations {
-        let r = q.to_rotation_matrix();
-        let r = r.matrix();
         let r0: Vec3 = r.column(0).into();
         let r1: Vec3 = r.column(1).into();
         let r2: Vec3 = r.column(2).into();
         let num = r0.cross(&f0) + r1.cross(&f1) + r2.cross(&f2);
         let den = (r0.dot(&f0) + r1.dot(&f1) + r2.dot(&f2)).abs() + 1e-9;
         let omega = num / den;
-        let w = omega.norm();
-        if w < tolerance {
+        let w2 = omega.norm_squared();
+        if w2 < tolerance * tolerance {
             return it;
         }
-        *q = UnitQuaternion::from_scaled_axis(omega) * *q;
-        q.renormalize();
+        if w2 < 0.01 {
+            let h = omega * 0.5;
+            let dq = Quaternion::new(1.0, h.x, h.y, h.z);
+            *q = UnitQuaternion::new_normalize(dq * q.into_inner());
+        } else {
+            *q = UnitQuaternion::from_scaled_axis(omega) * *q;
+            q.renormalize();
+        }
+        *r = *q.to_rotation_matrix().matrix();
     }
     max_iterations
 }
@@ -55,14 +66,16 @@ pub fn extract_rotation(
 /// evaluations; steps use the warm-started [`extract_rotation`]).
 pub fn rotation_of(f: &Matrix3<f64>) -> Matrix3<f64> {
     let mut q = UnitQuaternion::identity();
-    extract_rotation(f, &mut q, 200, 1e-15);
+    let mut r = Matrix3::identity();
+    extract_rotation(f, &mut q, &mut r, 200, 1e-15);
     // A cold start may sit on a saddle (a half turn away); a second start from the found
     // rotation composed with each half turn picks the best.
     let mut best = q;
     let mut best_score = (q.to_rotation_matrix().matrix().transpose() * f).trace();
     for axis in [Vec3::x_axis(), Vec3::y_axis(), Vec3::z_axis()] {
         let mut q2 = UnitQuaternion::from_axis_angle(&axis, std::f64::consts::PI) * q;
-        extract_rotation(f, &mut q2, 200, 1e-15);
+        let mut r2 = *q2.to_rotation_matrix().matrix();
+        extract_rotation(f, &mut q2, &mut r2, 200, 1e-15);
         let score = (q2.to_rotation_matrix().matrix().transpose() * f).trace();
         if score > best_score + 1e-12 {
             best = q2;
@@ -124,7 +137,8 @@ mod tests {
             Matrix3::from_element(f64::NAN),
         ] {
             let mut q = UnitQuaternion::identity();
-            extract_rotation(&f, &mut q, 50, 1e-12);
+            let mut m = Matrix3::identity();
+            extract_rotation(&f, &mut q, &mut m, 50, 1e-12);
             let r = *q.to_rotation_matrix().matrix();
             assert!(is_rotation(&r), "{f} gave {r}");
         }

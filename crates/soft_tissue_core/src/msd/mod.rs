@@ -539,6 +539,16 @@ impl MsdBody {
         Ok(())
     }
 
+    /// Changes the implicit CG tolerance and iteration cap.
+    pub fn set_cg(&mut self, tolerance: f64, max_iterations: u32) -> Result<(), MsdError> {
+        let mut c = self.config;
+        c.cg_tolerance = tolerance;
+        c.cg_max_iterations = max_iterations;
+        c.validate()?;
+        self.config = c;
+        Ok(())
+    }
+
     /// Changes gravity.
     pub fn set_gravity(&mut self, gravity: Vec3) -> Result<(), MsdError> {
         let mut c = self.config;

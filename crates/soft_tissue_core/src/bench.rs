@@ -1,0 +1,299 @@
+//! A benchmark load for the precise solvers, shared by `soft-tissue bench` and the criterion
+//! benches: the body is held on its bottom 10 % (fixed, y up) while a horizontal force on its
+//! top 5 % nodes swings back and forth with a period of 1 s, so every step deforms the body
+//! instead of timing a body at rest. The force amplitude is `E a^2 / 50` (FEM) or
+//! `k a / 5` (MSD), with `a` the smallest bounding-box side, which bends the paper's bodies by
+//! a few percent of their size, like a tool pressing on them. Gravity is optional (the paper's
+//! cylinders scene has it, the organs scene does not).
+
+use std::str::FromStr;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use crate::Vec3;
+use crate::boundary::Boundary;
+use crate::fem::{FemBody, FemConfig, FemError, FemModel};
+use crate::material::{FemParams, MsdParams};
+use crate::mesh::TetMesh;
+use crate::msd::{MsdBody, MsdConfig, MsdError, MsdIntegrator};
+
+/// A precise method to benchmark.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum BenchMethod {
+    /// Linear FEM, implicit Euler, prefactored.
+    FemLinear,
+    /// Corotational FEM, implicit Euler, warm-started PCG.
+    FemCorotational,
+    /// MSD with RK4 (the paper).
+    MsdRk4,
+    /// MSD with symplectic Euler.
+    MsdSymplectic,
+    /// MSD with linearised implicit Euler.
+    MsdImplicit,
+}
+
+impl BenchMethod {
+    /// Every method.
+    pub const ALL: [BenchMethod; 5] = [
+        BenchMethod::FemLinear,
+        BenchMethod::FemCorotational,
+        BenchMethod::MsdRk4,
+        BenchMethod::MsdSymplectic,
+        BenchMethod::MsdImplicit,
+    ];
+
+    /// The command-line name.
+    pub fn name(self) -> &'static str {
+        match self {
+            BenchMethod::FemLinear => "fem-linear",
+            BenchMethod::FemCorotational => "fem-corotational",
+            BenchMethod::MsdRk4 => "msd-rk4",
+            BenchMethod::MsdSymplectic => "msd-symplectic",
+            BenchMethod::MsdImplicit => "msd-implicit",
+        }
+    }
+}
+
+impl FromStr for BenchMethod {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        BenchMethod::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| {
+                let names: Vec<_> = BenchMethod::ALL.iter().map(|m| m.name()).collect();
+                format!("unknown method '{s}': expected one of {}", names.join(", "))
+            })
+    }
+}
+
+/// A solver failure during a benchmark.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BenchError {
+    /// FEM error.
+    #[error(transparent)]
+    Fem(#[from] FemError),
+    /// MSD error.
+    #[error(transparent)]
+    Msd(#[from] MsdError),
+}
+
+enum Solver {
+    Fem(Box<FemBody>),
+    Msd(Box<MsdBody>),
+}
+
+/// A body under the benchmark load.
+pub struct BenchBody {
+    solver: Solver,
+    top: Vec<usize>,
+    amplitude: f64,
+    dt: f64,
+    time: f64,
+    cg_iterations: u64,
+    substeps: u64,
+    steps: u64,
+}
+
+/// Timings of a benchmark run, in microseconds per step.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BenchReport {
+    /// Method name.
+    pub method: String,
+    /// Mesh nodes.
+    pub nodes: usize,
+    /// Mesh tetrahedra.
+    pub tets: usize,
+    /// Timed steps.
+    pub steps: usize,
+    /// Time step of the method, time units.
+    pub dt: f64,
+    /// Fastest step.
+    pub min_us: f64,
+    /// Median step.
+    pub median_us: f64,
+    /// Mean step.
+    pub mean_us: f64,
+    /// 99th percentile.
+    pub p99_us: f64,
+    /// Slowest step.
+    pub max_us: f64,
+    /// Mean CG iterations per step (implicit methods).
+    pub mean_cg_iterations: f64,
+    /// Mean substeps per step (explicit MSD).
+    pub mean_substeps: f64,
+    /// Largest node displacement from rest over the timed steps, as a fraction of the
+    /// smallest bounding-box side (shows the load deforms the body, and by how much).
+    pub max_displacement_ratio: f64,
+}
+
+impl BenchBody {
+    /// Builds `method` on `mesh` with the given FEM / MSD parameters and time steps.
+    pub fn new(
+        mesh: &TetMesh,
+        method: BenchMethod,
+        fem: (&FemParams, f64),
+        msd: (&MsdParams, f64),
+        gravity: bool,
+    ) -> Result<Self, BenchError> {
+        let boundary = Boundary::fixed_below(mesh.positions(), 1, 0.1);
+        let gravity = if gravity {
+            Vec3::new(0.0, -9.81, 0.0)
+        } else {
+            Vec3::zeros()
+        };
+        let size = {
+            let b = mesh.bbox();
+            let d = b.max - b.min;
+            d.x.min(d.y).min(d.z)
+        };
+        let (lo, hi) = {
+            let b = mesh.bbox();
+            (b.min.y, b.max.y)
+        };
+        let top: Vec<usize> = (0..mesh.positions().len())
+            .filter(|&i| mesh.positions()[i].y >= hi - 0.05 * (hi - lo))
+            .collect();
+        let (solver, dt, total_force) = match method {
+            BenchMethod::FemLinear | BenchMethod::FemCorotational => {
+                let mut c = FemConfig::paper(fem.0, fem.1);
+                c.gravity = gravity;
+                c.model = if method == BenchMethod::FemLinear {
+                    FemModel::Linear
+                } else {
+                    FemModel::Corotational
+                };
+                let body = FemBody::new(mesh, c, &boundary)?;
+                let force = fem.0.young_modulus * size * size / 50.0;
+                (Solver::Fem(Box::new(body)), fem.1, force)
+            }
+            _ => {
+                let mut c = MsdConfig::paper(msd.0, msd.1);
+                c.gravity = gravity;
+                c.integrator = match method {
+                    BenchMethod::MsdRk4 => MsdIntegrator::Rk4,
+                    BenchMethod::MsdSymplectic => MsdIntegrator::SymplecticEuler,
+                    _ => MsdIntegrator::ImplicitEuler,
+                };
+                let body = MsdBody::from_mesh(mesh, c, &boundary)?;
+                let force = msd.0.stiffness * size / 5.0;
+                (Solver::Msd(Box::new(body)), msd.1, force)
+            }
+        };
+        let amplitude = total_force / top.len().max(1) as f64;
+        Ok(BenchBody {
+            solver,
+            top,
+            amplitude,
+            dt,
+            time: 0.0,
+            cg_iterations: 0,
+            substeps: 0,
+            steps: 0,
+        })
+    }
+
+    /// Applies the load and advances one step.
+    pub fn step(&mut self) -> Result<(), BenchError> {
+        let phase = (2.0 * std::f64::consts::PI * self.time).sin();
+        let force = Vec3::new(self.amplitude * phase, 0.0, 0.5 * self.amplitude * phase);
+        match &mut self.solver {
+            Solver::Fem(b) => {
+                for &i in &self.top {
+                    b.add_force(i, force);
+                }
+                let s = b.step()?;
+                self.cg_iterations += s.cg.iterations as u64;
+                self.substeps += 1;
+            }
+            Solver::Msd(b) => {
+                for &i in &self.top {
+                    b.add_force(i, force);
+                }
+                let s = b.step()?;
+                self.cg_iterations += s.cg.iterations as u64;
+                self.substeps += s.substeps as u64;
+            }
+        }
+        self.steps += 1;
+        self.time += self.dt;
+        Ok(())
+    }
+
+    /// Sets the CG tolerance and iteration cap of the implicit methods (corotational FEM,
+    /// implicit MSD); no effect on the others.
+    pub fn set_cg(&mut self, tolerance: f64, max_iterations: u32) -> Result<(), BenchError> {
+        match &mut self.solver {
+            Solver::Fem(b) => b.set_cg(tolerance, max_iterations)?,
+            Solver::Msd(b) => b.set_cg(tolerance, max_iterations)?,
+        }
+        Ok(())
+    }
+
+    /// Largest node displacement from rest.
+    pub fn max_displacement(&self) -> f64 {
+        let (x, x0) = match &self.solver {
+            Solver::Fem(b) => (b.positions(), b.rest_positions()),
+            Solver::Msd(b) => (b.positions(), b.rest_positions()),
+        };
+        x.iter()
+            .zip(x0)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max)
+    }
+
+    /// Runs `warmup` untimed steps, then times `steps` steps one by one.
+    pub fn run(
+        &mut self,
+        method: BenchMethod,
+        mesh: &TetMesh,
+        warmup: usize,
+        steps: usize,
+    ) -> Result<BenchReport, BenchError> {
+        for _ in 0..warmup {
+            self.step()?;
+        }
+        self.cg_iterations = 0;
+        self.substeps = 0;
+        self.steps = 0;
+        let mut times = Vec::with_capacity(steps);
+        let mut displacement: f64 = 0.0;
+        for s in 0..steps {
+            let t = Instant::now();
+            self.step()?;
+            times.push(t.elapsed().as_secs_f64() * 1e6);
+            if s % 10 == 0 {
+                displacement = displacement.max(self.max_displacement());
+            }
+        }
+        let size = {
+            let b = mesh.bbox();
+            let d = b.max - b.min;
+            d.x.min(d.y).min(d.z)
+        };
+        times.sort_by(f64::total_cmp);
+        let pick = |q: f64| {
+            times
+                .get(((times.len() as f64 - 1.0) * q).round() as usize)
+                .copied()
+                .unwrap_or(0.0)
+        };
+        let n = steps.max(1) as f64;
+        Ok(BenchReport {
+            method: method.name().into(),
+            nodes: mesh.positions().len(),
+            tets: mesh.tets().len(),
+            steps,
+            dt: self.dt,
+            min_us: pick(0.0),
+            median_us: pick(0.5),
+            mean_us: times.iter().sum::<f64>() / n,
+            p99_us: pick(0.99),
+            max_us: pick(1.0),
+            mean_cg_iterations: self.cg_iterations as f64 / n,
+            mean_substeps: self.substeps as f64 / n,
+            max_displacement_ratio: displacement / size,
+        })
+    }
+}
