@@ -6,6 +6,8 @@
 //! room for round-off; discretisation errors (beam bending) are checked for convergence and
 //! against the mesh-independent analytic value within a stated margin.
 
+#![allow(clippy::needless_range_loop)] // index loops over parallel node arrays
+
 use nalgebra::{Matrix3, Rotation3};
 use soft_tissue_core::Vec3;
 use soft_tissue_core::boundary::Boundary;

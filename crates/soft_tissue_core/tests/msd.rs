@@ -1,6 +1,8 @@
 //! Validation of the mass-spring-damper solvers against the closed-form damped oscillator and
 //! finite differences, and of the explicit stability limit.
 
+#![allow(clippy::needless_range_loop)] // index loops over parallel node arrays
+
 use soft_tissue_core::Vec3;
 use soft_tissue_core::boundary::Boundary;
 use soft_tissue_core::mesh::generate::block;
@@ -15,6 +17,7 @@ fn config(integrator: MsdIntegrator, dt: f64, damping: f64) -> MsdConfig {
         mass: 1.0,
         damping,
         springs: SpringSet::Edges,
+        volume_stiffness: 0.0,
         dt,
         gravity: Vec3::zeros(),
         explicit_limit: ExplicitLimit::Refuse,
@@ -161,11 +164,31 @@ fn spring_forces_and_stiffness_match_finite_differences() {
             p + 0.3 * Vec3::new(r(), r(), r())
         })
         .collect();
-    let energy = |x: &[Vec3]| {
+    let energy = |x: &[Vec3], c: MsdConfig| {
         let mut b = MsdBody::from_mesh(&mesh, c, &boundary).unwrap();
         b.positions_mut().copy_from_slice(x);
         b.elastic_energy()
     };
+    // With the volume term (including inverted states: the jitter flips some elements).
+    let mut cv = c;
+    cv.volume_stiffness = 80.0;
+    let with_volume = MsdBody::from_mesh(&mesh, cv, &boundary).unwrap();
+    let mut fv = vec![Vec3::zeros(); n];
+    with_volume.spring_forces(&x, &mut fv);
+    for j in 0..n {
+        for b in 0..3 {
+            let mut xp = x.clone();
+            xp[j][b] += 1e-6;
+            let mut xm = x.clone();
+            xm[j][b] -= 1e-6;
+            let fd = -(energy(&xp, cv) - energy(&xm, cv)) / 2e-6;
+            assert!(
+                (fd - fv[j][b]).abs() < 1e-6 * 80.0,
+                "volume force {j},{b}: {} vs {fd}",
+                fv[j][b]
+            );
+        }
+    }
     let mut f = vec![Vec3::zeros(); n];
     body.spring_forces(&x, &mut f);
     let k = body.stiffness_dense(&x);
@@ -178,7 +201,7 @@ fn spring_forces_and_stiffness_match_finite_differences() {
             xp[j][b] += h;
             let mut xm = x.clone();
             xm[j][b] -= h;
-            let fd = -(energy(&xp) - energy(&xm)) / (2.0 * h);
+            let fd = -(energy(&xp, c) - energy(&xm, c)) / (2.0 * h);
             assert!(
                 (fd - f[j][b]).abs() < 1e-6 * 30.0,
                 "force {j},{b}: {} vs {fd}",

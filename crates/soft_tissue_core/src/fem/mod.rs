@@ -542,10 +542,28 @@ impl FemBody {
     }
 
     /// Elastic energy of the current state: strain energy of the model in use plus the energy
-    /// of the anchor springs.
+    /// of the anchor springs. Corotational rotations are refined from the last step's (warm
+    /// start, no allocation), so this is cheap enough to call every step.
     pub fn elastic_energy(&self) -> f64 {
-        let mut scratch = vec![Vec3::zeros(); self.x.len()];
-        self.forces_and_energy(&self.x, self.config.model, &mut scratch)
+        let mut energy = 0.0;
+        for (t, tet) in self.tets.iter().enumerate() {
+            let p = tet.map(|i| self.x[i as usize]);
+            let def = element::deformation_gradient(&p, &self.grads[t]);
+            let s = match self.config.model {
+                FemModel::Linear => def,
+                FemModel::Corotational => {
+                    let (mut q, mut r) = (self.quats[t], self.rots[t]);
+                    rotation::extract_rotation(&def, &mut q, &mut r, 50, 1e-12);
+                    r.transpose() * def
+                }
+            };
+            let eps = (s + s.transpose()) * 0.5 - Matrix3::identity();
+            energy += self.volumes[t] * element::energy_density(&eps, self.lambda, self.mu);
+        }
+        for i in 0..self.x.len() {
+            energy += 0.5 * self.anchor_k[i] * (self.x[i] - self.anchor_target[i]).norm_squared();
+        }
+        energy
     }
 
     /// Puts the body back at rest in its rest shape.

@@ -79,6 +79,12 @@ pub struct MsdConfig {
     pub damping: f64,
     /// Springs made from a mesh. Default: edges.
     pub springs: SpringSet,
+    /// Volume stiffness `k_v` (force / length^2) of the optional per-tetrahedron volume term
+    /// `E = k_v (V - V0)^2 / (2 V0)` on the signed volume (Teschner et al. 2004), mesh
+    /// constructor only. Edge springs cannot tell a tetrahedron from its mirror image, so a
+    /// body folded through itself stays folded; this term pushes inverted elements back.
+    /// Default 0 (the paper's MSD).
+    pub volume_stiffness: f64,
     /// Time step, time.
     pub dt: f64,
     /// Gravity, length / time^2. Default zero.
@@ -100,6 +106,7 @@ impl MsdConfig {
             mass: params.mass,
             damping: params.damping,
             springs: SpringSet::Edges,
+            volume_stiffness: 0.0,
             dt,
             gravity: Vec3::zeros(),
             explicit_limit: ExplicitLimit::default(),
@@ -121,6 +128,12 @@ impl MsdConfig {
         }
         if !pos(self.mass) {
             return bad("mass", format!("must be positive, found {}", self.mass));
+        }
+        if !(self.volume_stiffness.is_finite() && self.volume_stiffness >= 0.0) {
+            return bad(
+                "volume_stiffness",
+                format!("must be >= 0, found {}", self.volume_stiffness),
+            );
         }
         if !(self.damping.is_finite() && self.damping >= 0.0) {
             return bad("damping", format!("must be >= 0, found {}", self.damping));
@@ -243,6 +256,9 @@ pub struct MsdBody {
     f_ext: Vec<Vec3>,
     mass: Vec<f64>,
     springs: Vec<Spring>,
+    /// Tetrahedra and rest volumes of the volume term (empty without it).
+    tets: Vec<[u32; 4]>,
+    rest_volumes: Vec<f64>,
     fixed: Vec<[bool; 3]>,
     anchor_k: Vec<f64>,
     anchor_target: Vec<Vec3>,
@@ -257,6 +273,7 @@ pub struct MsdBody {
     backup_x: Vec<Vec3>,
     backup_v: Vec<Vec3>,
     implicit: Option<Implicit>,
+    limit_row: Vec<f64>,
     stats: MsdStepStats,
 }
 
@@ -265,6 +282,8 @@ struct Implicit {
     system: ImplicitSystem,
     /// Per spring: block indices (aa, bb, ab, ba).
     blocks: Vec<[u32; 4]>,
+    /// Per tetrahedron of the volume term: block indices (a, b), row-major.
+    tet_blocks: Vec<[u32; 16]>,
     rhs: Vec<Vec3>,
     dv: Vec<Vec3>,
 }
@@ -327,7 +346,24 @@ impl MsdBody {
                 rest_length: (positions[b as usize] - positions[a as usize]).norm(),
             })
             .collect();
-        MsdBody::new(positions, masses, springs, config, boundary)
+        let (tets, rest_volumes) = if config.volume_stiffness > 0.0 {
+            let tets: Vec<[u32; 4]> = mesh.tets().to_vec();
+            let vols = tets
+                .iter()
+                .map(|t| signed_volume(&positions, t).abs())
+                .collect();
+            (tets, vols)
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        let mut body = MsdBody::new(positions, masses, springs, config, boundary)?;
+        body.tets = tets;
+        body.rest_volumes = rest_volumes;
+        body.estimate_limits();
+        if config.integrator == MsdIntegrator::ImplicitEuler {
+            body.build_implicit()?;
+        }
+        Ok(body)
     }
 
     /// An MSD from explicit nodes (positions are the initial state), masses and springs.
@@ -391,6 +427,8 @@ impl MsdBody {
             f_ext: zeros.clone(),
             mass: masses,
             springs,
+            tets: Vec::new(),
+            rest_volumes: Vec::new(),
             fixed,
             anchor_k,
             omega_max: 0.0,
@@ -402,6 +440,7 @@ impl MsdBody {
             backup_x: zeros.clone(),
             backup_v: zeros,
             implicit: None,
+            limit_row: Vec::with_capacity(n),
             stats: MsdStepStats::default(),
         };
         body.estimate_limits();
@@ -411,16 +450,51 @@ impl MsdBody {
         Ok(body)
     }
 
-    fn estimate_limits(&mut self) {
+    /// Bounds the largest frequency at the rest state, or at the current one when `current`
+    /// (the volume term stiffens as elements stretch, springs do not under tension).
+    fn estimate_limits_at(&mut self, current: bool) {
         // Gershgorin bound on the eigenvalues of M^-1/2 K M^-1/2 (spring blocks have norm <= k
         // at rest and under tension), plus anchors.
         let n = self.x.len();
-        let mut row = vec![0.0; n];
+        let mut row = std::mem::take(&mut self.limit_row);
+        row.clear();
+        row.resize(n, 0.0);
+        let x = if current { &self.x } else { &self.rest };
         for s in &self.springs {
             let (a, b) = (s.a as usize, s.b as usize);
-            let cross = s.stiffness / (self.mass[a] * self.mass[b]).sqrt();
-            row[a] += s.stiffness / self.mass[a] + cross;
-            row[b] += s.stiffness / self.mass[b] + cross;
+            // Tangent stiffness norm: k along the spring, k |1 - L/l| across it (above k
+            // only when compressed below half its length).
+            let l = (x[b] - x[a]).norm();
+            let factor = if current && l > 0.0 {
+                (1.0 - s.rest_length / l).abs().max(1.0)
+            } else {
+                1.0
+            };
+            let k = s.stiffness * factor;
+            let cross = k / (self.mass[a] * self.mass[b]).sqrt();
+            row[a] += k / self.mass[a] + cross;
+            row[b] += k / self.mass[b] + cross;
+        }
+        let kv = self.config.volume_stiffness;
+        for (t, v0) in self.tets.iter().zip(&self.rest_volumes) {
+            let g = volume_gradient(x, t);
+            let norms = g.map(|v| v.norm());
+            let sum: f64 = norms.iter().sum();
+            // Second-derivative part: |k_v (V - V0) / V0| times the norm of the blocks of the
+            // Hessian of V (skew matrices of edge vectors / 6), bounded by the longest edge.
+            let p = t.map(|i| x[i as usize]);
+            let mut longest: f64 = 0.0;
+            for a in 0..4 {
+                for b in a + 1..4 {
+                    longest = longest.max((p[a] - p[b]).norm());
+                }
+            }
+            let pressure = (kv * (signed_volume(x, t) - v0) / v0).abs();
+            for a in 0..4 {
+                let i = t[a] as usize;
+                row[i] +=
+                    (kv / v0 * norms[a] * sum + pressure * 3.0 * longest / 6.0) / self.mass[i];
+            }
         }
         let mut w2: f64 = 0.0;
         let mut rate: f64 = 0.0;
@@ -430,6 +504,11 @@ impl MsdBody {
         }
         self.omega_max = w2.sqrt();
         self.damping_rate = rate;
+        self.limit_row = row;
+    }
+
+    fn estimate_limits(&mut self) {
+        self.estimate_limits_at(false);
     }
 
     /// Estimated largest stable step of the configured explicit integrator (infinite for the
@@ -466,10 +545,27 @@ impl MsdBody {
                 .map(|k| k as u32)
             })
             .collect();
+        let tet_blocks = self
+            .tets
+            .iter()
+            .map(|t| {
+                let mut s = [0u32; 16];
+                for a in 0..4 {
+                    for b in 0..4 {
+                        s[4 * a + b] = matrix
+                            .block_index(t[a] as usize, t[b] as usize)
+                            .expect("tetrahedron edges are springs")
+                            as u32;
+                    }
+                }
+                s
+            })
+            .collect();
         let system = ImplicitSystem::new(identity_like(matrix), self.fixed.clone())?;
         let mut imp = Implicit {
             system,
             blocks,
+            tet_blocks,
             rhs: vec![Vec3::zeros(); n],
             dv: vec![Vec3::zeros(); n],
         };
@@ -493,6 +589,22 @@ impl MsdBody {
             blocks[idx[1] as usize] += k;
             blocks[idx[2] as usize] -= k;
             blocks[idx[3] as usize] -= k;
+        }
+        // Volume term, Gauss-Newton part k_v / V0 g g^T (positive semi-definite).
+        let kv = self.config.volume_stiffness;
+        for ((t, v0), idx) in self
+            .tets
+            .iter()
+            .zip(&self.rest_volumes)
+            .zip(&imp.tet_blocks)
+        {
+            let g = volume_gradient(x, t);
+            let c = h * h * kv / v0;
+            for a in 0..4 {
+                for b in 0..4 {
+                    blocks[idx[4 * a + b] as usize] += (g[a] * g[b].transpose()) * c;
+                }
+            }
         }
         for i in 0..self.x.len() {
             let d = m.diag_index(i);
@@ -639,6 +751,15 @@ impl MsdBody {
     pub fn elastic_energy(&self) -> f64 {
         spring_energy(&self.springs, &self.x)
             + self
+                .tets
+                .iter()
+                .zip(&self.rest_volumes)
+                .map(|(t, v0)| {
+                    let dv = signed_volume(&self.x, t) - v0;
+                    0.5 * self.config.volume_stiffness * dv * dv / v0
+                })
+                .sum::<f64>()
+            + self
                 .x
                 .iter()
                 .zip(&self.anchor_target)
@@ -647,17 +768,17 @@ impl MsdBody {
                 .sum::<f64>()
     }
 
-    /// Spring and anchor forces at positions `x` (no damping, gravity or external force),
-    /// written to `out`. For checks.
+    /// Spring, volume-term and anchor forces at positions `x` (no damping, gravity or
+    /// external force), written to `out`. For checks.
     pub fn spring_forces(&self, x: &[Vec3], out: &mut [Vec3]) {
         out.fill(Vec3::zeros());
-        add_spring_forces(&self.springs, x, out);
+        self.add_internal_forces(x, out);
         for i in 0..x.len() {
             out[i] -= self.anchor_k[i] * (x[i] - self.anchor_target[i]);
         }
     }
 
-    /// The exact Jacobian `-d f / d x` of the spring and anchor forces at `x`, as a dense
+    /// The exact Jacobian `-d f / d x` of the spring and anchor forces (not the volume term) at `x`, as a dense
     /// `3n x 3n` matrix in row-major order. For checks on small bodies.
     pub fn stiffness_dense(&self, x: &[Vec3]) -> Vec<f64> {
         let n = x.len();
@@ -700,6 +821,19 @@ impl MsdBody {
         }
     }
 
+    /// Adds spring and volume-term forces at `x` to `out`.
+    fn add_internal_forces(&self, x: &[Vec3], out: &mut [Vec3]) {
+        add_spring_forces(&self.springs, x, out);
+        let kv = self.config.volume_stiffness;
+        for (t, v0) in self.tets.iter().zip(&self.rest_volumes) {
+            let g = volume_gradient(x, t);
+            let p = -kv * (signed_volume(x, t) - v0) / v0;
+            for a in 0..4 {
+                out[t[a] as usize] += p * g[a];
+            }
+        }
+    }
+
     /// `out = a(x, v)`: accelerations, zero on fixed components.
     fn accelerations(&self, x: &[Vec3], v: &[Vec3], out: &mut [Vec3]) {
         let g = self.config.gravity;
@@ -709,7 +843,7 @@ impl MsdBody {
                 - gamma * v[i]
                 - self.anchor_k[i] * (x[i] - self.anchor_target[i]);
         }
-        add_spring_forces(&self.springs, x, out);
+        self.add_internal_forces(x, out);
         for i in 0..x.len() {
             out[i] /= self.mass[i];
             for a in 0..3 {
@@ -773,48 +907,65 @@ impl MsdBody {
     /// Advances by one time step `config().dt`. On error the state is unchanged.
     pub fn step(&mut self) -> Result<MsdStepStats, MsdError> {
         self.check_inputs()?;
-        let substeps = self.substeps_needed()?;
+        let explicit = self.config.integrator != MsdIntegrator::ImplicitEuler;
+        if explicit && !self.tets.is_empty() {
+            self.estimate_limits_at(true);
+        }
+        let mut substeps = self.substeps_needed()?;
         self.backup_x.copy_from_slice(&self.x);
         self.backup_v.copy_from_slice(&self.v);
-        let h = self.config.dt / substeps as f64;
-        let mut stats = MsdStepStats {
-            substeps,
-            cg: CgStats::default(),
+        let max_substeps = match self.config.explicit_limit {
+            ExplicitLimit::Substep { max_substeps } => max_substeps,
+            ExplicitLimit::Refuse => substeps,
         };
-        let result = match self.config.integrator {
-            MsdIntegrator::Rk4 => {
-                for _ in 0..substeps {
-                    self.rk4(h);
+        loop {
+            let h = self.config.dt / substeps as f64;
+            let mut stats = MsdStepStats {
+                substeps,
+                cg: CgStats::default(),
+            };
+            let result = match self.config.integrator {
+                MsdIntegrator::Rk4 => {
+                    for _ in 0..substeps {
+                        self.rk4(h);
+                    }
+                    Ok(())
                 }
-                Ok(())
-            }
-            MsdIntegrator::SymplecticEuler => {
-                for _ in 0..substeps {
-                    self.symplectic(h);
+                MsdIntegrator::SymplecticEuler => {
+                    for _ in 0..substeps {
+                        self.symplectic(h);
+                    }
+                    Ok(())
                 }
-                Ok(())
+                MsdIntegrator::ImplicitEuler => self.implicit_step().map(|cg| stats.cg = cg),
+            };
+            let bad = (0..self.x.len()).find_map(|i| {
+                if !self.x[i].iter().all(|c| c.is_finite()) {
+                    Some(("position", i))
+                } else if !self.v[i].iter().all(|c| c.is_finite()) {
+                    Some(("velocity", i))
+                } else {
+                    None
+                }
+            });
+            if result.is_ok() && bad.is_none() {
+                self.f_ext.fill(Vec3::zeros());
+                self.stats = stats;
+                return Ok(stats);
             }
-            MsdIntegrator::ImplicitEuler => self.implicit_step().map(|cg| stats.cg = cg),
-        };
-        let bad = (0..self.x.len()).find_map(|i| {
-            if !self.x[i].iter().all(|c| c.is_finite()) {
-                Some(("position", i))
-            } else if !self.v[i].iter().all(|c| c.is_finite()) {
-                Some(("velocity", i))
-            } else {
-                None
-            }
-        });
-        if result.is_err() || bad.is_some() {
             self.x.copy_from_slice(&self.backup_x);
             self.v.copy_from_slice(&self.backup_v);
             result?;
+            // An explicit step blew up (a load far outside the linear range made the body
+            // locally stiffer than its estimate): retry with twice the substeps while the
+            // policy allows, then report.
+            if explicit && substeps < max_substeps {
+                substeps = (2 * substeps).min(max_substeps);
+                continue;
+            }
             let (what, node) = bad.expect("checked");
             return Err(MsdError::NonFinite { what, node });
         }
-        self.f_ext.fill(Vec3::zeros());
-        self.stats = stats;
-        Ok(stats)
     }
 
     fn rk4(&mut self, h: f64) {
@@ -884,7 +1035,7 @@ impl MsdBody {
                 - gamma * self.v[i]
                 - self.anchor_k[i] * (self.x[i] - self.anchor_target[i]);
         }
-        add_spring_forces(&self.springs, &self.x, &mut imp.rhs);
+        self.add_internal_forces(&self.x, &mut imp.rhs);
         for i in 0..self.x.len() {
             let kv = (av[i] - (self.mass[i] + h * gamma) * self.v[i]) / (h * h);
             imp.rhs[i] = h * (imp.rhs[i] - h * kv);
@@ -957,4 +1108,20 @@ fn spring_energy(springs: &[Spring], x: &[Vec3]) -> f64 {
             0.5 * s.stiffness * (l - s.rest_length).powi(2)
         })
         .sum()
+}
+
+/// Signed volume of tetrahedron `t` at positions `x`.
+fn signed_volume(x: &[Vec3], t: &[u32; 4]) -> f64 {
+    let [a, b, c, d] = t.map(|i| x[i as usize]);
+    (b - a).dot(&(c - a).cross(&(d - a))) / 6.0
+}
+
+/// Gradient of the signed volume with respect to each node.
+fn volume_gradient(x: &[Vec3], t: &[u32; 4]) -> [Vec3; 4] {
+    let [a, b, c, d] = t.map(|i| x[i as usize]);
+    let (e1, e2, e3) = (b - a, c - a, d - a);
+    let g1 = e2.cross(&e3) / 6.0;
+    let g2 = e3.cross(&e1) / 6.0;
+    let g3 = e1.cross(&e2) / 6.0;
+    [-(g1 + g2 + g3), g1, g2, g3]
 }
