@@ -13,7 +13,7 @@ use soft_tissue_core::scenario::{CYLINDER_FEM, CYLINDER_MSD, ORGAN_FEM};
 fn solvers(c: &mut Criterion) {
     let assets = concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets/meshes");
     for (name, fem) in [("cylinder", CYLINDER_FEM), ("liver", ORGAN_FEM)] {
-        let mesh = read_tet_mesh(&Path::new(assets).join(format!("{name}.vtk")))
+        let mesh = read_tet_mesh(Path::new(assets).join(format!("{name}.vtk")))
             .expect("committed asset")
             .mesh;
         let mut group = c.benchmark_group(format!("step/{name}"));
