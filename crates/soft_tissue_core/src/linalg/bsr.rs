@@ -16,6 +16,8 @@ pub struct BlockSparse {
     row_ptr: Vec<usize>,
     cols: Vec<u32>,
     diag: Vec<usize>,
+    /// For each stored block `(i, j)`, the storage index of `(j, i)`.
+    transpose: Vec<u32>,
     blocks: Vec<Matrix3<f64>>,
 }
 
@@ -48,12 +50,21 @@ impl BlockSparse {
             row_ptr.push(cols.len());
         }
         let nnz = cols.len();
-        BlockSparse {
+        let mut m = BlockSparse {
             row_ptr,
             cols,
             diag,
+            transpose: Vec::new(),
             blocks: vec![Matrix3::zeros(); nnz],
-        }
+        };
+        m.transpose = (0..n)
+            .flat_map(|i| (m.row_ptr[i]..m.row_ptr[i + 1]).map(move |k| (i, k)))
+            .map(|(i, k)| {
+                m.block_index(m.cols[k] as usize, i)
+                    .expect("symmetric pattern") as u32
+            })
+            .collect();
+        m
     }
 
     /// Number of block rows (nodes).
@@ -98,6 +109,26 @@ impl BlockSparse {
     /// Sets every value to zero, keeping the pattern.
     pub fn set_zero(&mut self) {
         self.blocks.fill(Matrix3::zeros());
+    }
+
+    /// Sets the diagonal and upper-triangle blocks (`j >= i`) to zero.
+    pub fn set_upper_zero(&mut self) {
+        for i in 0..self.nodes() {
+            for k in self.diag[i]..self.row_ptr[i + 1] {
+                self.blocks[k] = Matrix3::zeros();
+            }
+        }
+    }
+
+    /// Copies every upper-triangle block `(i, j)`, `j > i`, transposed into `(j, i)`, so a
+    /// matrix assembled in its upper triangle only becomes the full symmetric matrix.
+    pub fn mirror_upper(&mut self) {
+        for i in 0..self.nodes() {
+            for k in self.diag[i] + 1..self.row_ptr[i + 1] {
+                let t = self.transpose[k] as usize;
+                self.blocks[t] = self.blocks[k].transpose();
+            }
+        }
     }
 
     /// Copies the values of a matrix with the same pattern.
