@@ -51,11 +51,14 @@ struct BenchArgs {
     /// fem-linear, fem-corotational, msd-rk4, msd-symplectic, msd-implicit, or all.
     #[arg(long, default_value = "all")]
     method: String,
-    /// Material and scene: the paper's cylinder (with gravity) or organ (gravity off) FEM
-    /// parameters; MSD always uses the paper's cylinder MSD. Default: cylinder for a body
-    /// named cylinder, organ otherwise.
+    /// Material: the paper's cylinder or organ FEM parameters; MSD always uses the paper's
+    /// cylinder MSD. Default: cylinder for a body named cylinder, organ otherwise.
     #[arg(long)]
     params: Option<String>,
+    /// Add gravity (9.81 along -y). Off by default: with the paper's cylinder parameters a
+    /// nonlinear model buckles under its own weight, which times a collapse, not a poke.
+    #[arg(long)]
+    gravity: bool,
     /// Timed steps.
     #[arg(long, default_value_t = 1000)]
     steps: usize,
@@ -285,7 +288,7 @@ fn machine() -> serde_json::Value {
 }
 
 fn bench(args: &BenchArgs) -> Res {
-    use soft_tissue_core::bench::{BenchBody, BenchMethod};
+    use soft_tissue_core::bench::{BenchBody, BenchMethod, BenchReport};
     use soft_tissue_core::scenario::{CYLINDER_FEM, CYLINDER_MSD, ORGAN_FEM};
     let (mesh, name) = match (&args.mesh, &args.generated) {
         (Some(path), _) => {
@@ -322,15 +325,16 @@ fn bench(args: &BenchArgs) -> Res {
         vec![args.method.parse::<BenchMethod>()?]
     };
     let machine = machine();
-    let mut reports = Vec::new();
-    for method in methods {
-        let gravity = params == "cylinder";
+    // Each method runs on its own; one that fails (for example an explicit integrator refusing
+    // a step above its stability limit) is reported in its row and makes the exit status
+    // non-zero, without hiding the others.
+    let run_one = |method: BenchMethod| -> Result<BenchReport, Box<dyn std::error::Error>> {
         let mut body = BenchBody::new(
             &mesh,
             method,
             (&fem.params, fem.dt),
             (&CYLINDER_MSD.params, CYLINDER_MSD.dt),
-            gravity,
+            args.gravity,
         )?;
         if args.cg_tolerance.is_some() || args.cg_max_iterations.is_some() {
             let (tol, cap) = match method {
@@ -342,14 +346,20 @@ fn bench(args: &BenchArgs) -> Res {
                 args.cg_max_iterations.unwrap_or(cap),
             )?;
         }
-        let report = body.run(method, &mesh, args.warmup, args.steps)?;
-        reports.push(report);
-    }
+        Ok(body.run(method, &mesh, args.warmup, args.steps)?)
+    };
+    let results: Vec<(BenchMethod, Result<BenchReport, String>)> = methods
+        .into_iter()
+        .map(|m| (m, run_one(m).map_err(|e| e.to_string())))
+        .collect();
     if args.json {
-        let items: Vec<serde_json::Value> = reports
+        let items: Vec<serde_json::Value> = results
             .iter()
-            .map(|r| {
-                let mut v = serde_json::to_value(r).expect("plain data");
+            .map(|(m, r)| {
+                let mut v = match r {
+                    Ok(r) => serde_json::to_value(r).expect("plain data"),
+                    Err(e) => serde_json::json!({ "method": m.name(), "error": e }),
+                };
                 v["mesh"] = serde_json::json!(name);
                 v["params"] = serde_json::json!(params);
                 v["machine"] = machine.clone();
@@ -384,20 +394,31 @@ fn bench(args: &BenchArgs) -> Res {
             "substeps",
             "max def"
         );
-        for r in &reports {
-            println!(
-                "{:<18} {:>7} {:>10.1} {:>10.1} {:>10.1} {:>10.1} {:>8.2} {:>9.2} {:>7.1}%",
-                r.method,
-                r.dt,
-                r.min_us,
-                r.median_us,
-                r.p99_us,
-                r.mean_us,
-                r.mean_cg_iterations,
-                r.mean_substeps,
-                100.0 * r.max_displacement_ratio
-            );
+        for (m, r) in &results {
+            match r {
+                Ok(r) => println!(
+                    "{:<18} {:>7} {:>10.1} {:>10.1} {:>10.1} {:>10.1} {:>8.2} {:>9.2} {:>7.1}%",
+                    r.method,
+                    r.dt,
+                    r.min_us,
+                    r.median_us,
+                    r.p99_us,
+                    r.mean_us,
+                    r.mean_cg_iterations,
+                    r.mean_substeps,
+                    100.0 * r.max_displacement_ratio
+                ),
+                Err(e) => println!("{:<18} error: {e}", m.name()),
+            }
         }
+    }
+    let failed: Vec<&str> = results
+        .iter()
+        .filter(|(_, r)| r.is_err())
+        .map(|(m, _)| m.name())
+        .collect();
+    if !failed.is_empty() {
+        return Err(format!("{} failed: {}", failed.join(", "), "see the rows above").into());
     }
     Ok(())
 }
