@@ -11,7 +11,7 @@
 //! - [`fem`]: linear and corotational tetrahedral FEM with implicit Euler.
 //! - [`msd`]: mass-spring-damper bodies with RK4, symplectic and implicit Euler.
 //! - [`boundary`]: fixed nodes and soft anchors shared by the solvers.
-//! - [`bench`]: the benchmark load shared by the command-line tool and criterion.
+//! - [`bench`](mod@bench): the benchmark load shared by the command-line tool and criterion.
 //! - [`linalg`]: block-sparse matrices, sparse Cholesky (`faer`), preconditioned CG.
 //! - [`scenario`]: the paper's two scenes (cylinders, organs) as serialisable data.
 //!
