@@ -26,6 +26,7 @@ pub mod material;
 pub mod mesh;
 pub mod msd;
 pub mod scenario;
+mod state;
 
 /// Three-component vector used for positions, displacements and forces (`f64`).
 pub type Vec3 = nalgebra::Vector3<f64>;

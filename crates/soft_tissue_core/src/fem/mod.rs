@@ -36,6 +36,7 @@ use crate::boundary::{Boundary, BoundaryError};
 use crate::linalg::{BlockSparse, CgStats, ImplicitSystem, LinalgError};
 use crate::material::FemParams;
 use crate::mesh::TetMesh;
+use crate::state;
 
 /// The ten local node pairs `a <= b` of a tetrahedron.
 const PAIRS: [(usize, usize); 10] = [
@@ -588,17 +589,12 @@ impl FemBody {
 
     /// Kinetic energy `1/2 sum m v^2`.
     pub fn kinetic_energy(&self) -> f64 {
-        0.5 * self
-            .v
-            .iter()
-            .zip(&self.mass)
-            .map(|(v, m)| m * v.norm_squared())
-            .sum::<f64>()
+        state::kinetic_energy(&self.v, &self.mass)
     }
 
     /// Largest node speed.
     pub fn max_speed(&self) -> f64 {
-        self.v.iter().map(|v| v.norm()).fold(0.0, f64::max)
+        state::max_speed(&self.v)
     }
 
     /// Elastic energy of the current state: strain energy of the model in use plus the energy
@@ -711,29 +707,10 @@ impl FemBody {
     }
 
     fn check_inputs(&self) -> Result<(), FemError> {
-        for (i, f) in self.f_ext.iter().enumerate() {
-            if !f.iter().all(|c| c.is_finite()) {
-                return Err(FemError::NonFinite {
-                    what: "external force",
-                    node: i,
-                });
-            }
+        match state::first_non_finite_input(&self.f_ext, &self.x, &self.v) {
+            Some((what, node)) => Err(FemError::NonFinite { what, node }),
+            None => Ok(()),
         }
-        for i in 0..self.x.len() {
-            if !self.x[i].iter().all(|c| c.is_finite()) {
-                return Err(FemError::NonFinite {
-                    what: "position",
-                    node: i,
-                });
-            }
-            if !self.v[i].iter().all(|c| c.is_finite()) {
-                return Err(FemError::NonFinite {
-                    what: "velocity",
-                    node: i,
-                });
-            }
-        }
-        Ok(())
     }
 
     /// Advances by one time step `config().dt`. On error the state is unchanged (the external
@@ -796,20 +773,11 @@ impl FemBody {
                 }
             }
         }
-        for i in 0..self.x.len() {
-            let bad = if !self.x[i].iter().all(|c| c.is_finite()) {
-                Some("position")
-            } else if !self.v[i].iter().all(|c| c.is_finite()) {
-                Some("velocity")
-            } else {
-                None
-            };
-            if let Some(what) = bad {
-                self.x.copy_from_slice(&self.backup_x);
-                self.v.copy_from_slice(&self.backup_v);
-                self.dv.fill(Vec3::zeros());
-                return Err(FemError::NonFinite { what, node: i });
-            }
+        if let Some((what, node)) = state::first_non_finite_state(&self.x, &self.v) {
+            self.x.copy_from_slice(&self.backup_x);
+            self.v.copy_from_slice(&self.backup_v);
+            self.dv.fill(Vec3::zeros());
+            return Err(FemError::NonFinite { what, node });
         }
         self.f_ext.fill(Vec3::zeros());
         self.stats = stats;

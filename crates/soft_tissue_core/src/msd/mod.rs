@@ -24,6 +24,7 @@ use crate::boundary::{Boundary, BoundaryError};
 use crate::linalg::{BlockSparse, CgStats, ImplicitSystem, LinalgError};
 use crate::material::MsdParams;
 use crate::mesh::TetMesh;
+use crate::state;
 
 /// Time integrator of an MSD body.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -782,17 +783,12 @@ impl MsdBody {
 
     /// Kinetic energy.
     pub fn kinetic_energy(&self) -> f64 {
-        0.5 * self
-            .v
-            .iter()
-            .zip(&self.mass)
-            .map(|(v, m)| m * v.norm_squared())
-            .sum::<f64>()
+        state::kinetic_energy(&self.v, &self.mass)
     }
 
     /// Largest node speed.
     pub fn max_speed(&self) -> f64 {
-        self.v.iter().map(|v| v.norm()).fold(0.0, f64::max)
+        state::max_speed(&self.v)
     }
 
     /// Energy stored in the springs and anchors.
@@ -903,29 +899,10 @@ impl MsdBody {
     }
 
     fn check_inputs(&self) -> Result<(), MsdError> {
-        for (i, f) in self.f_ext.iter().enumerate() {
-            if !f.iter().all(|c| c.is_finite()) {
-                return Err(MsdError::NonFinite {
-                    what: "external force",
-                    node: i,
-                });
-            }
+        match state::first_non_finite_input(&self.f_ext, &self.x, &self.v) {
+            Some((what, node)) => Err(MsdError::NonFinite { what, node }),
+            None => Ok(()),
         }
-        for i in 0..self.x.len() {
-            if !self.x[i].iter().all(|c| c.is_finite()) {
-                return Err(MsdError::NonFinite {
-                    what: "position",
-                    node: i,
-                });
-            }
-            if !self.v[i].iter().all(|c| c.is_finite()) {
-                return Err(MsdError::NonFinite {
-                    what: "velocity",
-                    node: i,
-                });
-            }
-        }
-        Ok(())
     }
 
     /// Number of substeps the next step will take, or the error if the policy refuses it.
@@ -987,15 +964,7 @@ impl MsdBody {
                 }
                 MsdIntegrator::ImplicitEuler => self.implicit_step().map(|cg| stats.cg = cg),
             };
-            let bad = (0..self.x.len()).find_map(|i| {
-                if !self.x[i].iter().all(|c| c.is_finite()) {
-                    Some(("position", i))
-                } else if !self.v[i].iter().all(|c| c.is_finite()) {
-                    Some(("velocity", i))
-                } else {
-                    None
-                }
-            });
+            let bad = state::first_non_finite_state(&self.x, &self.v);
             if result.is_ok() && bad.is_none() {
                 self.f_ext.fill(Vec3::zeros());
                 self.stats = stats;

@@ -1,0 +1,122 @@
+//! A simulation step must not allocate: workspaces are sized when a body is built. A counting
+//! global allocator (counting only on the test's own thread) checks every method.
+
+#![allow(unsafe_code)] // the counting allocator
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use soft_tissue_core::Vec3;
+use soft_tissue_core::boundary::Boundary;
+use soft_tissue_core::fem::{FemBody, FemConfig, FemModel};
+use soft_tissue_core::mesh::generate::block;
+use soft_tissue_core::msd::{ExplicitLimit, MsdBody, MsdConfig, MsdIntegrator};
+use soft_tissue_core::scenario::{CYLINDER_MSD, ORGAN_FEM};
+
+struct Counting;
+
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+thread_local! {
+    static COUNTING: Cell<bool> = const { Cell::new(false) };
+}
+
+fn note() {
+    if COUNTING.with(|c| c.get()) {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+// SAFETY: forwards every call to the system allocator unchanged; only counts.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        note();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        note();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc_zeroed(layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        note();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Counting = Counting;
+
+/// Allocations made by `f` on this thread.
+fn allocations(f: impl FnOnce()) -> usize {
+    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    COUNTING.with(|c| c.set(true));
+    f();
+    COUNTING.with(|c| c.set(false));
+    ALLOCATIONS.load(Ordering::Relaxed) - before
+}
+
+#[test]
+fn steps_do_not_allocate() {
+    // The counter sees allocations at all.
+    assert!(allocations(|| drop(std::hint::black_box(vec![0u8; 64]))) > 0);
+    let mesh = block(Vec3::zeros(), Vec3::new(2.0, 1.0, 1.0), [4, 2, 2]).unwrap();
+    let boundary = Boundary::fixed_below(mesh.positions(), 1, 0.1);
+    let top = mesh.positions().len() - 1;
+    for (model, lag) in [
+        (FemModel::Linear, 0.0),
+        (FemModel::Corotational, 0.0),
+        (FemModel::Corotational, 0.01),
+    ] {
+        let mut c = FemConfig::paper(&ORGAN_FEM.params, 0.01);
+        c.model = model;
+        c.stiffness_update_angle = lag;
+        c.gravity = Vec3::new(0.0, -9.81, 0.0);
+        let mut body = FemBody::new(&mesh, c, &boundary).unwrap();
+        body.step().unwrap();
+        let n = allocations(|| {
+            for s in 0..50 {
+                body.add_force(top, Vec3::new((s as f64 * 0.3).sin(), 0.0, 0.0));
+                body.step().unwrap();
+                let _ = body.kinetic_energy() + body.elastic_energy() + body.max_speed();
+            }
+        });
+        assert_eq!(
+            n, 0,
+            "{model:?} (lag {lag}) allocated {n} times in 50 steps"
+        );
+    }
+    for integrator in [
+        MsdIntegrator::Rk4,
+        MsdIntegrator::SymplecticEuler,
+        MsdIntegrator::ImplicitEuler,
+    ] {
+        for volume in [0.0, 500.0] {
+            let mut c = MsdConfig::paper(&CYLINDER_MSD.params, 0.02);
+            c.integrator = integrator;
+            c.volume_stiffness = volume;
+            c.explicit_limit = ExplicitLimit::Substep { max_substeps: 1000 };
+            c.gravity = Vec3::new(0.0, -9.81, 0.0);
+            let mut body = MsdBody::from_mesh(&mesh, c, &boundary).unwrap();
+            body.step().unwrap();
+            let n = allocations(|| {
+                for s in 0..50 {
+                    body.add_force(top, Vec3::new((s as f64 * 0.3).sin(), 0.0, 0.0));
+                    body.step().unwrap();
+                    let _ = body.kinetic_energy() + body.elastic_energy() + body.max_speed();
+                }
+            });
+            assert_eq!(
+                n, 0,
+                "{integrator:?} (volume {volume}) allocated {n} times in 50 steps"
+            );
+        }
+    }
+}
