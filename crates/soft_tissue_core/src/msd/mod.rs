@@ -357,14 +357,14 @@ impl MsdBody {
         } else {
             (Vec::new(), Vec::new())
         };
-        let mut body = MsdBody::new(positions, masses, springs, config, boundary)?;
-        body.tets = tets;
-        body.rest_volumes = rest_volumes;
-        body.estimate_limits();
-        if config.integrator == MsdIntegrator::ImplicitEuler {
-            body.build_implicit()?;
-        }
-        Ok(body)
+        MsdBody::build(
+            positions,
+            masses,
+            springs,
+            (tets, rest_volumes),
+            config,
+            boundary,
+        )
     }
 
     /// An MSD from explicit nodes (positions are the initial state), masses and springs.
@@ -373,6 +373,26 @@ impl MsdBody {
         positions: Vec<Vec3>,
         masses: Vec<f64>,
         springs: Vec<Spring>,
+        config: MsdConfig,
+        boundary: &Boundary,
+    ) -> Result<Self, MsdError> {
+        MsdBody::build(
+            positions,
+            masses,
+            springs,
+            (Vec::new(), Vec::new()),
+            config,
+            boundary,
+        )
+    }
+
+    /// Validates and builds, with the tetrahedra and rest volumes of the volume term (empty
+    /// without it).
+    fn build(
+        positions: Vec<Vec3>,
+        masses: Vec<f64>,
+        springs: Vec<Spring>,
+        (tets, rest_volumes): (Vec<[u32; 4]>, Vec<f64>),
         config: MsdConfig,
         boundary: &Boundary,
     ) -> Result<Self, MsdError> {
@@ -428,8 +448,8 @@ impl MsdBody {
             f_ext: zeros.clone(),
             mass: masses,
             springs,
-            tets: Vec::new(),
-            rest_volumes: Vec::new(),
+            tets,
+            rest_volumes,
             fixed,
             anchor_k,
             omega_max: 0.0,
