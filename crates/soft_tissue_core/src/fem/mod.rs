@@ -267,8 +267,6 @@ pub struct FemBody {
     tets: Vec<[u32; 4]>,
     grads: Vec<[Vec3; 4]>,
     volumes: Vec<f64>,
-    /// Per element: storage index of block (a, b) of its 4x4 block stiffness, row-major.
-    scatter: Vec<[u32; 16]>,
     /// Per element: for the pairs `a <= b` (in the order of [`PAIRS`]), the storage index of
     /// the upper-triangle block of the node pair, with [`TRANSPOSED`] set when the element's
     /// block `(a, b)` lands transposed (node of `a` after node of `b`).
@@ -359,21 +357,6 @@ impl FemBody {
             ]
         });
         let mut k_rest = BlockSparse::from_pairs(n, pairs);
-        let scatter: Vec<[u32; 16]> = tets
-            .iter()
-            .map(|t| {
-                let mut s = [0u32; 16];
-                for a in 0..4 {
-                    for b in 0..4 {
-                        s[4 * a + b] = k_rest
-                            .block_index(t[a] as usize, t[b] as usize)
-                            .expect("tet pairs are in the pattern")
-                            as u32;
-                    }
-                }
-                s
-            })
-            .collect();
         let upper: Vec<[u32; 10]> = tets
             .iter()
             .map(|t| {
@@ -389,17 +372,17 @@ impl FemBody {
             .collect();
         let (lambda, mu) = element::lame(config.young_modulus, config.poisson_ratio);
         let identity = vec![UnitQuaternion::identity(); tets.len()];
-        assemble_stiffness(
+        add_warped_upper(
             &mut k_rest,
-            &tets,
+            &upper,
             &grads,
             &volumes,
-            &scatter,
+            |_| Matrix3::identity(),
             lambda,
             mu,
-            &identity,
             1.0,
         );
+        k_rest.mirror_upper();
         // The rest stiffness alone is singular for a free body: factorize the system matrix.
         let mut body_matrix = k_rest.clone();
         fill_rest_system(&mut body_matrix, &k_rest, &mass, &anchor_k, &config);
@@ -411,7 +394,6 @@ impl FemBody {
             tets,
             grads,
             volumes,
-            scatter,
             upper,
             x: rest.clone(),
             anchor_target: rest.clone(),
@@ -675,30 +657,28 @@ impl FemBody {
     /// The stiffness matrix of `model` at positions `x` (warped `R K R^T` for corotational,
     /// with converged rotations), anchors included, constraints not applied. For checks.
     pub fn stiffness_at(&self, x: &[Vec3], model: FemModel) -> BlockSparse {
-        let quats: Vec<UnitQuaternion<f64>> = match model {
-            FemModel::Linear => vec![UnitQuaternion::identity(); self.tets.len()],
-            FemModel::Corotational => (0..self.tets.len())
-                .map(|t| {
+        let rots: Vec<Matrix3<f64>> = (0..self.tets.len())
+            .map(|t| match model {
+                FemModel::Linear => Matrix3::identity(),
+                FemModel::Corotational => {
                     let p = self.tets[t].map(|i| x[i as usize]);
-                    let r =
-                        rotation::rotation_of(&element::deformation_gradient(&p, &self.grads[t]));
-                    UnitQuaternion::from_matrix(&r)
-                })
-                .collect(),
-        };
+                    rotation::rotation_of(&element::deformation_gradient(&p, &self.grads[t]))
+                }
+            })
+            .collect();
         let mut k = self.k_rest.clone();
-        k.set_zero();
-        assemble_stiffness(
+        k.set_upper_zero();
+        add_warped_upper(
             &mut k,
-            &self.tets,
+            &self.upper,
             &self.grads,
             &self.volumes,
-            &self.scatter,
+            |t| rots[t],
             self.lambda,
             self.mu,
-            &quats,
             1.0,
         );
+        k.mirror_upper();
         for i in 0..x.len() {
             let d = k.diag_index(i);
             k.blocks_mut()[d] += Matrix3::identity() * self.anchor_k[i];
@@ -833,39 +813,18 @@ impl FemBody {
     fn assemble_warped_system(&mut self) {
         let h = self.config.dt;
         let c = self.config.stiffness_damping * h + h * h;
-        let (lambda, mu) = (self.lambda, self.mu);
         self.system.matrix.set_upper_zero();
-        let blocks = self.system.matrix.blocks_mut();
-        for t in 0..self.tets.len() {
-            let b = &self.grads[t];
-            let r = self.rots[t];
-            // K_ab = V (lambda c_a c_b^T + mu c_b c_a^T + mu (b_a . b_b) I), c = R b.
-            let cr = [r * b[0], r * b[1], r * b[2], r * b[3]];
-            let vol = self.volumes[t];
-            let (vl, vm) = (vol * c * lambda, vol * c * mu);
-            for (&(a, bb), &target) in PAIRS.iter().zip(&self.upper[t]) {
-                let ca = [cr[a].x, cr[a].y, cr[a].z];
-                let cb = [cr[bb].x, cr[bb].y, cr[bb].z];
-                let d = vm * b[a].dot(&b[bb]);
-                let k = blocks[(target & !TRANSPOSED) as usize].as_mut_slice();
-                // Column-major storage: entry (i, j) at 3 j + i. Transposed: (j, i).
-                if target & TRANSPOSED == 0 {
-                    for j in 0..3 {
-                        for i in 0..3 {
-                            k[3 * j + i] += vl * ca[i] * cb[j] + vm * cb[i] * ca[j];
-                        }
-                        k[4 * j] += d;
-                    }
-                } else {
-                    for j in 0..3 {
-                        for i in 0..3 {
-                            k[3 * i + j] += vl * ca[i] * cb[j] + vm * cb[i] * ca[j];
-                        }
-                        k[4 * j] += d;
-                    }
-                }
-            }
-        }
+        let rots = &self.rots;
+        add_warped_upper(
+            &mut self.system.matrix,
+            &self.upper,
+            &self.grads,
+            &self.volumes,
+            |t| rots[t],
+            self.lambda,
+            self.mu,
+            c,
+        );
         self.system.matrix.mirror_upper();
         let alpha = self.config.mass_damping;
         for i in 0..self.x.len() {
@@ -909,7 +868,7 @@ impl FemBody {
         let mut f = vec![Vec3::zeros(); self.x.len()];
         let mut dx = vec![Vec3::zeros(); self.x.len()];
         let mut update = f64::INFINITY;
-        let mut quats = vec![UnitQuaternion::identity(); self.tets.len()];
+        let mut rots = vec![Matrix3::identity(); self.tets.len()];
         for it in 0..max_iterations.max(1) {
             self.forces_and_energy(&self.x.clone(), model, &mut f);
             for i in 0..f.len() {
@@ -920,26 +879,25 @@ impl FemBody {
             match model {
                 FemModel::Linear => sys.solve_direct(&f, &mut dx)?,
                 FemModel::Corotational => {
-                    for (t, q) in quats.iter_mut().enumerate() {
+                    for (t, r) in rots.iter_mut().enumerate() {
                         let p = self.tets[t].map(|i| self.x[i as usize]);
-                        let r = rotation::rotation_of(&element::deformation_gradient(
+                        *r = rotation::rotation_of(&element::deformation_gradient(
                             &p,
                             &self.grads[t],
                         ));
-                        *q = UnitQuaternion::from_matrix(&r);
                     }
-                    sys.matrix.set_zero();
-                    assemble_stiffness(
+                    sys.matrix.set_upper_zero();
+                    add_warped_upper(
                         &mut sys.matrix,
-                        &self.tets,
+                        &self.upper,
                         &self.grads,
                         &self.volumes,
-                        &self.scatter,
+                        |t| rots[t],
                         self.lambda,
                         self.mu,
-                        &quats,
                         1.0,
                     );
+                    sys.matrix.mirror_upper();
                     for i in 0..self.x.len() {
                         let d = sys.matrix.diag_index(i);
                         sys.matrix.blocks_mut()[d] += Matrix3::identity() * self.anchor_k[i];
@@ -991,33 +949,47 @@ fn fill_rest_system(
     }
 }
 
-/// Adds `scale * R K^e R^T` of every element into `k` through the scatter map.
+/// Adds `scale * R K^e R^T` of every element into the upper triangle of `k` (diagonal
+/// included) through the upper scatter map; call [`BlockSparse::mirror_upper`] after. Blocks
+/// `K_ab = V (lambda c_a c_b^T + mu c_b c_a^T + mu (b_a . b_b) I)` with `c = R b`, written out
+/// by hand (this is the hot loop of a corotational step); checked against
+/// [`element::stiffness_block`] by a unit test.
 #[allow(clippy::too_many_arguments)]
-fn assemble_stiffness(
+fn add_warped_upper(
     k: &mut BlockSparse,
-    tets: &[[u32; 4]],
+    upper: &[[u32; 10]],
     grads: &[[Vec3; 4]],
     volumes: &[f64],
-    scatter: &[[u32; 16]],
+    rotation: impl Fn(usize) -> Matrix3<f64>,
     lambda: f64,
     mu: f64,
-    quats: &[UnitQuaternion<f64>],
     scale: f64,
 ) {
     let blocks = k.blocks_mut();
-    for t in 0..tets.len() {
+    for t in 0..grads.len() {
         let b = &grads[t];
-        let r = quats[t].to_rotation_matrix();
-        let c = [r * b[0], r * b[1], r * b[2], r * b[3]];
-        let vol = volumes[t] * scale;
-        let s = &scatter[t];
-        for a in 0..4 {
-            for bb in a..4 {
-                let blk =
-                    element::stiffness_block(&c[a], &c[bb], b[a].dot(&b[bb]), vol, lambda, mu);
-                blocks[s[4 * a + bb] as usize] += blk;
-                if a != bb {
-                    blocks[s[4 * bb + a] as usize] += blk.transpose();
+        let r = rotation(t);
+        let cr = [r * b[0], r * b[1], r * b[2], r * b[3]];
+        let (vl, vm) = (volumes[t] * scale * lambda, volumes[t] * scale * mu);
+        for (&(a, bb), &target) in PAIRS.iter().zip(&upper[t]) {
+            let ca = [cr[a].x, cr[a].y, cr[a].z];
+            let cb = [cr[bb].x, cr[bb].y, cr[bb].z];
+            let d = vm * b[a].dot(&b[bb]);
+            let k = blocks[(target & !TRANSPOSED) as usize].as_mut_slice();
+            // Column-major storage: entry (i, j) at 3 j + i. Transposed: (j, i).
+            if target & TRANSPOSED == 0 {
+                for j in 0..3 {
+                    for i in 0..3 {
+                        k[3 * j + i] += vl * ca[i] * cb[j] + vm * cb[i] * ca[j];
+                    }
+                    k[4 * j] += d;
+                }
+            } else {
+                for j in 0..3 {
+                    for i in 0..3 {
+                        k[3 * i + j] += vl * ca[i] * cb[j] + vm * cb[i] * ca[j];
+                    }
+                    k[4 * j] += d;
                 }
             }
         }
@@ -1030,10 +1002,10 @@ mod tests {
     use crate::mesh::generate::block;
     use nalgebra::Rotation3;
 
-    /// The step's fused upper-triangle assembly equals the reference assembly of
-    /// [`FemBody::stiffness_at`] plus the mass and anchor diagonal.
+    /// The hand-written upper-triangle assembly (used by steps, `stiffness_at` and the static
+    /// solve) equals a plain assembly of [`element::stiffness_block`] over all 16 blocks.
     #[test]
-    fn fused_assembly_matches_the_reference() {
+    fn fast_assembly_matches_the_element_kernel() {
         let mesh = block(Vec3::zeros(), Vec3::new(2.0, 1.0, 1.0), [3, 2, 2]).unwrap();
         let mut c = FemConfig::paper(&crate::scenario::ORGAN_FEM.params, 0.01);
         c.stiffness_damping = 0.003;
@@ -1045,9 +1017,52 @@ mod tests {
             *x = rot * (*x * (1.0 + 0.01 * (i % 5) as f64));
         }
         body.sync_rotations();
+        // Reference: K_R plus anchors, from the element kernel.
+        let mut reference = body.k_rest.clone();
+        reference.set_zero();
+        for (t, tet) in body.tets.iter().enumerate() {
+            let b = &body.grads[t];
+            let r = body.rots[t];
+            for a in 0..4 {
+                for bb in 0..4 {
+                    let blk = element::stiffness_block(
+                        &(r * b[a]),
+                        &(r * b[bb]),
+                        b[a].dot(&b[bb]),
+                        body.volumes[t],
+                        body.lambda,
+                        body.mu,
+                    );
+                    let k = reference
+                        .block_index(tet[a] as usize, tet[bb] as usize)
+                        .unwrap();
+                    reference.blocks_mut()[k] += blk;
+                }
+            }
+        }
+        for i in 0..body.node_count() {
+            let d = reference.diag_index(i);
+            reference.blocks_mut()[d] += Matrix3::identity() * body.anchor_k[i];
+        }
+        let size = reference
+            .blocks()
+            .iter()
+            .map(|b| b.abs().max())
+            .fold(0.0, f64::max);
+        let at = body.stiffness_at(body.positions(), FemModel::Corotational);
+        let worst = at
+            .blocks()
+            .iter()
+            .zip(reference.blocks())
+            .map(|(a, b)| (a - b).abs().max())
+            .fold(0.0, f64::max);
+        assert!(
+            worst < 1e-12 * size,
+            "stiffness_at differs by {worst} (scale {size})"
+        );
+        // The step's system matrix: (1 + h alpha) M + c K_R + h^2 Ka.
         body.rhs.fill(Vec3::zeros());
         body.corotational_forces_and_matrix();
-        let reference = body.stiffness_at(body.positions(), FemModel::Corotational);
         let h = c.dt;
         let scale = c.stiffness_damping * h + h * h;
         let mut worst: f64 = 0.0;
@@ -1056,26 +1071,14 @@ mod tests {
             for (&j, k) in cols.iter().zip(range) {
                 let mut expected = reference.blocks()[k] * scale;
                 if j as usize == i {
-                    // stiffness_at includes anchors unscaled; the system has h^2 k_a.
                     expected += Matrix3::identity()
                         * ((1.0 + h * c.mass_damping) * body.mass[i]
                             + (h * h - scale) * body.anchor_k[i]);
                 }
-                let got = body.system.matrix.blocks()[k];
-                worst = worst.max((got - expected).abs().max());
+                worst = worst.max((body.system.matrix.blocks()[k] - expected).abs().max());
             }
         }
-        let size = body
-            .system
-            .matrix
-            .blocks()
-            .iter()
-            .map(|b| b.abs().max())
-            .fold(0.0, f64::max);
-        assert!(
-            worst < 1e-12 * size,
-            "assembly differs by {worst} (scale {size})"
-        );
+        assert!(worst < 1e-12 * size, "system matrix differs by {worst}");
         assert!(body.system.matrix.asymmetry() < 1e-15 * size);
     }
 }
