@@ -279,10 +279,11 @@ fn machine() -> serde_json::Value {
     let cores = std::thread::available_parallelism()
         .map(|n| n.get())
         .unwrap_or(1);
+    // Without debug assertions: a release build, or the optimised test profile.
     let profile = if cfg!(debug_assertions) {
         "debug"
     } else {
-        "release"
+        "optimised"
     };
     serde_json::json!({ "cpu": cpu, "cores": cores, "profile": profile, "threads_used": 1 })
 }
