@@ -17,6 +17,7 @@ use crate::fem::{FemBody, FemConfig, FemError, FemModel};
 use crate::material::{FemParams, MsdParams};
 use crate::mesh::TetMesh;
 use crate::msd::{MsdBody, MsdConfig, MsdError, MsdIntegrator};
+use crate::state::NodalBody;
 
 /// A precise method to benchmark.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

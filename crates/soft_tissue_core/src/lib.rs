@@ -11,6 +11,7 @@
 //! - [`fem`]: linear and corotational tetrahedral FEM with implicit Euler.
 //! - [`msd`]: mass-spring-damper bodies with RK4, symplectic and implicit Euler.
 //! - [`boundary`]: fixed nodes and soft anchors shared by the solvers.
+//! - [`state`]: the per-node state of every precise body and the [`NodalBody`] accessors.
 //! - [`bench`](mod@bench): the benchmark load shared by the command-line tool and criterion.
 //! - [`linalg`]: block-sparse matrices, sparse Cholesky (`faer`), preconditioned CG.
 //! - [`scenario`]: the paper's two scenes (cylinders, organs) as serialisable data.
@@ -26,7 +27,9 @@ pub mod material;
 pub mod mesh;
 pub mod msd;
 pub mod scenario;
-mod state;
+pub mod state;
+
+pub use state::NodalBody;
 
 /// Three-component vector used for positions, displacements and forces (`f64`).
 pub type Vec3 = nalgebra::Vector3<f64>;

@@ -1,4 +1,5 @@
-//! Checks and measures shared by the per-node state of the solvers (FEM and MSD bodies).
+//! The per-node state of the precise bodies (FEM and MSD), its accessors, and the checks and
+//! measures they share.
 
 use crate::Vec3;
 
@@ -20,11 +21,7 @@ pub(crate) fn first_non_finite_state(x: &[Vec3], v: &[Vec3]) -> Option<(&'static
 }
 
 /// The first non-finite external force, position or velocity, as `(what, node)`.
-pub(crate) fn first_non_finite_input(
-    f_ext: &[Vec3],
-    x: &[Vec3],
-    v: &[Vec3],
-) -> Option<(&'static str, usize)> {
+fn first_non_finite_input(f_ext: &[Vec3], x: &[Vec3], v: &[Vec3]) -> Option<(&'static str, usize)> {
     f_ext
         .iter()
         .position(|f| !finite(f))
@@ -44,4 +41,141 @@ pub(crate) fn kinetic_energy(v: &[Vec3], mass: &[f64]) -> f64 {
 /// Largest speed.
 pub(crate) fn max_speed(v: &[Vec3]) -> f64 {
     v.iter().map(|v| v.norm()).fold(0.0, f64::max)
+}
+
+/// The per-node state every precise body keeps: rest and current positions, velocities, the
+/// external force accumulator, lumped masses, fixed axes and soft anchors.
+#[derive(Debug, Clone)]
+pub struct Nodes {
+    pub(crate) rest: Vec<Vec3>,
+    pub(crate) x: Vec<Vec3>,
+    pub(crate) v: Vec<Vec3>,
+    pub(crate) f_ext: Vec<Vec3>,
+    pub(crate) mass: Vec<f64>,
+    pub(crate) fixed: Vec<[bool; 3]>,
+    pub(crate) anchor_k: Vec<f64>,
+    pub(crate) anchor_target: Vec<Vec3>,
+}
+
+impl Nodes {
+    /// At rest at `rest`, anchors targeting the rest positions.
+    pub(crate) fn new(
+        rest: Vec<Vec3>,
+        mass: Vec<f64>,
+        fixed: Vec<[bool; 3]>,
+        anchor_k: Vec<f64>,
+    ) -> Self {
+        let n = rest.len();
+        Nodes {
+            x: rest.clone(),
+            anchor_target: rest.clone(),
+            rest,
+            v: vec![Vec3::zeros(); n],
+            f_ext: vec![Vec3::zeros(); n],
+            mass,
+            fixed,
+            anchor_k,
+        }
+    }
+
+    /// Back at rest in the rest shape, no pending force.
+    pub(crate) fn reset(&mut self) {
+        self.x.copy_from_slice(&self.rest);
+        self.v.fill(Vec3::zeros());
+        self.f_ext.fill(Vec3::zeros());
+    }
+
+    /// The first non-finite external force, position or velocity.
+    pub(crate) fn first_non_finite_input(&self) -> Option<(&'static str, usize)> {
+        first_non_finite_input(&self.f_ext, &self.x, &self.v)
+    }
+
+    /// Energy of the anchor springs.
+    pub(crate) fn anchor_energy(&self) -> f64 {
+        self.x
+            .iter()
+            .zip(&self.anchor_target)
+            .zip(&self.anchor_k)
+            .map(|((x, t), k)| 0.5 * k * (x - t).norm_squared())
+            .sum()
+    }
+}
+
+/// What every precise body (FEM, MSD) exposes about its nodes. Import it to call these on a
+/// [`crate::fem::FemBody`] or [`crate::msd::MsdBody`].
+pub trait NodalBody {
+    /// The per-node state.
+    fn nodes(&self) -> &Nodes;
+
+    /// The per-node state, to change.
+    fn nodes_mut(&mut self) -> &mut Nodes;
+
+    /// Number of nodes.
+    fn node_count(&self) -> usize {
+        self.nodes().x.len()
+    }
+
+    /// Rest positions.
+    fn rest_positions(&self) -> &[Vec3] {
+        &self.nodes().rest
+    }
+
+    /// Current positions.
+    fn positions(&self) -> &[Vec3] {
+        &self.nodes().x
+    }
+
+    /// Current positions, to set (state transfer, or moving fixed nodes kinematically: a
+    /// fixed component keeps whatever position it is given).
+    fn positions_mut(&mut self) -> &mut [Vec3] {
+        &mut self.nodes_mut().x
+    }
+
+    /// Current velocities.
+    fn velocities(&self) -> &[Vec3] {
+        &self.nodes().v
+    }
+
+    /// Current velocities, to set.
+    fn velocities_mut(&mut self) -> &mut [Vec3] {
+        &mut self.nodes_mut().v
+    }
+
+    /// Lumped node masses.
+    fn masses(&self) -> &[f64] {
+        &self.nodes().mass
+    }
+
+    /// Per-node fixed axes.
+    fn fixed(&self) -> &[[bool; 3]] {
+        &self.nodes().fixed
+    }
+
+    /// External force accumulator (force units per node): forces added here act during the
+    /// next step and are then cleared.
+    fn external_forces_mut(&mut self) -> &mut [Vec3] {
+        &mut self.nodes_mut().f_ext
+    }
+
+    /// Adds an external force on a node for the next step. Ignores a node out of range.
+    fn add_force(&mut self, node: usize, force: Vec3) {
+        if let Some(f) = self.nodes_mut().f_ext.get_mut(node) {
+            *f += force;
+        }
+    }
+
+    /// Targets of the soft anchors (rest positions unless set).
+    fn anchor_targets_mut(&mut self) -> &mut [Vec3] {
+        &mut self.nodes_mut().anchor_target
+    }
+
+    /// Kinetic energy `1/2 sum m v^2`.
+    fn kinetic_energy(&self) -> f64 {
+        kinetic_energy(&self.nodes().v, &self.nodes().mass)
+    }
+
+    /// Largest node speed.
+    fn max_speed(&self) -> f64 {
+        max_speed(&self.nodes().v)
+    }
 }

@@ -9,11 +9,11 @@
 #![allow(clippy::needless_range_loop)] // index loops over parallel node arrays
 
 use nalgebra::{Matrix3, Rotation3};
-use soft_tissue_core::Vec3;
 use soft_tissue_core::boundary::Boundary;
 use soft_tissue_core::fem::{FemBody, FemConfig, FemModel, MassSpec, element};
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::generate::block;
+use soft_tissue_core::{NodalBody, Vec3};
 
 fn config(model: FemModel, young: f64, poisson: f64) -> FemConfig {
     FemConfig {

@@ -5,13 +5,13 @@
 
 #![allow(clippy::needless_range_loop)] // index loops over parallel node arrays
 
-use soft_tissue_core::Vec3;
 use soft_tissue_core::boundary::Boundary;
 use soft_tissue_core::fem::{FemBody, FemConfig, FemModel, element};
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::io::read_tet_mesh;
 use soft_tissue_core::msd::{ExplicitLimit, MsdBody, MsdConfig, MsdError, MsdIntegrator};
 use soft_tissue_core::scenario::{CYLINDER_FEM, CYLINDER_MSD};
+use soft_tissue_core::{NodalBody, Vec3};
 
 const STEPS: usize = 10_000;
 
@@ -95,14 +95,9 @@ fn inverted_and_flat(mesh: &TetMesh, x: &[Vec3]) -> (usize, usize) {
 }
 
 /// A body under test, FEM or MSD.
-trait Body {
+trait Body: NodalBody {
     fn step(&mut self) -> Result<(), String>;
     fn energy(&self) -> f64;
-    fn positions_mut(&mut self) -> &mut [Vec3];
-    fn velocities_mut(&mut self) -> &mut [Vec3];
-    fn add_force(&mut self, node: usize, f: Vec3);
-    fn positions(&self) -> &[Vec3];
-    fn masses_sum(&self) -> f64;
 }
 
 impl Body for FemBody {
@@ -112,21 +107,6 @@ impl Body for FemBody {
     fn energy(&self) -> f64 {
         self.kinetic_energy() + self.elastic_energy()
     }
-    fn positions_mut(&mut self) -> &mut [Vec3] {
-        FemBody::positions_mut(self)
-    }
-    fn velocities_mut(&mut self) -> &mut [Vec3] {
-        FemBody::velocities_mut(self)
-    }
-    fn add_force(&mut self, node: usize, f: Vec3) {
-        FemBody::add_force(self, node, f)
-    }
-    fn positions(&self) -> &[Vec3] {
-        FemBody::positions(self)
-    }
-    fn masses_sum(&self) -> f64 {
-        self.masses().iter().sum()
-    }
 }
 
 impl Body for MsdBody {
@@ -135,21 +115,6 @@ impl Body for MsdBody {
     }
     fn energy(&self) -> f64 {
         self.kinetic_energy() + self.elastic_energy()
-    }
-    fn positions_mut(&mut self) -> &mut [Vec3] {
-        MsdBody::positions_mut(self)
-    }
-    fn velocities_mut(&mut self) -> &mut [Vec3] {
-        MsdBody::velocities_mut(self)
-    }
-    fn add_force(&mut self, node: usize, f: Vec3) {
-        MsdBody::add_force(self, node, f)
-    }
-    fn positions(&self) -> &[Vec3] {
-        MsdBody::positions(self)
-    }
-    fn masses_sum(&self) -> f64 {
-        self.masses().iter().sum()
     }
 }
 
@@ -181,7 +146,7 @@ fn run(
         Disturbance::ToolForce(_) => active_steps = (1.0 / dt).round() as usize,
     }
     let node = top[0];
-    let weight = body.masses_sum() * 9.81;
+    let weight = body.masses().iter().sum::<f64>() * 9.81;
     let mut end_energy = body.energy();
     let mut peak: f64 = end_energy;
     for s in 0..STEPS {

@@ -3,12 +3,12 @@
 
 #![allow(clippy::needless_range_loop)] // index loops over parallel node arrays
 
-use soft_tissue_core::Vec3;
 use soft_tissue_core::boundary::Boundary;
 use soft_tissue_core::mesh::generate::block;
 use soft_tissue_core::msd::{
     ExplicitLimit, MsdBody, MsdConfig, MsdError, MsdIntegrator, Spring, SpringSet,
 };
+use soft_tissue_core::{NodalBody, Vec3};
 
 fn config(integrator: MsdIntegrator, dt: f64, damping: f64) -> MsdConfig {
     MsdConfig {

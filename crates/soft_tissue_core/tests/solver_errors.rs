@@ -1,13 +1,13 @@
 //! Bad input to the solvers gives a typed error naming what and where, never a panic, and a
 //! refused step leaves the state as it was.
 
-use soft_tissue_core::Vec3;
 use soft_tissue_core::boundary::{Boundary, BoundaryError};
 use soft_tissue_core::fem::{FemBody, FemConfig, FemError};
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::generate::block;
 use soft_tissue_core::msd::{MsdBody, MsdConfig, MsdError, Spring};
 use soft_tissue_core::scenario::{CYLINDER_MSD, ORGAN_FEM};
+use soft_tissue_core::{NodalBody, Vec3};
 
 fn mesh() -> TetMesh {
     block(Vec3::zeros(), Vec3::repeat(1.0), [2, 2, 2]).unwrap()

@@ -36,7 +36,7 @@ use crate::boundary::{Boundary, BoundaryError};
 use crate::linalg::{BlockSparse, CgStats, ImplicitSystem, LinalgError};
 use crate::material::FemParams;
 use crate::mesh::TetMesh;
-use crate::state;
+use crate::state::{self, NodalBody, Nodes};
 
 /// The ten local node pairs `a <= b` of a tetrahedron.
 const PAIRS: [(usize, usize); 10] = [
@@ -271,14 +271,7 @@ pub struct FemBody {
     /// the upper-triangle block of the node pair, with [`TRANSPOSED`] set when the element's
     /// block `(a, b)` lands transposed (node of `a` after node of `b`).
     upper: Vec<[u32; 10]>,
-    rest: Vec<Vec3>,
-    x: Vec<Vec3>,
-    v: Vec<Vec3>,
-    f_ext: Vec<Vec3>,
-    mass: Vec<f64>,
-    fixed: Vec<[bool; 3]>,
-    anchor_k: Vec<f64>,
-    anchor_target: Vec<Vec3>,
+    nodes: Nodes,
     quats: Vec<UnitQuaternion<f64>>,
     /// Rotation matrices of `quats`.
     rots: Vec<Matrix3<f64>>,
@@ -298,6 +291,16 @@ pub struct FemBody {
     backup_v: Vec<Vec3>,
     stats: FemStepStats,
     static_system: Option<ImplicitSystem>,
+}
+
+impl NodalBody for FemBody {
+    fn nodes(&self) -> &Nodes {
+        &self.nodes
+    }
+
+    fn nodes_mut(&mut self) -> &mut Nodes {
+        &mut self.nodes
+    }
 }
 
 impl FemBody {
@@ -395,14 +398,7 @@ impl FemBody {
             grads,
             volumes,
             upper,
-            x: rest.clone(),
-            anchor_target: rest.clone(),
-            rest,
-            v: vec![Vec3::zeros(); n],
-            f_ext: vec![Vec3::zeros(); n],
-            mass,
-            fixed,
-            anchor_k,
+            nodes: Nodes::new(rest, mass, fixed, anchor_k),
             rots: vec![Matrix3::identity(); identity.len()],
             quats_assembled: identity.clone(),
             matrix_current: false,
@@ -447,7 +443,7 @@ impl FemBody {
     /// teleporting); steps only refine the rotations incrementally.
     pub fn sync_rotations(&mut self) {
         for t in 0..self.tets.len() {
-            let p = self.tets[t].map(|i| self.x[i as usize]);
+            let p = self.tets[t].map(|i| self.nodes.x[i as usize]);
             let r = rotation::rotation_of(&element::deformation_gradient(&p, &self.grads[t]));
             self.rots[t] = r;
             self.quats[t] = UnitQuaternion::from_matrix(&r);
@@ -488,17 +484,12 @@ impl FemBody {
         fill_rest_system(
             &mut self.system.matrix,
             &self.k_rest,
-            &self.mass,
-            &self.anchor_k,
+            &self.nodes.mass,
+            &self.nodes.anchor_k,
             &self.config,
         );
         self.system.refactor()?;
         Ok(())
-    }
-
-    /// Number of nodes.
-    pub fn node_count(&self) -> usize {
-        self.x.len()
     }
 
     /// Number of elements.
@@ -511,72 +502,9 @@ impl FemBody {
         self.system.factor_nnz()
     }
 
-    /// Rest positions.
-    pub fn rest_positions(&self) -> &[Vec3] {
-        &self.rest
-    }
-
-    /// Current positions.
-    pub fn positions(&self) -> &[Vec3] {
-        &self.x
-    }
-
-    /// Current positions, to set (state transfer, or moving fixed nodes kinematically).
-    pub fn positions_mut(&mut self) -> &mut [Vec3] {
-        &mut self.x
-    }
-
-    /// Current velocities.
-    pub fn velocities(&self) -> &[Vec3] {
-        &self.v
-    }
-
-    /// Current velocities, to set.
-    pub fn velocities_mut(&mut self) -> &mut [Vec3] {
-        &mut self.v
-    }
-
-    /// Lumped node masses.
-    pub fn masses(&self) -> &[f64] {
-        &self.mass
-    }
-
-    /// Per-node fixed axes.
-    pub fn fixed(&self) -> &[[bool; 3]] {
-        &self.fixed
-    }
-
-    /// External force accumulator (force units per node). Forces added here act during the
-    /// next step and are then cleared.
-    pub fn external_forces_mut(&mut self) -> &mut [Vec3] {
-        &mut self.f_ext
-    }
-
-    /// Adds an external force on a node for the next step. Ignores a node out of range.
-    pub fn add_force(&mut self, node: usize, force: Vec3) {
-        if let Some(f) = self.f_ext.get_mut(node) {
-            *f += force;
-        }
-    }
-
-    /// Targets of the soft anchors (rest positions unless set).
-    pub fn anchor_targets_mut(&mut self) -> &mut [Vec3] {
-        &mut self.anchor_target
-    }
-
     /// What the last step did.
     pub fn last_step(&self) -> FemStepStats {
         self.stats
-    }
-
-    /// Kinetic energy `1/2 sum m v^2`.
-    pub fn kinetic_energy(&self) -> f64 {
-        state::kinetic_energy(&self.v, &self.mass)
-    }
-
-    /// Largest node speed.
-    pub fn max_speed(&self) -> f64 {
-        state::max_speed(&self.v)
     }
 
     /// Elastic energy of the current state: strain energy of the model in use plus the energy
@@ -585,7 +513,7 @@ impl FemBody {
     pub fn elastic_energy(&self) -> f64 {
         let mut energy = 0.0;
         for (t, tet) in self.tets.iter().enumerate() {
-            let p = tet.map(|i| self.x[i as usize]);
+            let p = tet.map(|i| self.nodes.x[i as usize]);
             let def = element::deformation_gradient(&p, &self.grads[t]);
             let s = match self.config.model {
                 FemModel::Linear => def,
@@ -598,17 +526,12 @@ impl FemBody {
             let eps = (s + s.transpose()) * 0.5 - Matrix3::identity();
             energy += self.volumes[t] * element::energy_density(&eps, self.lambda, self.mu);
         }
-        for i in 0..self.x.len() {
-            energy += 0.5 * self.anchor_k[i] * (self.x[i] - self.anchor_target[i]).norm_squared();
-        }
-        energy
+        energy + self.nodes.anchor_energy()
     }
 
     /// Puts the body back at rest in its rest shape.
     pub fn reset(&mut self) {
-        self.x.copy_from_slice(&self.rest);
-        self.v.fill(Vec3::zeros());
-        self.f_ext.fill(Vec3::zeros());
+        self.nodes.reset();
         self.dv.fill(Vec3::zeros());
         self.quats.fill(UnitQuaternion::identity());
         self.rots.fill(Matrix3::identity());
@@ -644,9 +567,9 @@ impl FemBody {
             }
         }
         for i in 0..x.len() {
-            let k = self.anchor_k[i];
+            let k = self.nodes.anchor_k[i];
             if k > 0.0 {
-                let d = x[i] - self.anchor_target[i];
+                let d = x[i] - self.nodes.anchor_target[i];
                 out[i] -= k * d;
                 energy += 0.5 * k * d.norm_squared();
             }
@@ -681,13 +604,13 @@ impl FemBody {
         k.mirror_upper();
         for i in 0..x.len() {
             let d = k.diag_index(i);
-            k.blocks_mut()[d] += Matrix3::identity() * self.anchor_k[i];
+            k.blocks_mut()[d] += Matrix3::identity() * self.nodes.anchor_k[i];
         }
         k
     }
 
     fn check_inputs(&self) -> Result<(), FemError> {
-        match state::first_non_finite_input(&self.f_ext, &self.x, &self.v) {
+        match self.nodes.first_non_finite_input() {
             Some((what, node)) => Err(FemError::NonFinite { what, node }),
             None => Ok(()),
         }
@@ -697,27 +620,28 @@ impl FemBody {
     /// force accumulator is kept for inspection).
     pub fn step(&mut self) -> Result<FemStepStats, FemError> {
         self.check_inputs()?;
-        self.backup_x.copy_from_slice(&self.x);
-        self.backup_v.copy_from_slice(&self.v);
+        self.backup_x.copy_from_slice(&self.nodes.x);
+        self.backup_v.copy_from_slice(&self.nodes.v);
         let h = self.config.dt;
         let alpha = self.config.mass_damping;
         let beta = self.config.stiffness_damping;
         let g = self.config.gravity;
         // Forces that do not depend on the model: external, gravity, mass damping, anchors
         // (with their implicit term).
-        for i in 0..self.x.len() {
-            let m = self.mass[i];
-            let k = self.anchor_k[i];
-            self.rhs[i] = self.f_ext[i] + m * g
-                - alpha * m * self.v[i]
-                - k * (self.x[i] - self.anchor_target[i] + h * self.v[i]);
+        for i in 0..self.nodes.x.len() {
+            let m = self.nodes.mass[i];
+            let k = self.nodes.anchor_k[i];
+            self.rhs[i] = self.nodes.f_ext[i] + m * g
+                - alpha * m * self.nodes.v[i]
+                - k * (self.nodes.x[i] - self.nodes.anchor_target[i] + h * self.nodes.v[i]);
         }
         let mut stats = FemStepStats::default();
         match self.config.model {
             FemModel::Linear => {
                 // -K (u + (beta + h) v)
-                for i in 0..self.x.len() {
-                    self.tmp[i] = self.x[i] - self.rest[i] + (beta + h) * self.v[i];
+                for i in 0..self.nodes.x.len() {
+                    self.tmp[i] =
+                        self.nodes.x[i] - self.nodes.rest[i] + (beta + h) * self.nodes.v[i];
                 }
                 self.k_rest.mul_add(-1.0, &self.tmp, &mut self.rhs);
                 for r in &mut self.rhs {
@@ -729,10 +653,11 @@ impl FemBody {
                 (stats.rotation_iterations, stats.assembled) =
                     self.corotational_forces_and_matrix();
                 // -(beta + h) K_R v  =  -(A v - (1 + h alpha) M v - h^2 Ka v) / h
-                self.system.matrix.mul(&self.v, &mut self.tmp);
-                for i in 0..self.x.len() {
-                    let diag = (1.0 + h * alpha) * self.mass[i] + h * h * self.anchor_k[i];
-                    let krv = (self.tmp[i] - diag * self.v[i]) / h;
+                self.system.matrix.mul(&self.nodes.v, &mut self.tmp);
+                for i in 0..self.nodes.x.len() {
+                    let diag =
+                        (1.0 + h * alpha) * self.nodes.mass[i] + h * h * self.nodes.anchor_k[i];
+                    let krv = (self.tmp[i] - diag * self.nodes.v[i]) / h;
                     self.rhs[i] = h * (self.rhs[i] - krv);
                 }
                 stats.cg = self.system.solve_cg(
@@ -743,23 +668,23 @@ impl FemBody {
                 )?;
             }
         }
-        for i in 0..self.x.len() {
+        for i in 0..self.nodes.x.len() {
             for a in 0..3 {
-                if self.fixed[i][a] {
-                    self.v[i][a] = 0.0;
+                if self.nodes.fixed[i][a] {
+                    self.nodes.v[i][a] = 0.0;
                 } else {
-                    self.v[i][a] += self.dv[i][a];
-                    self.x[i][a] += h * self.v[i][a];
+                    self.nodes.v[i][a] += self.dv[i][a];
+                    self.nodes.x[i][a] += h * self.nodes.v[i][a];
                 }
             }
         }
-        if let Some((what, node)) = state::first_non_finite_state(&self.x, &self.v) {
-            self.x.copy_from_slice(&self.backup_x);
-            self.v.copy_from_slice(&self.backup_v);
+        if let Some((what, node)) = state::first_non_finite_state(&self.nodes.x, &self.nodes.v) {
+            self.nodes.x.copy_from_slice(&self.backup_x);
+            self.nodes.v.copy_from_slice(&self.backup_v);
             self.dv.fill(Vec3::zeros());
             return Err(FemError::NonFinite { what, node });
         }
-        self.f_ext.fill(Vec3::zeros());
+        self.nodes.f_ext.fill(Vec3::zeros());
         self.stats = stats;
         Ok(stats)
     }
@@ -774,7 +699,7 @@ impl FemBody {
         for t in 0..self.tets.len() {
             let tet = self.tets[t];
             let b = &self.grads[t];
-            let p = tet.map(|i| self.x[i as usize]);
+            let p = tet.map(|i| self.nodes.x[i as usize]);
             let def = element::deformation_gradient(&p, b);
             let it = rotation::extract_rotation(
                 &def,
@@ -827,9 +752,9 @@ impl FemBody {
         );
         self.system.matrix.mirror_upper();
         let alpha = self.config.mass_damping;
-        for i in 0..self.x.len() {
+        for i in 0..self.nodes.x.len() {
             let d = self.system.matrix.diag_index(i);
-            let diag = (1.0 + h * alpha) * self.mass[i] + h * h * self.anchor_k[i];
+            let diag = (1.0 + h * alpha) * self.nodes.mass[i] + h * h * self.nodes.anchor_k[i];
             self.system.matrix.blocks_mut()[d] += Matrix3::from_diagonal_element(diag);
         }
         self.quats_assembled.copy_from_slice(&self.quats);
@@ -842,22 +767,22 @@ impl FemBody {
     /// update is below `tolerance` times the rest bounding-box diagonal. Builds (once) a
     /// factorization of the stiffness; not meant for every frame.
     pub fn solve_static(&mut self, tolerance: f64, max_iterations: u32) -> Result<u32, FemError> {
-        let boundary_ok = self.fixed.iter().any(|f| f.iter().any(|&a| a))
-            || self.anchor_k.iter().any(|&k| k > 0.0);
+        let boundary_ok = self.nodes.fixed.iter().any(|f| f.iter().any(|&a| a))
+            || self.nodes.anchor_k.iter().any(|&k| k > 0.0);
         if !boundary_ok {
             return Err(FemError::Unconstrained);
         }
         self.check_inputs()?;
         if self.static_system.is_none() {
             let mut k = self.k_rest.clone();
-            for i in 0..self.x.len() {
+            for i in 0..self.nodes.x.len() {
                 let d = k.diag_index(i);
-                k.blocks_mut()[d] += Matrix3::identity() * self.anchor_k[i];
+                k.blocks_mut()[d] += Matrix3::identity() * self.nodes.anchor_k[i];
             }
-            self.static_system = Some(ImplicitSystem::new(k, self.fixed.clone())?);
+            self.static_system = Some(ImplicitSystem::new(k, self.nodes.fixed.clone())?);
         }
         let size = {
-            let (lo, hi) = self.rest.iter().fold(
+            let (lo, hi) = self.nodes.rest.iter().fold(
                 (Vec3::repeat(f64::INFINITY), Vec3::repeat(f64::NEG_INFINITY)),
                 |(lo, hi), p| (lo.inf(p), hi.sup(p)),
             );
@@ -865,14 +790,14 @@ impl FemBody {
         };
         let model = self.config.model;
         let g = self.config.gravity;
-        let mut f = vec![Vec3::zeros(); self.x.len()];
-        let mut dx = vec![Vec3::zeros(); self.x.len()];
+        let mut f = vec![Vec3::zeros(); self.nodes.x.len()];
+        let mut dx = vec![Vec3::zeros(); self.nodes.x.len()];
         let mut update = f64::INFINITY;
         let mut rots = vec![Matrix3::identity(); self.tets.len()];
         for it in 0..max_iterations.max(1) {
-            self.forces_and_energy(&self.x.clone(), model, &mut f);
+            self.forces_and_energy(&self.nodes.x.clone(), model, &mut f);
             for i in 0..f.len() {
-                f[i] += self.f_ext[i] + self.mass[i] * g;
+                f[i] += self.nodes.f_ext[i] + self.nodes.mass[i] * g;
             }
             let sys = self.static_system.as_mut().expect("built above");
             dx.fill(Vec3::zeros());
@@ -880,7 +805,7 @@ impl FemBody {
                 FemModel::Linear => sys.solve_direct(&f, &mut dx)?,
                 FemModel::Corotational => {
                     for (t, r) in rots.iter_mut().enumerate() {
-                        let p = self.tets[t].map(|i| self.x[i as usize]);
+                        let p = self.tets[t].map(|i| self.nodes.x[i as usize]);
                         *r = rotation::rotation_of(&element::deformation_gradient(
                             &p,
                             &self.grads[t],
@@ -898,26 +823,26 @@ impl FemBody {
                         1.0,
                     );
                     sys.matrix.mirror_upper();
-                    for i in 0..self.x.len() {
+                    for i in 0..self.nodes.x.len() {
                         let d = sys.matrix.diag_index(i);
-                        sys.matrix.blocks_mut()[d] += Matrix3::identity() * self.anchor_k[i];
+                        sys.matrix.blocks_mut()[d] += Matrix3::identity() * self.nodes.anchor_k[i];
                     }
                     sys.solve_cg(&f, &mut dx, 1e-12, 500)?;
                 }
             }
-            for i in 0..self.x.len() {
-                self.x[i] += dx[i];
+            for i in 0..self.nodes.x.len() {
+                self.nodes.x[i] += dx[i];
             }
             update = dx.iter().map(|d| d.norm()).fold(0.0, f64::max) / size;
             if !update.is_finite() {
-                self.x.copy_from_slice(&self.rest);
+                self.nodes.x.copy_from_slice(&self.nodes.rest);
                 return Err(FemError::NonFinite {
                     what: "position",
                     node: 0,
                 });
             }
             if model == FemModel::Linear || update <= tolerance {
-                self.v.fill(Vec3::zeros());
+                self.nodes.v.fill(Vec3::zeros());
                 return Ok(it + 1);
             }
         }
@@ -1042,7 +967,7 @@ mod tests {
         }
         for i in 0..body.node_count() {
             let d = reference.diag_index(i);
-            reference.blocks_mut()[d] += Matrix3::identity() * body.anchor_k[i];
+            reference.blocks_mut()[d] += Matrix3::identity() * body.nodes.anchor_k[i];
         }
         let size = reference
             .blocks()
@@ -1072,8 +997,8 @@ mod tests {
                 let mut expected = reference.blocks()[k] * scale;
                 if j as usize == i {
                     expected += Matrix3::identity()
-                        * ((1.0 + h * c.mass_damping) * body.mass[i]
-                            + (h * h - scale) * body.anchor_k[i]);
+                        * ((1.0 + h * c.mass_damping) * body.nodes.mass[i]
+                            + (h * h - scale) * body.nodes.anchor_k[i]);
                 }
                 worst = worst.max((body.system.matrix.blocks()[k] - expected).abs().max());
             }

@@ -24,7 +24,7 @@ use crate::boundary::{Boundary, BoundaryError};
 use crate::linalg::{BlockSparse, CgStats, ImplicitSystem, LinalgError};
 use crate::material::MsdParams;
 use crate::mesh::TetMesh;
-use crate::state;
+use crate::state::{self, NodalBody, Nodes};
 
 /// Time integrator of an MSD body.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -251,18 +251,11 @@ pub struct MsdStepStats {
 #[derive(Debug)]
 pub struct MsdBody {
     config: MsdConfig,
-    rest: Vec<Vec3>,
-    x: Vec<Vec3>,
-    v: Vec<Vec3>,
-    f_ext: Vec<Vec3>,
-    mass: Vec<f64>,
+    nodes: Nodes,
     springs: Vec<Spring>,
     /// Tetrahedra and rest volumes of the volume term (empty without it).
     tets: Vec<[u32; 4]>,
     rest_volumes: Vec<f64>,
-    fixed: Vec<[bool; 3]>,
-    anchor_k: Vec<f64>,
-    anchor_target: Vec<Vec3>,
     /// Bound on the largest angular frequency (rad / time) and damping rate (1 / time).
     omega_max: f64,
     damping_rate: f64,
@@ -287,6 +280,16 @@ struct Implicit {
     tet_blocks: Vec<[u32; 16]>,
     rhs: Vec<Vec3>,
     dv: Vec<Vec3>,
+}
+
+impl NodalBody for MsdBody {
+    fn nodes(&self) -> &Nodes {
+        &self.nodes
+    }
+
+    fn nodes_mut(&mut self) -> &mut Nodes {
+        &mut self.nodes
+    }
 }
 
 impl MsdBody {
@@ -441,17 +444,10 @@ impl MsdBody {
         let zeros = vec![Vec3::zeros(); n];
         let mut body = MsdBody {
             config,
-            rest: positions.clone(),
-            anchor_target: positions.clone(),
-            x: positions,
-            v: zeros.clone(),
-            f_ext: zeros.clone(),
-            mass: masses,
+            nodes: Nodes::new(positions, masses, fixed, anchor_k),
             springs,
             tets,
             rest_volumes,
-            fixed,
-            anchor_k,
             omega_max: 0.0,
             damping_rate: 0.0,
             kx: [zeros.clone(), zeros.clone(), zeros.clone(), zeros.clone()],
@@ -476,11 +472,15 @@ impl MsdBody {
     fn estimate_limits_at(&mut self, current: bool) {
         // Gershgorin bound on the eigenvalues of M^-1/2 K M^-1/2 (spring blocks have norm <= k
         // at rest and under tension), plus anchors.
-        let n = self.x.len();
+        let n = self.nodes.x.len();
         let mut row = std::mem::take(&mut self.limit_row);
         row.clear();
         row.resize(n, 0.0);
-        let x = if current { &self.x } else { &self.rest };
+        let x = if current {
+            &self.nodes.x
+        } else {
+            &self.nodes.rest
+        };
         for s in &self.springs {
             let (a, b) = (s.a as usize, s.b as usize);
             // Tangent stiffness norm: k along the spring, k |1 - L/l| across it (above k
@@ -492,9 +492,9 @@ impl MsdBody {
                 1.0
             };
             let k = s.stiffness * factor;
-            let cross = k / (self.mass[a] * self.mass[b]).sqrt();
-            row[a] += k / self.mass[a] + cross;
-            row[b] += k / self.mass[b] + cross;
+            let cross = k / (self.nodes.mass[a] * self.nodes.mass[b]).sqrt();
+            row[a] += k / self.nodes.mass[a] + cross;
+            row[b] += k / self.nodes.mass[b] + cross;
         }
         let kv = self.config.volume_stiffness;
         for (t, v0) in self.tets.iter().zip(&self.rest_volumes) {
@@ -513,15 +513,15 @@ impl MsdBody {
             let pressure = (kv * (signed_volume(x, t) - v0) / v0).abs();
             for a in 0..4 {
                 let i = t[a] as usize;
-                row[i] +=
-                    (kv / v0 * norms[a] * sum + pressure * 3.0 * longest / 6.0) / self.mass[i];
+                row[i] += (kv / v0 * norms[a] * sum + pressure * 3.0 * longest / 6.0)
+                    / self.nodes.mass[i];
             }
         }
         let mut w2: f64 = 0.0;
         let mut rate: f64 = 0.0;
         for i in 0..n {
-            w2 = w2.max(row[i] + self.anchor_k[i] / self.mass[i]);
-            rate = rate.max(self.config.damping / self.mass[i]);
+            w2 = w2.max(row[i] + self.nodes.anchor_k[i] / self.nodes.mass[i]);
+            rate = rate.max(self.config.damping / self.nodes.mass[i]);
         }
         self.omega_max = w2.sqrt();
         self.damping_rate = rate;
@@ -538,9 +538,14 @@ impl MsdBody {
         if !self.tets.is_empty() {
             return;
         }
-        let n = self.x.len();
-        let free: Vec<bool> = self.fixed.iter().map(|f| !f.iter().all(|&a| a)).collect();
-        let inv_sqrt_m: Vec<f64> = self.mass.iter().map(|m| 1.0 / m.sqrt()).collect();
+        let n = self.nodes.x.len();
+        let free: Vec<bool> = self
+            .nodes
+            .fixed
+            .iter()
+            .map(|f| !f.iter().all(|&a| a))
+            .collect();
+        let inv_sqrt_m: Vec<f64> = self.nodes.mass.iter().map(|m| 1.0 / m.sqrt()).collect();
         // Deterministic start with components along every node.
         let mut u: Vec<f64> = (0..n)
             .map(|i| {
@@ -568,7 +573,7 @@ impl MsdBody {
             }
             for i in 0..n {
                 w[i] = if free[i] {
-                    w[i] + self.anchor_k[i] / self.mass[i] * u[i]
+                    w[i] + self.nodes.anchor_k[i] / self.nodes.mass[i] * u[i]
                 } else {
                     0.0
                 };
@@ -597,7 +602,7 @@ impl MsdBody {
     }
 
     fn build_implicit(&mut self) -> Result<(), MsdError> {
-        let n = self.x.len();
+        let n = self.nodes.x.len();
         let matrix =
             BlockSparse::from_pairs(n, self.springs.iter().map(|s| [s.a as usize, s.b as usize]));
         let blocks = self
@@ -630,7 +635,7 @@ impl MsdBody {
                 s
             })
             .collect();
-        let system = ImplicitSystem::new(identity_like(matrix), self.fixed.clone())?;
+        let system = ImplicitSystem::new(identity_like(matrix), self.nodes.fixed.clone())?;
         let mut imp = Implicit {
             system,
             blocks,
@@ -648,7 +653,11 @@ impl MsdBody {
     /// `M + h gamma I + h^2 (K + Ka)` into the implicit system (at rest positions if `rest`).
     fn assemble_implicit(&self, imp: &mut Implicit, rest: bool) {
         let h = self.config.dt;
-        let x = if rest { &self.rest } else { &self.x };
+        let x = if rest {
+            &self.nodes.rest
+        } else {
+            &self.nodes.x
+        };
         let m = &mut imp.system.matrix;
         m.set_zero();
         let blocks = m.blocks_mut();
@@ -675,9 +684,10 @@ impl MsdBody {
                 }
             }
         }
-        for i in 0..self.x.len() {
+        for i in 0..self.nodes.x.len() {
             let d = m.diag_index(i);
-            let diag = self.mass[i] + h * self.config.damping + h * h * self.anchor_k[i];
+            let diag =
+                self.nodes.mass[i] + h * self.config.damping + h * h * self.nodes.anchor_k[i];
             m.blocks_mut()[d] += Matrix3::identity() * diag;
         }
     }
@@ -739,61 +749,9 @@ impl MsdBody {
         Ok(())
     }
 
-    /// Number of nodes.
-    pub fn node_count(&self) -> usize {
-        self.x.len()
-    }
-
     /// The springs.
     pub fn springs(&self) -> &[Spring] {
         &self.springs
-    }
-
-    /// Rest positions.
-    pub fn rest_positions(&self) -> &[Vec3] {
-        &self.rest
-    }
-
-    /// Current positions.
-    pub fn positions(&self) -> &[Vec3] {
-        &self.x
-    }
-
-    /// Current positions, to set.
-    pub fn positions_mut(&mut self) -> &mut [Vec3] {
-        &mut self.x
-    }
-
-    /// Current velocities.
-    pub fn velocities(&self) -> &[Vec3] {
-        &self.v
-    }
-
-    /// Current velocities, to set.
-    pub fn velocities_mut(&mut self) -> &mut [Vec3] {
-        &mut self.v
-    }
-
-    /// Node masses.
-    pub fn masses(&self) -> &[f64] {
-        &self.mass
-    }
-
-    /// External force accumulator; forces act during the next step and are then cleared.
-    pub fn external_forces_mut(&mut self) -> &mut [Vec3] {
-        &mut self.f_ext
-    }
-
-    /// Adds an external force on a node for the next step. Ignores a node out of range.
-    pub fn add_force(&mut self, node: usize, force: Vec3) {
-        if let Some(f) = self.f_ext.get_mut(node) {
-            *f += force;
-        }
-    }
-
-    /// Targets of the soft anchors (rest positions unless set).
-    pub fn anchor_targets_mut(&mut self) -> &mut [Vec3] {
-        &mut self.anchor_target
     }
 
     /// What the last step did.
@@ -801,35 +759,19 @@ impl MsdBody {
         self.stats
     }
 
-    /// Kinetic energy.
-    pub fn kinetic_energy(&self) -> f64 {
-        state::kinetic_energy(&self.v, &self.mass)
-    }
-
-    /// Largest node speed.
-    pub fn max_speed(&self) -> f64 {
-        state::max_speed(&self.v)
-    }
-
     /// Energy stored in the springs and anchors.
     pub fn elastic_energy(&self) -> f64 {
-        spring_energy(&self.springs, &self.x)
+        spring_energy(&self.springs, &self.nodes.x)
             + self
                 .tets
                 .iter()
                 .zip(&self.rest_volumes)
                 .map(|(t, v0)| {
-                    let dv = signed_volume(&self.x, t) - v0;
+                    let dv = signed_volume(&self.nodes.x, t) - v0;
                     0.5 * self.config.volume_stiffness * dv * dv / v0
                 })
                 .sum::<f64>()
-            + self
-                .x
-                .iter()
-                .zip(&self.anchor_target)
-                .zip(&self.anchor_k)
-                .map(|((x, t), k)| 0.5 * k * (x - t).norm_squared())
-                .sum::<f64>()
+            + self.nodes.anchor_energy()
     }
 
     /// Spring, volume-term and anchor forces at positions `x` (no damping, gravity or
@@ -838,7 +780,7 @@ impl MsdBody {
         out.fill(Vec3::zeros());
         self.add_internal_forces(x, out);
         for i in 0..x.len() {
-            out[i] -= self.anchor_k[i] * (x[i] - self.anchor_target[i]);
+            out[i] -= self.nodes.anchor_k[i] * (x[i] - self.nodes.anchor_target[i]);
         }
     }
 
@@ -870,16 +812,14 @@ impl MsdBody {
             add(b, a, &m, -1.0);
         }
         for i in 0..n {
-            add(i, i, &(Matrix3::identity() * self.anchor_k[i]), 1.0);
+            add(i, i, &(Matrix3::identity() * self.nodes.anchor_k[i]), 1.0);
         }
         k
     }
 
     /// Puts the body back at rest in its rest shape.
     pub fn reset(&mut self) {
-        self.x.copy_from_slice(&self.rest);
-        self.v.fill(Vec3::zeros());
-        self.f_ext.fill(Vec3::zeros());
+        self.nodes.reset();
         if let Some(imp) = &mut self.implicit {
             imp.dv.fill(Vec3::zeros());
         }
@@ -903,15 +843,15 @@ impl MsdBody {
         let g = self.config.gravity;
         let gamma = self.config.damping;
         for i in 0..x.len() {
-            out[i] = self.f_ext[i] + self.mass[i] * g
+            out[i] = self.nodes.f_ext[i] + self.nodes.mass[i] * g
                 - gamma * v[i]
-                - self.anchor_k[i] * (x[i] - self.anchor_target[i]);
+                - self.nodes.anchor_k[i] * (x[i] - self.nodes.anchor_target[i]);
         }
         self.add_internal_forces(x, out);
         for i in 0..x.len() {
-            out[i] /= self.mass[i];
+            out[i] /= self.nodes.mass[i];
             for a in 0..3 {
-                if self.fixed[i][a] {
+                if self.nodes.fixed[i][a] {
                     out[i][a] = 0.0;
                 }
             }
@@ -919,7 +859,7 @@ impl MsdBody {
     }
 
     fn check_inputs(&self) -> Result<(), MsdError> {
-        match state::first_non_finite_input(&self.f_ext, &self.x, &self.v) {
+        match self.nodes.first_non_finite_input() {
             Some((what, node)) => Err(MsdError::NonFinite { what, node }),
             None => Ok(()),
         }
@@ -957,8 +897,8 @@ impl MsdBody {
             self.estimate_limits_at(true);
         }
         let mut substeps = self.substeps_needed()?;
-        self.backup_x.copy_from_slice(&self.x);
-        self.backup_v.copy_from_slice(&self.v);
+        self.backup_x.copy_from_slice(&self.nodes.x);
+        self.backup_v.copy_from_slice(&self.nodes.v);
         let max_substeps = match self.config.explicit_limit {
             ExplicitLimit::Substep { max_substeps } => max_substeps,
             ExplicitLimit::Refuse => substeps,
@@ -984,14 +924,14 @@ impl MsdBody {
                 }
                 MsdIntegrator::ImplicitEuler => self.implicit_step().map(|cg| stats.cg = cg),
             };
-            let bad = state::first_non_finite_state(&self.x, &self.v);
+            let bad = state::first_non_finite_state(&self.nodes.x, &self.nodes.v);
             if result.is_ok() && bad.is_none() {
-                self.f_ext.fill(Vec3::zeros());
+                self.nodes.f_ext.fill(Vec3::zeros());
                 self.stats = stats;
                 return Ok(stats);
             }
-            self.x.copy_from_slice(&self.backup_x);
-            self.v.copy_from_slice(&self.backup_v);
+            self.nodes.x.copy_from_slice(&self.backup_x);
+            self.nodes.v.copy_from_slice(&self.backup_v);
             result?;
             // An explicit step blew up (a load far outside the linear range made the body
             // locally stiffer than its estimate): retry with twice the substeps while the
@@ -1006,19 +946,19 @@ impl MsdBody {
     }
 
     fn rk4(&mut self, h: f64) {
-        let n = self.x.len();
+        let n = self.nodes.x.len();
         let mut kx = std::mem::take(&mut self.kx);
         let mut kv = std::mem::take(&mut self.kv);
         let mut xt = std::mem::take(&mut self.xt);
         let mut vt = std::mem::take(&mut self.vt);
         // Stage 1
-        kx[0].copy_from_slice(&self.v);
-        self.accelerations(&self.x, &self.v, &mut kv[0]);
+        kx[0].copy_from_slice(&self.nodes.v);
+        self.accelerations(&self.nodes.x, &self.nodes.v, &mut kv[0]);
         // Stages 2-4
         for (s, c) in [(1usize, 0.5 * h), (2, 0.5 * h), (3, h)] {
             for i in 0..n {
-                xt[i] = self.x[i] + c * kx[s - 1][i];
-                vt[i] = self.v[i] + c * kv[s - 1][i];
+                xt[i] = self.nodes.x[i] + c * kx[s - 1][i];
+                vt[i] = self.nodes.v[i] + c * kv[s - 1][i];
             }
             kx[s].copy_from_slice(&vt);
             self.accelerations(&xt, &vt, &mut kv[s]);
@@ -1027,11 +967,11 @@ impl MsdBody {
             let dx = (kx[0][i] + 2.0 * kx[1][i] + 2.0 * kx[2][i] + kx[3][i]) * (h / 6.0);
             let dv = (kv[0][i] + 2.0 * kv[1][i] + 2.0 * kv[2][i] + kv[3][i]) * (h / 6.0);
             for a in 0..3 {
-                if self.fixed[i][a] {
-                    self.v[i][a] = 0.0;
+                if self.nodes.fixed[i][a] {
+                    self.nodes.v[i][a] = 0.0;
                 } else {
-                    self.x[i][a] += dx[a];
-                    self.v[i][a] += dv[a];
+                    self.nodes.x[i][a] += dx[a];
+                    self.nodes.v[i][a] += dv[a];
                 }
             }
         }
@@ -1043,14 +983,14 @@ impl MsdBody {
 
     fn symplectic(&mut self, h: f64) {
         let mut acc = std::mem::take(&mut self.xt);
-        self.accelerations(&self.x, &self.v, &mut acc);
-        for i in 0..self.x.len() {
+        self.accelerations(&self.nodes.x, &self.nodes.v, &mut acc);
+        for i in 0..self.nodes.x.len() {
             for a in 0..3 {
-                if self.fixed[i][a] {
-                    self.v[i][a] = 0.0;
+                if self.nodes.fixed[i][a] {
+                    self.nodes.v[i][a] = 0.0;
                 } else {
-                    self.v[i][a] += h * acc[i][a];
-                    self.x[i][a] += h * self.v[i][a];
+                    self.nodes.v[i][a] += h * acc[i][a];
+                    self.nodes.x[i][a] += h * self.nodes.v[i][a];
                 }
             }
         }
@@ -1064,17 +1004,17 @@ impl MsdBody {
         // rhs = h (f(x, v) - h (K + Ka) v), with f including damping; (K + Ka) v from the
         // assembled matrix: A v = (m + h gamma) v + h^2 (K + Ka) v.
         let mut av = std::mem::take(&mut self.xt);
-        imp.system.matrix.mul(&self.v, &mut av);
+        imp.system.matrix.mul(&self.nodes.v, &mut av);
         let g = self.config.gravity;
         let gamma = self.config.damping;
-        for i in 0..self.x.len() {
-            imp.rhs[i] = self.f_ext[i] + self.mass[i] * g
-                - gamma * self.v[i]
-                - self.anchor_k[i] * (self.x[i] - self.anchor_target[i]);
+        for i in 0..self.nodes.x.len() {
+            imp.rhs[i] = self.nodes.f_ext[i] + self.nodes.mass[i] * g
+                - gamma * self.nodes.v[i]
+                - self.nodes.anchor_k[i] * (self.nodes.x[i] - self.nodes.anchor_target[i]);
         }
-        self.add_internal_forces(&self.x, &mut imp.rhs);
-        for i in 0..self.x.len() {
-            let kv = (av[i] - (self.mass[i] + h * gamma) * self.v[i]) / (h * h);
+        self.add_internal_forces(&self.nodes.x, &mut imp.rhs);
+        for i in 0..self.nodes.x.len() {
+            let kv = (av[i] - (self.nodes.mass[i] + h * gamma) * self.nodes.v[i]) / (h * h);
             imp.rhs[i] = h * (imp.rhs[i] - h * kv);
         }
         self.xt = av;
@@ -1085,13 +1025,13 @@ impl MsdBody {
             self.config.cg_max_iterations,
         );
         if stats.is_ok() {
-            for i in 0..self.x.len() {
+            for i in 0..self.nodes.x.len() {
                 for a in 0..3 {
-                    if self.fixed[i][a] {
-                        self.v[i][a] = 0.0;
+                    if self.nodes.fixed[i][a] {
+                        self.nodes.v[i][a] = 0.0;
                     } else {
-                        self.v[i][a] += imp.dv[i][a];
-                        self.x[i][a] += h * self.v[i][a];
+                        self.nodes.v[i][a] += imp.dv[i][a];
+                        self.nodes.x[i][a] += h * self.nodes.v[i][a];
                     }
                 }
             }
