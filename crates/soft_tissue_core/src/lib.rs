@@ -10,6 +10,7 @@
 //! - [`material`]: the physical parameters of the paper's methods, with units.
 //! - [`fem`]: linear and corotational tetrahedral FEM with implicit Euler.
 //! - [`msd`]: mass-spring-damper bodies with RK4, symplectic and implicit Euler.
+//! - [`cage`]: Green-coordinate cages (the cheap level), cage builders and cage bodies.
 //! - [`boundary`]: fixed nodes and soft anchors shared by the solvers.
 //! - [`state`]: the per-node state of every precise body and the [`NodalBody`] accessors.
 //! - [`bench`](mod@bench): the benchmark load shared by the command-line tool and criterion.
@@ -21,6 +22,7 @@
 
 pub mod bench;
 pub mod boundary;
+pub mod cage;
 pub mod fem;
 pub mod linalg;
 pub mod material;

@@ -151,6 +151,11 @@ pub trait NodalBody {
         &self.nodes().fixed
     }
 
+    /// External forces waiting for the next step.
+    fn external_forces(&self) -> &[Vec3] {
+        &self.nodes().f_ext
+    }
+
     /// External force accumulator (force units per node): forces added here act during the
     /// next step and are then cleared.
     fn external_forces_mut(&mut self) -> &mut [Vec3] {

@@ -1,0 +1,354 @@
+//! A body at the cage level: an MSD on the cage vertices and the body's points embedded by
+//! Green coordinates.
+
+use std::sync::Arc;
+
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+
+use super::green::{FastScratch, GreenCoordinates, coordinates_at};
+use super::{Cage, CageError};
+use crate::Vec3;
+use crate::boundary::Boundary;
+use crate::material::PAPER_CAGE_MSD;
+use crate::msd::{MsdBody, MsdConfig, Spring};
+use crate::state::NodalBody;
+
+/// Which springs join the cage vertices.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum CageSprings {
+    /// Every pair of vertices when the cage has at most 12 (the box: its 12 edges, 12 face
+    /// diagonals and 4 space diagonals), otherwise [`CageSprings::EdgesBendingStruts`].
+    #[default]
+    Auto,
+    /// Every pair of vertices.
+    Complete,
+    /// Cage edges, one spring across every edge (joining the two opposite vertices, resists
+    /// folding) and one strut per vertex to the vertex farthest along its inward normal
+    /// (resists collapse).
+    EdgesBendingStruts,
+}
+
+/// Settings of a [`CageBody`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CageBodyConfig {
+    /// The cage MSD (`stiffness` per spring, `mass` split evenly over the cage vertices).
+    pub msd: MsdConfig,
+    /// Spring layout.
+    pub springs: CageSprings,
+}
+
+impl CageBodyConfig {
+    /// The paper's cage MSD (stiffness 50, mass 20, damping 0.3, RK4) at step `dt`.
+    pub fn paper(dt: f64) -> Self {
+        CageBodyConfig {
+            msd: MsdConfig::paper(&PAPER_CAGE_MSD, dt),
+            springs: CageSprings::Auto,
+        }
+    }
+}
+
+/// What the last cage step did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct CageStepStats {
+    /// Substeps of the cage MSD.
+    pub substeps: u32,
+}
+
+/// The springs of `layout` on `cage`.
+fn cage_springs(cage: &Cage, layout: CageSprings, stiffness: f64) -> Vec<Spring> {
+    let v = cage.vertices();
+    let n = v.len();
+    let layout = match layout {
+        CageSprings::Auto if n <= 12 => CageSprings::Complete,
+        CageSprings::Auto => CageSprings::EdgesBendingStruts,
+        other => other,
+    };
+    let mut pairs: Vec<[u32; 2]> = Vec::new();
+    match layout {
+        CageSprings::Complete => {
+            for a in 0..n as u32 {
+                for b in a + 1..n as u32 {
+                    pairs.push([a, b]);
+                }
+            }
+        }
+        _ => {
+            pairs.extend(cage.edges());
+            // Opposite vertices across every edge.
+            let mut opposite: std::collections::HashMap<[u32; 2], Vec<u32>> = Default::default();
+            for t in cage.triangles() {
+                for k in 0..3 {
+                    let (a, b) = (t[k], t[(k + 1) % 3]);
+                    opposite
+                        .entry([a.min(b), a.max(b)])
+                        .or_default()
+                        .push(t[(k + 2) % 3]);
+                }
+            }
+            for o in opposite.values() {
+                if let [c, d] = o[..] {
+                    pairs.push([c.min(d), c.max(d)]);
+                }
+            }
+            // Struts along the inward vertex normals.
+            let mut normals = vec![Vec3::zeros(); n];
+            for t in cage.triangles() {
+                let p = t.map(|i| v[i as usize]);
+                let c = (p[1] - p[0]).cross(&(p[2] - p[0]));
+                for &i in t {
+                    normals[i as usize] += c;
+                }
+            }
+            for i in 0..n {
+                let inward = -normals[i];
+                let far = (0..n).filter(|&j| j != i).max_by(|&a, &b| {
+                    (v[a] - v[i])
+                        .dot(&inward)
+                        .total_cmp(&(v[b] - v[i]).dot(&inward))
+                });
+                if let Some(j) = far {
+                    pairs.push([i.min(j) as u32, i.max(j) as u32]);
+                }
+            }
+        }
+    }
+    pairs.sort_unstable();
+    pairs.dedup();
+    pairs
+        .into_iter()
+        .map(|[a, b]| Spring {
+            a,
+            b,
+            stiffness,
+            rest_length: (v[b as usize] - v[a as usize]).norm(),
+        })
+        .collect()
+}
+
+/// A body simulated at the cage level: the cage vertices run an MSD; the embedded points
+/// (usually the body's surface vertices, or all its nodes) follow by Green coordinates.
+#[derive(Debug)]
+pub struct CageBody {
+    cage: Cage,
+    coords: Arc<GreenCoordinates>,
+    msd: MsdBody,
+    face_terms: Vec<Vec3>,
+    scratch: FastScratch,
+    points: Vec<Vec3>,
+    stats: CageStepStats,
+}
+
+impl CageBody {
+    /// A cage body embedding `points` (at rest) in `cage`. A point outside the cage is an
+    /// error naming it.
+    pub fn new(cage: Cage, points: &[Vec3], config: &CageBodyConfig) -> Result<Self, CageError> {
+        let coords = Arc::new(GreenCoordinates::new(&cage, points)?);
+        CageBody::with_coordinates(cage, coords, config)
+    }
+
+    /// A cage body sharing precomputed coordinates (identical bodies can share one
+    /// [`GreenCoordinates`]). The coordinates must have been computed for this cage.
+    pub fn with_coordinates(
+        cage: Cage,
+        coords: Arc<GreenCoordinates>,
+        config: &CageBodyConfig,
+    ) -> Result<Self, CageError> {
+        if coords.vertex_count() != cage.vertices().len()
+            || coords.face_count() != cage.triangles().len()
+        {
+            return Err(CageError::LengthMismatch {
+                what: "coordinates (cage vertices + faces)",
+                expected: cage.vertices().len() + cage.triangles().len(),
+                found: coords.vertex_count() + coords.face_count(),
+            });
+        }
+        config.msd.validate()?;
+        let n = cage.vertices().len();
+        let springs = cage_springs(&cage, config.springs, config.msd.stiffness);
+        let masses = vec![config.msd.mass / n as f64; n];
+        let msd = MsdBody::new(
+            cage.vertices().to_vec(),
+            masses,
+            springs,
+            config.msd,
+            &Boundary::free(),
+        )?;
+        let mut body = CageBody {
+            face_terms: vec![Vec3::zeros(); cage.triangles().len()],
+            scratch: coords.scratch(),
+            points: coords.rest_points().to_vec(),
+            cage,
+            coords,
+            msd,
+            stats: CageStepStats::default(),
+        };
+        body.update_points()?;
+        Ok(body)
+    }
+
+    /// The rest cage.
+    pub fn cage(&self) -> &Cage {
+        &self.cage
+    }
+
+    /// The coordinates (shareable).
+    pub fn coordinates(&self) -> &Arc<GreenCoordinates> {
+        &self.coords
+    }
+
+    /// The cage MSD (cage vertex positions, velocities, forces).
+    pub fn msd(&self) -> &MsdBody {
+        &self.msd
+    }
+
+    /// Mutable cage MSD. Call [`CageBody::update_points`] after moving cage vertices.
+    pub fn msd_mut(&mut self) -> &mut MsdBody {
+        &mut self.msd
+    }
+
+    /// Current cage vertex positions.
+    pub fn cage_positions(&self) -> &[Vec3] {
+        self.msd.positions()
+    }
+
+    /// The embedded points as of the last step or update (`f32`-accurate displacement).
+    pub fn points(&self) -> &[Vec3] {
+        &self.points
+    }
+
+    /// What the last step did.
+    pub fn last_step(&self) -> CageStepStats {
+        self.stats
+    }
+
+    /// Advances the cage MSD one step and re-evaluates the embedded points. On error the
+    /// state is unchanged.
+    pub fn step(&mut self) -> Result<CageStepStats, CageError> {
+        let s = self.msd.step()?;
+        self.stats = CageStepStats {
+            substeps: s.substeps,
+        };
+        self.update_points()?;
+        Ok(self.stats)
+    }
+
+    /// Re-evaluates the embedded points from the current cage (fast path).
+    pub fn update_points(&mut self) -> Result<(), CageError> {
+        let x = self.msd.positions();
+        self.coords.face_terms(x, &mut self.face_terms);
+        self.coords
+            .evaluate_fast(x, &self.face_terms, &mut self.scratch, &mut self.points)?;
+        if let Some(index) = self
+            .points
+            .iter()
+            .position(|p| !p.iter().all(|c| c.is_finite()))
+        {
+            return Err(CageError::NonFinite {
+                what: "point",
+                index,
+            });
+        }
+        Ok(())
+    }
+
+    /// The embedded points evaluated in `f64` (for state transfer and checks).
+    pub fn exact_points(&self, out: &mut [Vec3]) -> Result<(), CageError> {
+        let x = self.msd.positions();
+        let mut terms = vec![Vec3::zeros(); self.cage.triangles().len()];
+        self.coords.face_terms(x, &mut terms);
+        self.coords.evaluate(x, &terms, out)
+    }
+
+    /// Applies a force at embedded point `point` for the next step: cage vertex `i` receives
+    /// `phi_i f` (the transpose of the coordinates; the face terms are ignored, as in the
+    /// paper). A point out of range is an error.
+    pub fn apply_point_force(&mut self, point: usize, force: Vec3) -> Result<(), CageError> {
+        if point >= self.coords.point_count() {
+            return Err(CageError::InvalidArgument {
+                field: "point",
+                message: format!(
+                    "{point} out of range ({} points)",
+                    self.coords.point_count()
+                ),
+            });
+        }
+        if !force.iter().all(|c| c.is_finite()) {
+            return Err(CageError::InvalidArgument {
+                field: "force",
+                message: format!("not finite: {:?}", [force.x, force.y, force.z]),
+            });
+        }
+        let f = self.msd.external_forces_mut();
+        for (fi, phi) in f.iter_mut().zip(self.coords.phi(point)) {
+            *fi += force * *phi;
+        }
+        Ok(())
+    }
+
+    /// Applies a force at any position inside the rest cage (coordinates computed on the
+    /// fly; allocates). A position outside the cage is an error.
+    pub fn apply_force_at(&mut self, rest_position: Vec3, force: Vec3) -> Result<(), CageError> {
+        let (phi, _, w) = coordinates_at(&self.cage, &rest_position);
+        if (w - 1.0).abs() > 1e-6 || phi.iter().any(|v| !v.is_finite()) {
+            return Err(CageError::PointOutside {
+                point: 0,
+                position: [rest_position.x, rest_position.y, rest_position.z],
+                winding: w,
+            });
+        }
+        let f = self.msd.external_forces_mut();
+        for (fi, phi) in f.iter_mut().zip(&phi) {
+            *fi += force * *phi;
+        }
+        Ok(())
+    }
+
+    /// Moves the cage so the given embedded points move by the given displacements, in the
+    /// least-squares sense with the smallest cage motion (`dV = Phi^T (Phi Phi^T)^-1 D`, the
+    /// face terms held fixed), then re-evaluates the points. Velocities are kept.
+    pub fn displace_points(&mut self, targets: &[(usize, Vec3)]) -> Result<(), CageError> {
+        let n = self.coords.point_count();
+        for &(p, d) in targets {
+            if p >= n || !d.iter().all(|c| c.is_finite()) {
+                return Err(CageError::InvalidArgument {
+                    field: "targets",
+                    message: format!("point {p} (of {n}) with displacement {:?}", [d.x, d.y, d.z]),
+                });
+            }
+        }
+        if targets.is_empty() {
+            return Ok(());
+        }
+        let nv = self.coords.vertex_count();
+        let m = targets.len();
+        let phi = DMatrix::from_fn(m, nv, |r, c| self.coords.phi(targets[r].0)[c]);
+        let mut gram = &phi * phi.transpose();
+        // Tikhonov term relative to the diagonal: keeps repeated or near-identical points
+        // solvable.
+        let reg = 1e-10 * gram.diagonal().max();
+        for i in 0..m {
+            gram[(i, i)] += reg;
+        }
+        let chol = gram.cholesky().ok_or_else(|| CageError::InvalidArgument {
+            field: "targets",
+            message: "the points' coordinates are not independent".into(),
+        })?;
+        let x = self.msd.positions_mut();
+        for a in 0..3 {
+            let d = DVector::from_fn(m, |r, _| targets[r].1[a]);
+            let y = chol.solve(&d);
+            let dv = phi.transpose() * y;
+            for (xi, dvi) in x.iter_mut().zip(dv.iter()) {
+                xi[a] += dvi;
+            }
+        }
+        self.update_points()
+    }
+
+    /// Puts the cage back at rest.
+    pub fn reset(&mut self) -> Result<(), CageError> {
+        self.msd.reset();
+        self.update_points()
+    }
+}
