@@ -28,9 +28,53 @@ enum Command {
     /// Write the paper's scenes as RON files.
     #[command(subcommand)]
     Scene(SceneCommand),
-    /// Time the precise solvers per step on a mesh under a load that keeps it deforming
-    /// (bottom 10 % fixed, gravity, a swinging force on the top 5 %).
+    /// Time the solvers per step on a mesh under a load that keeps it deforming
+    /// (bottom 10 % fixed, a swinging force on the top 5 %, optional gravity).
     Bench(BenchArgs),
+    /// Build cages and deform meshes with Green coordinates.
+    #[command(subcommand)]
+    Cage(CageCommand),
+}
+
+#[derive(Subcommand)]
+enum CageCommand {
+    /// Embed a mesh's vertices in a rest cage and write them deformed by a deformed cage
+    /// (3D Green coordinates). Both cages are OBJ files with the same triangles. The mesh is
+    /// an OBJ surface (written as OBJ) or a tetrahedral mesh (written in OUT's format). Fails,
+    /// naming the vertex, if one lies outside the rest cage.
+    Deform {
+        /// The cage the mesh was modelled in (OBJ).
+        #[arg(long)]
+        cage_rest: PathBuf,
+        /// The same cage, moved (OBJ, same triangles).
+        #[arg(long)]
+        cage_deformed: PathBuf,
+        /// The mesh to deform (.obj, .msh, .vtk, .vtu, .node).
+        #[arg(long)]
+        mesh: PathBuf,
+        /// Output file.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Build a cage around a mesh (every vertex enclosed with a margin) and write it as OBJ.
+    Build {
+        /// The mesh (.obj, .msh, .vtk, .vtu, .node).
+        #[arg(long)]
+        mesh: PathBuf,
+        /// box (the paper's bounding box) or fitted (shrink-wrapped to the mesh).
+        #[arg(long, default_value = "fitted")]
+        kind: String,
+        /// Vertex budget of a fitted cage.
+        #[arg(long, default_value_t = 64)]
+        vertices: usize,
+        /// Smallest distance from a mesh vertex to the cage (default: 2 % of the bounding-box
+        /// diagonal).
+        #[arg(long)]
+        margin: Option<f64>,
+        /// Output OBJ file.
+        #[arg(long)]
+        out: PathBuf,
+    },
 }
 
 #[derive(Args)]
@@ -48,9 +92,13 @@ struct BenchArgs {
     /// Resolution of a generated body (1 = the paper's mesh size).
     #[arg(long, default_value_t = 1.0)]
     resolution: f64,
-    /// fem-linear, fem-corotational, msd-rk4, msd-symplectic, msd-implicit, or all.
+    /// fem-linear, fem-corotational, msd-rk4, msd-symplectic, msd-implicit, cage-box,
+    /// cage-fitted, cage (both cages), or all. Several may be given separated by commas.
     #[arg(long, default_value = "all")]
     method: String,
+    /// Vertex budget of the fitted cage.
+    #[arg(long, default_value_t = 64)]
+    cage_vertices: usize,
     /// Material: the paper's cylinder or organ FEM parameters; MSD always uses the paper's
     /// cylinder MSD. Default: cylinder for a body named cylinder, organ otherwise.
     #[arg(long)]
@@ -138,6 +186,19 @@ fn main() -> ExitCode {
         Command::Mesh(MeshCommand::Generate(args)) => generate(&args),
         Command::Scene(SceneCommand::Export { out }) => export_scenes(&out),
         Command::Bench(args) => bench(&args),
+        Command::Cage(CageCommand::Deform {
+            cage_rest,
+            cage_deformed,
+            mesh,
+            out,
+        }) => cage_deform(&cage_rest, &cage_deformed, &mesh, &out),
+        Command::Cage(CageCommand::Build {
+            mesh,
+            kind,
+            vertices,
+            margin,
+            out,
+        }) => cage_build(&mesh, &kind, vertices, margin, &out),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -320,11 +381,15 @@ fn bench(args: &BenchArgs) -> Res {
             return Err(format!("unknown --params '{other}': expected cylinder or organ").into());
         }
     };
-    let methods: Vec<BenchMethod> = if args.method == "all" {
-        BenchMethod::ALL.to_vec()
-    } else {
-        vec![args.method.parse::<BenchMethod>()?]
-    };
+    let mut methods: Vec<BenchMethod> = Vec::new();
+    for m in args.method.split(',').map(str::trim) {
+        match m {
+            "all" => methods.extend(BenchMethod::ALL),
+            "cage" => methods.extend([BenchMethod::CageBox, BenchMethod::CageFitted]),
+            other => methods.push(other.parse::<BenchMethod>()?),
+        }
+    }
+    methods.dedup();
     let machine = machine();
     // Each method runs on its own; one that fails (for example an explicit integrator refusing
     // a step above its stability limit) is reported in its row and makes the exit status
@@ -336,6 +401,7 @@ fn bench(args: &BenchArgs) -> Res {
             (&fem.params, fem.dt),
             (&CYLINDER_MSD.params, CYLINDER_MSD.dt),
             args.gravity,
+            args.cage_vertices,
         )?;
         if args.cg_tolerance.is_some() || args.cg_max_iterations.is_some() {
             let (tol, cap) = match method {
@@ -412,6 +478,33 @@ fn bench(args: &BenchArgs) -> Res {
                 Err(e) => println!("{:<18} error: {e}", m.name()),
             }
         }
+        for (_, r) in &results {
+            if let Ok(r) = r
+                && r.points > 0
+            {
+                println!(
+                    "{}: {} cage vertices, {} surface points: median {:.2} us per 1000 points",
+                    r.method,
+                    r.cage_vertices,
+                    r.points,
+                    r.median_us * 1000.0 / r.points as f64
+                );
+            }
+        }
+        let median = |name: &str| {
+            results.iter().find_map(|(m, r)| match r {
+                Ok(r) if m.name() == name => Some(r.median_us),
+                _ => None,
+            })
+        };
+        for cage in ["cage-box", "cage-fitted"] {
+            if let (Some(fem), Some(c)) = (median("fem-corotational"), median(cage)) {
+                println!(
+                    "fem-corotational / {cage} median step time: {:.0}x",
+                    fem / c
+                );
+            }
+        }
     }
     let failed: Vec<&str> = results
         .iter()
@@ -421,5 +514,111 @@ fn bench(args: &BenchArgs) -> Res {
     if !failed.is_empty() {
         return Err(format!("{} failed: {}", failed.join(", "), "see the rows above").into());
     }
+    Ok(())
+}
+
+/// Reads an OBJ surface.
+fn read_obj(path: &Path) -> Result<io::SurfaceMesh, Box<dyn std::error::Error>> {
+    let data = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(io::parse_obj(&data, &path.display().to_string())?)
+}
+
+fn is_obj(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("obj"))
+}
+
+fn cage_deform(rest: &Path, deformed: &Path, mesh: &Path, out: &Path) -> Res {
+    use soft_tissue_core::Vec3;
+    use soft_tissue_core::cage::{Cage, GreenCoordinates};
+    let rest_surface = read_obj(rest)?;
+    let deformed_surface = read_obj(deformed)?;
+    if rest_surface.positions.len() != deformed_surface.positions.len()
+        || rest_surface.triangles != deformed_surface.triangles
+    {
+        return Err(format!(
+            "{} ({} vertices, {} triangles) and {} ({} vertices, {} triangles) are not the same cage",
+            rest.display(),
+            rest_surface.positions.len(),
+            rest_surface.triangles.len(),
+            deformed.display(),
+            deformed_surface.positions.len(),
+            deformed_surface.triangles.len()
+        )
+        .into());
+    }
+    let cage = Cage::from_surface(&rest_surface).map_err(|e| format!("{}: {e}", rest.display()))?;
+    let points: Vec<Vec3>;
+    let mut obj = None;
+    let mut tet = None;
+    if is_obj(mesh) {
+        let s = read_obj(mesh)?;
+        points = s.positions.clone();
+        obj = Some(s);
+    } else {
+        let loaded = io::read_tet_mesh(mesh)?;
+        points = loaded.mesh.positions().to_vec();
+        tet = Some(loaded.mesh);
+    }
+    let coords =
+        GreenCoordinates::new(&cage, &points).map_err(|e| format!("{}: {e}", mesh.display()))?;
+    let mut terms = vec![Vec3::zeros(); cage.triangles().len()];
+    coords.face_terms(&deformed_surface.positions, &mut terms);
+    let mut moved = vec![Vec3::zeros(); points.len()];
+    coords.evaluate(&deformed_surface.positions, &terms, &mut moved)?;
+    if let Some(mut s) = obj {
+        s.positions = moved;
+        std::fs::write(out, io::write_obj(&s)).map_err(|e| format!("{}: {e}", out.display()))?;
+    } else if let Some(m) = tet {
+        let tets = m.tets().iter().map(|t| t.map(|i| i as usize)).collect();
+        let moved_mesh = TetMesh::new(moved, tets).map_err(|e| format!("deformed mesh: {e}"))?;
+        io::write_tet_mesh(&moved_mesh, out, WriteOptions::default())?;
+    }
+    println!(
+        "deformed {} points with a {}-vertex cage -> {}",
+        points.len(),
+        cage.vertices().len(),
+        out.display()
+    );
+    Ok(())
+}
+
+fn cage_build(mesh: &Path, kind: &str, vertices: usize, margin: Option<f64>, out: &Path) -> Res {
+    use soft_tissue_core::cage::{FitOptions, box_cage, fitted_cage};
+    let (points, surface, volume) = if is_obj(mesh) {
+        let s = read_obj(mesh)?;
+        (s.positions, s.triangles, None)
+    } else {
+        let loaded = io::read_tet_mesh(mesh)?;
+        let v = loaded.mesh.volume();
+        (
+            loaded.mesh.positions().to_vec(),
+            loaded.mesh.surface().triangles().to_vec(),
+            Some(v),
+        )
+    };
+    let mut options = FitOptions::for_points(&points, vertices);
+    if let Some(m) = margin {
+        options.margin = m;
+    }
+    let cage = match kind {
+        "box" => box_cage(&points, options.margin)?,
+        "fitted" => fitted_cage(&points, &surface, &options)?,
+        other => return Err(format!("unknown --kind '{other}': expected box or fitted").into()),
+    };
+    std::fs::write(out, io::write_obj(&cage.to_surface()))
+        .map_err(|e| format!("{}: {e}", out.display()))?;
+    print!(
+        "{kind} cage: {} vertices, {} triangles, margin {:.4}, volume {:.4}",
+        cage.vertices().len(),
+        cage.triangles().len(),
+        options.margin,
+        cage.volume()
+    );
+    if let Some(v) = volume {
+        print!(" ({:.2}x the mesh volume)", cage.volume() / v);
+    }
+    println!(" -> {}", out.display());
     Ok(())
 }

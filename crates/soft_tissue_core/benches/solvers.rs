@@ -1,4 +1,4 @@
-//! Criterion benchmarks of one step of each precise method on the paper's meshes, under the
+//! Criterion benchmarks of one step of each method (precise and cage level) on the paper's meshes, under the
 //! same load as `soft-tissue bench` (bottom fixed, a swinging force on the top).
 //!
 //! Run: `cargo bench -p soft_tissue_core --bench solvers`.
@@ -24,6 +24,7 @@ fn solvers(c: &mut Criterion) {
                 (&fem.params, fem.dt),
                 (&CYLINDER_MSD.params, CYLINDER_MSD.dt),
                 false,
+                64,
             )
             .expect("paper parameters build");
             for _ in 0..100 {

@@ -5,6 +5,11 @@
 //! `k a / 5` (MSD), with `a` the smallest bounding-box side, which bends the paper's bodies by
 //! a few percent of their size, like a tool pressing on them. Gravity is optional (the paper's
 //! cylinders scene has it, the organs scene does not).
+//!
+//! Cage methods run the same swinging force on the top 5 % of the surface vertices, mapped
+//! onto a box or fitted cage (cage vertices in the bottom 10 % fixed) with the paper's cage MSD
+//! at its `dt` of 0.02; a step is the cage MSD step plus the Green-coordinate evaluation of
+//! every surface vertex.
 
 use std::str::FromStr;
 use std::time::Instant;
@@ -13,6 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::Vec3;
 use crate::boundary::Boundary;
+use crate::cage::{CageBody, CageBodyConfig, CageError, FitOptions, box_cage, fitted_cage};
 use crate::fem::{FemBody, FemConfig, FemError, FemModel};
 use crate::material::{FemParams, MsdParams};
 use crate::mesh::TetMesh;
@@ -32,17 +38,28 @@ pub enum BenchMethod {
     MsdSymplectic,
     /// MSD with linearised implicit Euler.
     MsdImplicit,
+    /// The cage level with the paper's bounding-box cage.
+    CageBox,
+    /// The cage level with a fitted cage (vertex budget set by the caller, 64 by default).
+    CageFitted,
 }
 
 impl BenchMethod {
     /// Every method.
-    pub const ALL: [BenchMethod; 5] = [
+    pub const ALL: [BenchMethod; 7] = [
         BenchMethod::FemLinear,
         BenchMethod::FemCorotational,
         BenchMethod::MsdRk4,
         BenchMethod::MsdSymplectic,
         BenchMethod::MsdImplicit,
+        BenchMethod::CageBox,
+        BenchMethod::CageFitted,
     ];
+
+    /// Whether this is a cage-level method.
+    pub fn is_cage(self) -> bool {
+        matches!(self, BenchMethod::CageBox | BenchMethod::CageFitted)
+    }
 
     /// The command-line name.
     pub fn name(self) -> &'static str {
@@ -52,6 +69,8 @@ impl BenchMethod {
             BenchMethod::MsdRk4 => "msd-rk4",
             BenchMethod::MsdSymplectic => "msd-symplectic",
             BenchMethod::MsdImplicit => "msd-implicit",
+            BenchMethod::CageBox => "cage-box",
+            BenchMethod::CageFitted => "cage-fitted",
         }
     }
 }
@@ -78,11 +97,15 @@ pub enum BenchError {
     /// MSD error.
     #[error(transparent)]
     Msd(#[from] MsdError),
+    /// Cage error.
+    #[error(transparent)]
+    Cage(#[from] CageError),
 }
 
 enum Solver {
     Fem(Box<FemBody>),
     Msd(Box<MsdBody>),
+    Cage(Box<CageBody>),
 }
 
 /// A body under the benchmark load.
@@ -127,16 +150,22 @@ pub struct BenchReport {
     /// Largest node displacement from rest over the timed steps, as a fraction of the
     /// smallest bounding-box side (shows the load deforms the body, and by how much).
     pub max_displacement_ratio: f64,
+    /// Cage methods: cage vertices (0 otherwise).
+    pub cage_vertices: usize,
+    /// Cage methods: embedded points evaluated per step, the surface vertices (0 otherwise).
+    pub points: usize,
 }
 
 impl BenchBody {
-    /// Builds `method` on `mesh` with the given FEM / MSD parameters and time steps.
+    /// Builds `method` on `mesh` with the given FEM / MSD parameters and time steps;
+    /// `cage_vertices` is the budget of the fitted cage.
     pub fn new(
         mesh: &TetMesh,
         method: BenchMethod,
         fem: (&FemParams, f64),
         msd: (&MsdParams, f64),
         gravity: bool,
+        cage_vertices: usize,
     ) -> Result<Self, BenchError> {
         let boundary = Boundary::fixed_below(mesh.positions(), 1, 0.1);
         let gravity = if gravity {
@@ -169,6 +198,27 @@ impl BenchBody {
                 let force = fem.0.young_modulus * size * size / 50.0;
                 (Solver::Fem(Box::new(body)), fem.1, force)
             }
+            BenchMethod::CageBox | BenchMethod::CageFitted => {
+                let nodes = mesh.positions();
+                let options = FitOptions::for_points(nodes, cage_vertices);
+                let cage = if method == BenchMethod::CageBox {
+                    box_cage(nodes, options.margin)?
+                } else {
+                    fitted_cage(nodes, mesh.surface().triangles(), &options)?
+                };
+                let surface: Vec<Vec3> = mesh
+                    .surface()
+                    .vertices()
+                    .iter()
+                    .map(|&i| nodes[i as usize])
+                    .collect();
+                let mut config = CageBodyConfig::paper(0.02);
+                config.msd.gravity = gravity;
+                let cage_boundary = Boundary::fixed_below(cage.vertices(), 1, 0.1);
+                let body = CageBody::with_boundary(cage, &surface, &config, &cage_boundary)?;
+                let force = config.msd.stiffness * size / 5.0;
+                (Solver::Cage(Box::new(body)), config.msd.dt, force)
+            }
             _ => {
                 let mut c = MsdConfig::paper(msd.0, msd.1);
                 c.gravity = gravity;
@@ -181,6 +231,18 @@ impl BenchBody {
                 let force = msd.0.stiffness * size / 5.0;
                 (Solver::Msd(Box::new(body)), msd.1, force)
             }
+        };
+        let top = match &solver {
+            // Cage bodies load surface vertices (indices into the embedded points).
+            Solver::Cage(_) => mesh
+                .surface()
+                .vertices()
+                .iter()
+                .enumerate()
+                .filter(|(_, n)| top.contains(&(**n as usize)))
+                .map(|(k, _)| k)
+                .collect(),
+            _ => top,
         };
         let amplitude = total_force / top.len().max(1) as f64;
         Ok(BenchBody {
@@ -216,6 +278,13 @@ impl BenchBody {
                 self.cg_iterations += s.cg.iterations as u64;
                 self.substeps += s.substeps as u64;
             }
+            Solver::Cage(b) => {
+                for &i in &self.top {
+                    b.apply_point_force(i, force)?;
+                }
+                let s = b.step()?;
+                self.substeps += s.substeps as u64;
+            }
         }
         self.steps += 1;
         self.time += self.dt;
@@ -228,6 +297,7 @@ impl BenchBody {
         match &mut self.solver {
             Solver::Fem(b) => b.set_cg(tolerance, max_iterations)?,
             Solver::Msd(b) => b.set_cg(tolerance, max_iterations)?,
+            Solver::Cage(_) => {}
         }
         Ok(())
     }
@@ -237,6 +307,7 @@ impl BenchBody {
         let (x, x0) = match &self.solver {
             Solver::Fem(b) => (b.positions(), b.rest_positions()),
             Solver::Msd(b) => (b.positions(), b.rest_positions()),
+            Solver::Cage(b) => (b.points(), b.coordinates().rest_points()),
         };
         x.iter()
             .zip(x0)
@@ -295,6 +366,14 @@ impl BenchBody {
             mean_cg_iterations: self.cg_iterations as f64 / n,
             mean_substeps: self.substeps as f64 / n,
             max_displacement_ratio: displacement / size,
+            cage_vertices: match &self.solver {
+                Solver::Cage(b) => b.cage().vertices().len(),
+                _ => 0,
+            },
+            points: match &self.solver {
+                Solver::Cage(b) => b.points().len(),
+                _ => 0,
+            },
         })
     }
 }

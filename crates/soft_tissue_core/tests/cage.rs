@@ -135,6 +135,7 @@ fn identity_partition_of_unity_and_similarities_are_exact() {
     let liver = asset("liver");
     let fitted = fitted_cage(
         liver.positions(),
+        liver.surface().triangles(),
         &FitOptions::for_points(liver.positions(), 48),
     )
     .unwrap();
@@ -362,7 +363,8 @@ fn bad_cages_are_refused_with_the_defect_named() {
     ));
 }
 
-fn check_built_cage(cage: &Cage, points: &[Vec3], margin: f64, budget: usize) {
+fn check_built_cage(cage: &Cage, mesh: &TetMesh, margin: f64, budget: usize) {
+    let points = mesh.positions();
     assert!(
         cage.vertices().len() <= budget,
         "{} vertices > {budget}",
@@ -376,13 +378,53 @@ fn check_built_cage(cage: &Cage, points: &[Vec3], margin: f64, budget: usize) {
             "point {p:?} not enclosed"
         );
     }
-    // Margin: no point closer than the margin to any face (checked on a dense sampling).
+    // The surface, not only its vertices: points spread over every surface triangle.
+    for t in mesh.surface().triangles() {
+        let q = t.map(|i| points[i as usize]);
+        for (a, b) in [
+            (1.0 / 3.0, 1.0 / 3.0),
+            (0.1, 0.1),
+            (0.8, 0.1),
+            (0.1, 0.8),
+            (0.45, 0.45),
+        ] {
+            let p = q[0] + (q[1] - q[0]) * a + (q[2] - q[0]) * b;
+            assert!(
+                (cage.winding_number(&p) - 1.0).abs() < 1e-9,
+                "surface point {p:?} not enclosed"
+            );
+        }
+    }
+    // Margin: no node closer than the margin to any face (checked on a dense sampling).
     let mut r = Lcg(5);
     for _ in 0..40 {
         let p = points[(r.next() * points.len() as f64) as usize];
         assert!(distance_to_cage(cage, &p) >= margin * 0.999);
     }
     GreenCoordinates::new(cage, points).unwrap();
+    assert!(
+        cage.volume() >= mesh.volume(),
+        "the cage is smaller than the body"
+    );
+}
+
+#[test]
+fn a_single_tetrahedron_is_enclosed_whole() {
+    // Four vertices and nothing between them: enclosing the vertices alone would let the
+    // cage dent through the faces.
+    let mesh = TetMesh::new(
+        vec![
+            Vec3::zeros(),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(0.0, 0.0, 1.0),
+        ],
+        vec![[0, 1, 2, 3]],
+    )
+    .unwrap();
+    let opts = FitOptions::for_points(mesh.positions(), 64);
+    let cage = fitted_cage(mesh.positions(), mesh.surface().triangles(), &opts).unwrap();
+    check_built_cage(&cage, &mesh, opts.margin, 64);
 }
 
 #[test]
@@ -401,8 +443,8 @@ fn box_and_fitted_cages_enclose_every_node_and_the_fitted_one_is_tighter() {
         assert_eq!((b.vertices().len(), b.triangles().len()), (8, 12));
         for budget in [32, 64] {
             let opts = FitOptions::for_points(pts, budget);
-            let f = fitted_cage(pts, &opts).unwrap();
-            check_built_cage(&f, pts, opts.margin, budget);
+            let f = fitted_cage(pts, mesh.surface().triangles(), &opts).unwrap();
+            check_built_cage(&f, mesh, opts.margin, budget);
             let ratio = f.volume() / b.volume();
             println!(
                 "{name}: fitted {budget} -> {} vertices, volume {:.3} of the box",
@@ -434,6 +476,7 @@ fn cage_body_rests_follows_forces_and_displacements() {
         .unwrap(),
         fitted_cage(
             mesh.positions(),
+            mesh.surface().triangles(),
             &FitOptions::for_points(mesh.positions(), 64),
         )
         .unwrap(),
@@ -503,7 +546,12 @@ fn similarity_of_the_cage_body_carries_the_surface_rigidly() {
     // deformation) moves the embedded surface rigidly, at the fast path's precision.
     let mesh = asset("cylinder");
     let pts: Vec<Vec3> = mesh.positions().to_vec();
-    let cage = fitted_cage(&pts, &FitOptions::for_points(&pts, 40)).unwrap();
+    let cage = fitted_cage(
+        &pts,
+        mesh.surface().triangles(),
+        &FitOptions::for_points(&pts, 40),
+    )
+    .unwrap();
     let mut body = CageBody::new(cage, &pts, &CageBodyConfig::paper(0.02)).unwrap();
     let rot = Rotation3::from_axis_angle(&Vec3::x_axis(), 1.0);
     let shift = Vec3::new(0.3, 0.0, -0.2);

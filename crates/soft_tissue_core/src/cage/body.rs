@@ -154,6 +154,27 @@ impl CageBody {
         coords: Arc<GreenCoordinates>,
         config: &CageBodyConfig,
     ) -> Result<Self, CageError> {
+        CageBody::build(cage, coords, config, &Boundary::free())
+    }
+
+    /// A cage body whose cage vertices are held by `boundary` (fixed components, anchors),
+    /// for example a cage resting on a support.
+    pub fn with_boundary(
+        cage: Cage,
+        points: &[Vec3],
+        config: &CageBodyConfig,
+        boundary: &Boundary,
+    ) -> Result<Self, CageError> {
+        let coords = Arc::new(GreenCoordinates::new(&cage, points)?);
+        CageBody::build(cage, coords, config, boundary)
+    }
+
+    fn build(
+        cage: Cage,
+        coords: Arc<GreenCoordinates>,
+        config: &CageBodyConfig,
+        boundary: &Boundary,
+    ) -> Result<Self, CageError> {
         if coords.vertex_count() != cage.vertices().len()
             || coords.face_count() != cage.triangles().len()
         {
@@ -172,7 +193,7 @@ impl CageBody {
             masses,
             springs,
             config.msd,
-            &Boundary::free(),
+            boundary,
         )?;
         let mut body = CageBody {
             face_terms: vec![Vec3::zeros(); cage.triangles().len()],

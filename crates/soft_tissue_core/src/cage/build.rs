@@ -6,6 +6,8 @@
 //! neighbours, to keep triangles well shaped) with a step that grows on success and halves on
 //! failure. A move is accepted only if
 //! - no point of the body changes side (the winding-number change over the moved fan is zero),
+//! - the moved triangles cross no triangle of the body's surface (so the whole surface, not
+//!   only its vertices, stays inside),
 //! - every point stays at least `margin` from the moved triangles,
 //! - the moved triangles stay non-degenerate, do not fold, and intersect no other triangle.
 //!
@@ -18,7 +20,7 @@
 
 use std::collections::HashMap;
 
-use super::geometry::{point_triangle_distance, solid_angle, triangles_intersect};
+use super::geometry::{point_triangle_distance, solid_angle, triangles_cross, triangles_intersect};
 use super::{Cage, CageError};
 use crate::Vec3;
 
@@ -174,6 +176,8 @@ struct Wrap<'a> {
     t: Vec<[u32; 3]>,
     incident: Vec<Vec<usize>>,
     ring: Vec<Vec<u32>>,
+    /// Body surface triangles (positions) with their bounding boxes.
+    body: Vec<([Vec3; 3], Vec3, Vec3)>,
 }
 
 impl Wrap<'_> {
@@ -239,11 +243,19 @@ impl Wrap<'_> {
                 return false;
             }
         }
-        // No intersection of the moved fan with any triangle.
+        // No intersection of the moved fan with any cage or body triangle.
         for &f in &self.incident[i] {
             let pf = self.tri(f, i, to);
             let flo = pf[0].inf(&pf[1]).inf(&pf[2]);
             let fhi = pf[0].sup(&pf[1]).sup(&pf[2]);
+            for (pb, blo, bhi) in &self.body {
+                if (0..3).any(|a| blo[a] > fhi[a] || bhi[a] < flo[a]) {
+                    continue;
+                }
+                if triangles_cross(&pf, pb) {
+                    return false;
+                }
+            }
             for g in 0..self.t.len() {
                 if g == f {
                     continue;
@@ -263,9 +275,15 @@ impl Wrap<'_> {
     }
 }
 
-/// A cage fitted to `points` (all the body's nodes, so that every one is enclosed) with at
-/// most `options.max_vertices` vertices, by shrink-wrapping a box grid (see the module docs).
-pub fn fitted_cage(points: &[Vec3], options: &FitOptions) -> Result<Cage, CageError> {
+/// A cage fitted to `points` (all the body's nodes, so that every one is enclosed) and to
+/// the body's surface triangles `surface` (indices into `points`; may be empty for a point
+/// cloud), with at most `options.max_vertices` vertices, by shrink-wrapping a box grid (see
+/// the module docs).
+pub fn fitted_cage(
+    points: &[Vec3],
+    surface: &[[u32; 3]],
+    options: &FitOptions,
+) -> Result<Cage, CageError> {
     check_margin(options.margin)?;
     if options.max_vertices < 8 {
         return Err(CageError::InvalidArgument {
@@ -274,6 +292,17 @@ pub fn fitted_cage(points: &[Vec3], options: &FitOptions) -> Result<Cage, CageEr
         });
     }
     let (lo, hi) = bounds(points)?;
+    let mut body = Vec::with_capacity(surface.len());
+    for (k, t) in surface.iter().enumerate() {
+        if t.iter().any(|&i| i as usize >= points.len()) {
+            return Err(CageError::InvalidArgument {
+                field: "surface",
+                message: format!("triangle {k} {t:?} refers past the {} points", points.len()),
+            });
+        }
+        let p = t.map(|i| points[i as usize]);
+        body.push((p, p[0].inf(&p[1]).inf(&p[2]), p[0].sup(&p[1]).sup(&p[2])));
+    }
     let m = Vec3::repeat(options.margin * 1.01);
     let (lo, hi) = (lo - m, hi + m);
     let extent = hi - lo;
@@ -298,6 +327,7 @@ pub fn fitted_cage(points: &[Vec3], options: &FitOptions) -> Result<Cage, CageEr
         t,
         incident,
         ring,
+        body,
     };
     let smallest = extent.min();
     let mut step = vec![0.25 * smallest; w.v.len()];

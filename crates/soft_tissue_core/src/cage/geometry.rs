@@ -100,15 +100,16 @@ pub(crate) fn triangles_intersect(
         let nj = (pj[1] - pj[0]).cross(&(pj[2] - pj[0])).normalize();
         return ni.dot(&nj) < -1.0 + 1e-9;
     }
-    for k in 0..3 {
+    triangles_cross(pi, pj)
+}
+
+/// Whether an edge of either triangle crosses the interior of the other.
+pub(crate) fn triangles_cross(pi: &[Vec3; 3], pj: &[Vec3; 3]) -> bool {
+    (0..3).any(|k| {
         let (a, b) = (k, (k + 1) % 3);
-        if segment_crosses_triangle(&pi[a], &pi[b], &pj[0], &pj[1], &pj[2])
+        segment_crosses_triangle(&pi[a], &pi[b], &pj[0], &pj[1], &pj[2])
             || segment_crosses_triangle(&pj[a], &pj[b], &pi[0], &pi[1], &pi[2])
-        {
-            return true;
-        }
-    }
-    false
+    })
 }
 
 /// The first pair of intersecting triangles, found by a sweep over their x extents.

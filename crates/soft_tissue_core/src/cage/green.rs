@@ -363,42 +363,53 @@ fn kernel<const FMA: bool>(
     fn madd<const FMA: bool>(a: f32, b: f32, c: f32) -> f32 {
         if FMA { a.mul_add(b, c) } else { a * b + c }
     }
+    #[inline(always)]
+    fn column<const FMA: bool>(acc: &mut [[f32; LANES]; 3], col: &[f32], x: f32, y: f32, z: f32) {
+        let col: &[f32; LANES] = col.try_into().expect("a block column has LANES entries");
+        for l in 0..LANES {
+            acc[0][l] = madd::<FMA>(col[l], x, acc[0][l]);
+            acc[1][l] = madd::<FMA>(col[l], y, acc[1][l]);
+            acc[2][l] = madd::<FMA>(col[l], z, acc[2][l]);
+        }
+    }
+    // Four independent accumulator sets hide the FMA latency; iterators (no indexing) keep
+    // the accumulators in registers.
     const U: usize = 4;
     let [qx, qy, qz] = q;
+    let (qx, qy, qz) = (&qx[..k], &qy[..k], &qz[..k]);
+    let main = k / U * U;
     for (b, chunk) in packed.chunks_exact(k * LANES).enumerate() {
         let mut acc = [[[0.0f32; LANES]; 3]; U];
-        let mut c = 0;
-        while c + U <= k {
-            for (u, acc) in acc.iter_mut().enumerate() {
-                let col: &[f32; LANES] = chunk[(c + u) * LANES..(c + u + 1) * LANES]
-                    .try_into()
-                    .expect("block column");
-                let (x, y, z) = (qx[c + u], qy[c + u], qz[c + u]);
+        let (head, tail) = chunk.split_at(main * LANES);
+        let qs = qx[..main]
+            .chunks_exact(U)
+            .zip(qy[..main].chunks_exact(U))
+            .zip(qz[..main].chunks_exact(U));
+        for (cols, ((x, y), z)) in head.chunks_exact(U * LANES).zip(qs) {
+            for (u, (acc, col)) in acc.iter_mut().zip(cols.chunks_exact(LANES)).enumerate() {
+                column::<FMA>(acc, col, x[u], y[u], z[u]);
+            }
+        }
+        let qs = qx[main..].iter().zip(&qy[main..]).zip(&qz[main..]);
+        for (col, ((x, y), z)) in tail.chunks_exact(LANES).zip(qs) {
+            column::<FMA>(&mut acc[0], col, *x, *y, *z);
+        }
+        let mut d = [[0.0f32; LANES]; 3];
+        for a in acc {
+            for c in 0..3 {
                 for l in 0..LANES {
-                    acc[0][l] = madd::<FMA>(col[l], x, acc[0][l]);
-                    acc[1][l] = madd::<FMA>(col[l], y, acc[1][l]);
-                    acc[2][l] = madd::<FMA>(col[l], z, acc[2][l]);
+                    d[c][l] += a[c][l];
                 }
             }
-            c += U;
-        }
-        while c < k {
-            let col: &[f32; LANES] = chunk[c * LANES..(c + 1) * LANES]
-                .try_into()
-                .expect("block column");
-            let (x, y, z) = (qx[c], qy[c], qz[c]);
-            for l in 0..LANES {
-                acc[0][0][l] = madd::<FMA>(col[l], x, acc[0][0][l]);
-                acc[0][1][l] = madd::<FMA>(col[l], y, acc[0][1][l]);
-                acc[0][2][l] = madd::<FMA>(col[l], z, acc[0][2][l]);
-            }
-            c += 1;
         }
         let start = b * LANES;
         let end = (start + LANES).min(out.len());
-        for (l, p) in (start..end).enumerate() {
-            let d = [0, 1, 2].map(|a| acc.iter().map(|s| s[a][l]).sum::<f32>() as f64);
-            out[p] = rest[p] + Vec3::new(d[0], d[1], d[2]);
+        for (l, (o, r)) in out[start..end]
+            .iter_mut()
+            .zip(&rest[start..end])
+            .enumerate()
+        {
+            *o = r + Vec3::new(d[0][l] as f64, d[1][l] as f64, d[2][l] as f64);
         }
     }
 }
