@@ -124,11 +124,17 @@ const INSIDE_TOLERANCE: f64 = 1e-6;
 /// Points per SIMD block of the packed single-precision coefficients.
 const LANES: usize = 16;
 
+/// One column of a block: the coefficients of 16 points, aligned to a cache line so every
+/// vector load is a single line.
+#[derive(Debug, Clone, Copy, Default)]
+#[repr(C, align(64))]
+struct Lane([f32; LANES]);
+
 /// The Green coordinates of a set of points in a cage, precomputed once.
 ///
 /// [`GreenCoordinates::evaluate`] maps them through a deformed cage in `f64` (exact up to
 /// rounding); [`GreenCoordinates::evaluate_fast`] computes the displacement from the rest
-/// position with packed `f32` coefficients (blocks of 16 points, one column per cage vertex
+/// position with packed `f32` coefficients (blocks of 32 points, one column per cage vertex
 /// and face) and runtime-selected AVX-512 / AVX2 kernels, for the per-step writeback. Its
 /// error is about `1e-7` of the displacement, not of the position.
 #[derive(Debug, Clone)]
@@ -139,7 +145,7 @@ pub struct GreenCoordinates {
     points: Vec<Vec3>,
     phi: Vec<f64>,
     psi: Vec<f64>,
-    packed: Vec<f32>,
+    packed: Vec<Lane>,
 }
 
 /// Work buffers of [`GreenCoordinates::evaluate_fast`] (one per caller, no allocation per
@@ -186,17 +192,18 @@ impl GreenCoordinates {
             }
         }
         let k = nv + nf;
-        let blocks = points.len().div_ceil(LANES);
-        let mut packed = vec![0.0f32; blocks * k * LANES];
+        // Blocks of 32 points: per column, the 16-lane halves side by side.
+        let blocks = points.len().div_ceil(2 * LANES);
+        let mut packed = vec![Lane::default(); blocks * k * 2];
         for p in 0..points.len() {
-            let (b, lane) = (p / LANES, p % LANES);
+            let (b, half, lane) = (p / (2 * LANES), (p / LANES) % 2, p % LANES);
             for c in 0..k {
                 let v = if c < nv {
                     phi[p * nv + c]
                 } else {
                     psi[p * nf + c - nv]
                 };
-                packed[(b * k + c) * LANES + lane] = v as f32;
+                packed[(b * k + c) * 2 + half].0[lane] = v as f32;
             }
         }
         Ok(GreenCoordinates {
@@ -351,84 +358,93 @@ impl GreenCoordinates {
     }
 }
 
+// Lane loops index several fixed-size arrays in step; written for the vectorizer.
+#[allow(clippy::needless_range_loop)]
 #[inline(always)]
 fn kernel<const FMA: bool>(
-    packed: &[f32],
+    packed: &[Lane],
     k: usize,
     q: [&[f32]; 3],
     rest: &[Vec3],
     out: &mut [Vec3],
 ) {
+    /// Accumulators of one 32-point block: [half][coordinate][lane].
+    type Acc = [[[f32; LANES]; 3]; 2];
     #[inline(always)]
     fn madd<const FMA: bool>(a: f32, b: f32, c: f32) -> f32 {
         if FMA { a.mul_add(b, c) } else { a * b + c }
     }
     #[inline(always)]
-    fn column<const FMA: bool>(acc: &mut [[f32; LANES]; 3], col: &[f32], x: f32, y: f32, z: f32) {
-        let col: &[f32; LANES] = col.try_into().expect("a block column has LANES entries");
-        for l in 0..LANES {
-            acc[0][l] = madd::<FMA>(col[l], x, acc[0][l]);
-            acc[1][l] = madd::<FMA>(col[l], y, acc[1][l]);
-            acc[2][l] = madd::<FMA>(col[l], z, acc[2][l]);
+    fn column<const FMA: bool>(acc: &mut Acc, col: &[Lane], x: f32, y: f32, z: f32) {
+        for (acc, col) in acc.iter_mut().zip(col) {
+            for l in 0..LANES {
+                acc[0][l] = madd::<FMA>(col.0[l], x, acc[0][l]);
+                acc[1][l] = madd::<FMA>(col.0[l], y, acc[1][l]);
+                acc[2][l] = madd::<FMA>(col.0[l], z, acc[2][l]);
+            }
         }
     }
-    // Four independent accumulator sets hide the FMA latency; iterators (no indexing) keep
-    // the accumulators in registers.
-    const U: usize = 4;
+    // Two 16-lane halves share each broadcast of the control values (fewer loads per FMA);
+    // two accumulator sets per half hide the FMA latency; iterators (no indexing) keep the
+    // accumulators in registers.
+    const U: usize = 2;
     let [qx, qy, qz] = q;
     let (qx, qy, qz) = (&qx[..k], &qy[..k], &qz[..k]);
     let main = k / U * U;
-    for (b, chunk) in packed.chunks_exact(k * LANES).enumerate() {
-        let mut acc = [[[0.0f32; LANES]; 3]; U];
-        let (head, tail) = chunk.split_at(main * LANES);
+    for (b, chunk) in packed.chunks_exact(2 * k).enumerate() {
+        let mut acc: [Acc; U] = [[[[0.0f32; LANES]; 3]; 2]; U];
+        let (head, tail) = chunk.split_at(2 * main);
         let qs = qx[..main]
             .chunks_exact(U)
             .zip(qy[..main].chunks_exact(U))
             .zip(qz[..main].chunks_exact(U));
-        for (cols, ((x, y), z)) in head.chunks_exact(U * LANES).zip(qs) {
-            for (u, (acc, col)) in acc.iter_mut().zip(cols.chunks_exact(LANES)).enumerate() {
+        for (cols, ((x, y), z)) in head.chunks_exact(2 * U).zip(qs) {
+            for (u, (acc, col)) in acc.iter_mut().zip(cols.chunks_exact(2)).enumerate() {
                 column::<FMA>(acc, col, x[u], y[u], z[u]);
             }
         }
         let qs = qx[main..].iter().zip(&qy[main..]).zip(&qz[main..]);
-        for (col, ((x, y), z)) in tail.chunks_exact(LANES).zip(qs) {
+        for (col, ((x, y), z)) in tail.chunks_exact(2).zip(qs) {
             column::<FMA>(&mut acc[0], col, *x, *y, *z);
         }
-        let mut d = [[0.0f32; LANES]; 3];
+        let mut d: Acc = [[[0.0f32; LANES]; 3]; 2];
         for a in acc {
-            for c in 0..3 {
-                for l in 0..LANES {
-                    d[c][l] += a[c][l];
+            for h in 0..2 {
+                for c in 0..3 {
+                    for l in 0..LANES {
+                        d[h][c][l] += a[h][c][l];
+                    }
                 }
             }
         }
-        let start = b * LANES;
-        let end = (start + LANES).min(out.len());
-        for (l, (o, r)) in out[start..end]
+        let start = b * 2 * LANES;
+        let end = (start + 2 * LANES).min(out.len());
+        for (i, (o, r)) in out[start..end]
             .iter_mut()
             .zip(&rest[start..end])
             .enumerate()
         {
-            *o = r + Vec3::new(d[0][l] as f64, d[1][l] as f64, d[2][l] as f64);
+            let (h, l) = (i / LANES, i % LANES);
+            *o = r + Vec3::new(d[h][0][l] as f64, d[h][1][l] as f64, d[h][2][l] as f64);
         }
     }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
-fn kernel_avx512(packed: &[f32], k: usize, q: [&[f32]; 3], rest: &[Vec3], out: &mut [Vec3]) {
+fn kernel_avx512(packed: &[Lane], k: usize, q: [&[f32]; 3], rest: &[Vec3], out: &mut [Vec3]) {
     kernel::<true>(packed, k, q, rest, out)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn kernel_avx2(packed: &[f32], k: usize, q: [&[f32]; 3], rest: &[Vec3], out: &mut [Vec3]) {
+fn kernel_avx2(packed: &[Lane], k: usize, q: [&[f32]; 3], rest: &[Vec3], out: &mut [Vec3]) {
     kernel::<true>(packed, k, q, rest, out)
 }
 
 /// Runs the widest kernel the CPU supports.
 #[allow(unsafe_code)]
-fn kernel_dispatch(packed: &[f32], k: usize, q: [&[f32]; 3], rest: &[Vec3], out: &mut [Vec3]) {
+fn kernel_dispatch(packed: &[Lane], k: usize, q: [&[f32]; 3], rest: &[Vec3], out: &mut [Vec3]) {
     #[cfg(target_arch = "x86_64")]
     {
         if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("fma") {
