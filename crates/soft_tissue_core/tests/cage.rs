@@ -36,9 +36,9 @@ impl Lcg {
     }
 }
 
-/// A non-convex test cage built by hand: a unit cube whose top-face centre is pushed down
-/// into the body (a dent), 9 vertices, 14 triangles... constructed as a box with the top
-/// split into 4 triangles around a centre vertex.
+/// A non-convex test cage built by hand: the unit cube with its top face split into four
+/// triangles around a centre vertex pushed `depth` down into the body (9 vertices, 14
+/// triangles).
 fn dented_cube(depth: f64) -> Cage {
     let mut v: Vec<Vec3> = (0..8)
         .map(|i| Vec3::new((i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64))
