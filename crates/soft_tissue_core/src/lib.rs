@@ -11,6 +11,7 @@
 //! - [`fem`]: linear and corotational tetrahedral FEM with implicit Euler.
 //! - [`msd`]: mass-spring-damper bodies with RK4, symplectic and implicit Euler.
 //! - [`cage`]: Green-coordinate cages (the cheap level), cage builders and cage bodies.
+//! - [`precision`]: levels of precision, the switching policy and the state transfer.
 //! - [`boundary`]: fixed nodes and soft anchors shared by the solvers.
 //! - [`state`]: the per-node state of every precise body and the [`NodalBody`] accessors.
 //! - [`bench`](mod@bench): the benchmark load shared by the command-line tool and criterion.
@@ -28,6 +29,7 @@ pub mod linalg;
 pub mod material;
 pub mod mesh;
 pub mod msd;
+pub mod precision;
 pub mod scenario;
 pub mod state;
 

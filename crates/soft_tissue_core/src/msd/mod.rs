@@ -817,6 +817,23 @@ impl MsdBody {
         k
     }
 
+    /// Makes the current shape the rest shape: rest positions, anchor targets and spring
+    /// rest lengths are taken from the current positions (velocities are kept). Used when a
+    /// body settles in a deformed equilibrium and should stay there.
+    pub fn rebase_rest(&mut self) {
+        self.nodes.rest.copy_from_slice(&self.nodes.x);
+        self.nodes.anchor_target.copy_from_slice(&self.nodes.x);
+        for s in &mut self.springs {
+            s.rest_length = (self.nodes.x[s.b as usize] - self.nodes.x[s.a as usize]).norm();
+        }
+        if !self.tets.is_empty() {
+            for (t, v0) in self.tets.iter().zip(self.rest_volumes.iter_mut()) {
+                *v0 = signed_volume(&self.nodes.x, t);
+            }
+        }
+        self.estimate_limits();
+    }
+
     /// Puts the body back at rest in its rest shape.
     pub fn reset(&mut self) {
         self.nodes.reset();

@@ -1,0 +1,825 @@
+//! Levels of precision for one body: the cheap cage level and the body's precise method,
+//! the state transfer between them without a visible jump, and the policy that decides when
+//! a body may drop back to its cage (paper section III, Fig. 2).
+//!
+//! A [`LeveledBody`] always has its cage (a [`CageBody`] embedding every mesh node) and the
+//! solver of its chosen precise method, built once (a body whose method is MSD has no FEM
+//! state). It starts at [`Level::Cage`].
+//!
+//! - **Up** ([`LeveledBody::raise`], called by contact before the contact is resolved): node
+//!   positions are the cage's exact (`f64`) Green-coordinate evaluation, node velocities its
+//!   derivative along the cage vertex velocities (central difference of the exact map).
+//! - **Down** ([`LeveledBody::lower`], or automatically at the end of a step): the cage is
+//!   fitted so its coordinates reproduce the current surface in the least-squares sense
+//!   (`min |Phi V + Psi T(V) - P|^2`, face terms `T` refreshed by a fixed-point iteration,
+//!   a small Tikhonov term toward the current cage), cage velocities by the same normal
+//!   equations on the surface velocities, and the cage MSD takes the fitted shape as its rest
+//!   shape, so a body that settled in a deformed equilibrium (a sagging cylinder) stays there.
+//! - Every switch records the largest surface-vertex jump ([`SwitchRecord`]).
+//! - Automatic down-switch ([`PrecisionPolicy`]): no contact, largest nodal speed and the cage
+//!   fit residual (the distance from a cage-reproducible shape) below thresholds for
+//!   `rest_steps` consecutive steps, and at least `min_precise_steps` steps at the precise
+//!   level (hysteresis: a body never flickers). The fit is computed once the body has been
+//!   slow for `rest_steps` steps, not every step.
+//!
+//! Steps do not allocate; a switch (a rare event) may.
+
+use nalgebra::DMatrix;
+use serde::{Deserialize, Serialize};
+
+use crate::Vec3;
+use crate::boundary::{Boundary, BoundaryError};
+use crate::cage::{
+    CageBody, CageBodyConfig, CageError, FitOptions, GreenCoordinates, box_cage, fitted_cage,
+};
+use crate::fem::{FemBody, FemConfig, FemError, FemModel};
+use crate::material::{FemParams, MsdParams, PAPER_CAGE_MSD};
+use crate::mesh::TetMesh;
+use crate::msd::{MsdBody, MsdConfig, MsdError, MsdIntegrator};
+use crate::scenario::CageKind;
+use crate::state::NodalBody;
+
+/// The level a body runs at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Level {
+    /// Green coordinates of an MSD-driven cage.
+    Cage,
+    /// The body's precise method.
+    Precise,
+}
+
+/// The precise method of a body.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum PreciseMethod {
+    /// Tetrahedral FEM with the given model.
+    Fem(FemModel),
+    /// Mass-spring-damper with the given integrator.
+    Msd(MsdIntegrator),
+}
+
+impl PreciseMethod {
+    /// Short name: `fem-linear`, `fem-corotational`, `msd-rk4`, `msd-symplectic`,
+    /// `msd-implicit`.
+    pub fn name(self) -> &'static str {
+        match self {
+            PreciseMethod::Fem(FemModel::Linear) => "fem-linear",
+            PreciseMethod::Fem(FemModel::Corotational) => "fem-corotational",
+            PreciseMethod::Msd(MsdIntegrator::Rk4) => "msd-rk4",
+            PreciseMethod::Msd(MsdIntegrator::SymplecticEuler) => "msd-symplectic",
+            PreciseMethod::Msd(MsdIntegrator::ImplicitEuler) => "msd-implicit",
+        }
+    }
+}
+
+/// When a body may return to its cage. Lengths are fractions of the body's smallest
+/// bounding-box dimension `a`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PrecisionPolicy {
+    /// Largest nodal speed at rest, in `a` per second (default 0.02).
+    pub rest_speed: f64,
+    /// Largest distance of a surface vertex from the cage's best fit, in `a` (default
+    /// 0.002; the visible jump of a down-switch is at most this).
+    pub rest_residual: f64,
+    /// Consecutive steps at rest before dropping (default 10).
+    pub rest_steps: u32,
+    /// Fewest steps at the precise level after rising (default 25).
+    pub min_precise_steps: u32,
+}
+
+impl Default for PrecisionPolicy {
+    fn default() -> Self {
+        PrecisionPolicy {
+            rest_speed: 0.02,
+            rest_residual: 0.002,
+            rest_steps: 10,
+            min_precise_steps: 25,
+        }
+    }
+}
+
+/// Everything a [`LeveledBody`] is built from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BodySettings {
+    /// Precise method.
+    pub precise: PreciseMethod,
+    /// FEM material (used by FEM methods).
+    pub fem: FemParams,
+    /// MSD parameters (used by MSD methods).
+    pub msd: MsdParams,
+    /// Cage shape.
+    pub cage: CageKind,
+    /// Cage MSD parameters (paper: stiffness 50, mass 20, damping 0.3).
+    pub cage_msd: MsdParams,
+    /// Time step of every level, seconds.
+    pub dt: f64,
+    /// Gravity on the precise level (the cage level keeps its rest shape instead).
+    pub gravity: Vec3,
+    /// Fixed nodes and anchors of the precise level.
+    pub boundary: Boundary,
+    /// Switching policy.
+    pub policy: PrecisionPolicy,
+}
+
+impl BodySettings {
+    /// Corotational FEM with `fem`, the paper's MSD and cage MSD otherwise, a box cage, no
+    /// gravity, a free body.
+    pub fn new(fem: FemParams, msd: MsdParams, dt: f64) -> Self {
+        BodySettings {
+            precise: PreciseMethod::Fem(FemModel::Corotational),
+            fem,
+            msd,
+            cage: CageKind::BoundingBox,
+            cage_msd: PAPER_CAGE_MSD,
+            dt,
+            gravity: Vec3::zeros(),
+            boundary: Boundary::free(),
+            policy: PrecisionPolicy::default(),
+        }
+    }
+}
+
+/// Errors of a leveled body, naming the level that failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PrecisionError {
+    /// The FEM level.
+    #[error("FEM level: {0}")]
+    Fem(#[from] FemError),
+    /// The MSD level.
+    #[error("MSD level: {0}")]
+    Msd(#[from] MsdError),
+    /// The cage level.
+    #[error("cage level: {0}")]
+    Cage(#[from] CageError),
+    /// The boundary.
+    #[error("boundary: {0}")]
+    Boundary(#[from] BoundaryError),
+    /// A node index out of range.
+    #[error("node {node} out of range ({nodes} nodes)")]
+    BadNode {
+        /// The index.
+        node: usize,
+        /// Node count.
+        nodes: usize,
+    },
+    /// The cage fit could not be solved.
+    #[error("the cage fit is singular")]
+    SingularFit,
+}
+
+/// One level switch.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SwitchRecord {
+    /// Level before.
+    pub from: Level,
+    /// Level after.
+    pub to: Level,
+    /// Body step count at the switch.
+    pub step: u64,
+    /// Largest surface-vertex displacement caused by the switch, scene units.
+    pub jump: f64,
+    /// `jump` as a fraction of the smallest bounding-box dimension.
+    pub jump_ratio: f64,
+    /// Down-switches: largest distance of a surface vertex from the fitted cage's shape
+    /// before the switch (the cage level's error at that moment), scene units.
+    pub residual: f64,
+}
+
+/// What the last step did.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LevelStepStats {
+    /// Level that was stepped.
+    pub level: Level,
+    /// Switch at the end of the step, if any.
+    pub switched: Option<SwitchRecord>,
+}
+
+enum Precise {
+    Fem(Box<FemBody>),
+    Msd(Box<MsdBody>),
+}
+
+impl Precise {
+    fn body(&self) -> &dyn NodalBody {
+        match self {
+            Precise::Fem(b) => b.as_ref(),
+            Precise::Msd(b) => b.as_ref(),
+        }
+    }
+    fn body_mut(&mut self) -> &mut dyn NodalBody {
+        match self {
+            Precise::Fem(b) => b.as_mut(),
+            Precise::Msd(b) => b.as_mut(),
+        }
+    }
+}
+
+/// The least-squares fit of cage vertices to the surface: normal matrix of the surface
+/// rows of `phi` (with the Tikhonov term), factorized once.
+struct CageFit {
+    phi_t: DMatrix<f64>,
+    normal: nalgebra::Cholesky<f64, nalgebra::Dyn>,
+    mu: f64,
+}
+
+/// A body with a cage level and a precise level (see the module docs).
+pub struct LeveledBody {
+    settings: BodySettings,
+    rest: Vec<Vec3>,
+    surface: Vec<u32>,
+    smallest: f64,
+    precise: Precise,
+    cage: CageBody,
+    fit: CageFit,
+    level: Level,
+    pin: Option<Level>,
+    steps: u64,
+    steps_at_level: u64,
+    rest_count: u32,
+    switches: u64,
+    last_switch: Option<SwitchRecord>,
+    residual: f64,
+    // Workspaces of the transfers.
+    nodes_work: Vec<Vec3>,
+    nodes_work2: Vec<Vec3>,
+    cage_work: Vec<Vec3>,
+    cage_prior: Vec<Vec3>,
+    terms_work: Vec<Vec3>,
+    surface_work: Vec<Vec3>,
+    surface_targets: Vec<Vec3>,
+    rhs_work: DMatrix<f64>,
+}
+
+impl std::fmt::Debug for LeveledBody {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LeveledBody")
+            .field("nodes", &self.rest.len())
+            .field("level", &self.level)
+            .field("method", &self.settings.precise)
+            .field("switches", &self.switches)
+            .finish()
+    }
+}
+
+/// Most fixed-point iterations of the cage fits (they stop earlier once converged).
+const MAX_FIT_ITERATIONS: usize = 100;
+
+fn build_precise(mesh: &TetMesh, s: &BodySettings) -> Result<Precise, PrecisionError> {
+    Ok(match s.precise {
+        PreciseMethod::Fem(model) => {
+            let mut c = FemConfig::paper(&s.fem, s.dt);
+            c.model = model;
+            c.gravity = s.gravity;
+            Precise::Fem(Box::new(FemBody::new(mesh, c, &s.boundary)?))
+        }
+        PreciseMethod::Msd(integrator) => {
+            let mut c = MsdConfig::paper(&s.msd, s.dt);
+            c.integrator = integrator;
+            c.gravity = s.gravity;
+            Precise::Msd(Box::new(MsdBody::from_mesh(mesh, c, &s.boundary)?))
+        }
+    })
+}
+
+impl LeveledBody {
+    /// Builds the cage (embedding every node), the precise solver and the cage fit; the body
+    /// starts at rest at the cage level.
+    pub fn new(mesh: &TetMesh, settings: BodySettings) -> Result<Self, PrecisionError> {
+        let nodes = mesh.positions();
+        let options = FitOptions::for_points(
+            nodes,
+            match settings.cage {
+                CageKind::BoundingBox => 8,
+                CageKind::Fitted { vertices } => vertices,
+            },
+        );
+        let cage_shape = match settings.cage {
+            CageKind::BoundingBox => box_cage(nodes, options.margin)?,
+            CageKind::Fitted { .. } => fitted_cage(nodes, mesh.surface().triangles(), &options)?,
+        };
+        let mut cage_config = CageBodyConfig::paper(settings.dt);
+        cage_config.msd.stiffness = settings.cage_msd.stiffness;
+        cage_config.msd.mass = settings.cage_msd.mass;
+        cage_config.msd.damping = settings.cage_msd.damping;
+        let cage = CageBody::new(cage_shape, nodes, &cage_config)?;
+        let precise = build_precise(mesh, &settings)?;
+        let surface = mesh.surface().vertices().to_vec();
+        let fit = Self::build_fit(cage.coordinates(), &surface)?;
+        let n = nodes.len();
+        let nv = cage.cage().vertices().len();
+        let nf = cage.cage().triangles().len();
+        Ok(LeveledBody {
+            smallest: mesh.bbox().smallest_dimension(),
+            rest: nodes.to_vec(),
+            precise,
+            fit,
+            level: Level::Cage,
+            pin: None,
+            steps: 0,
+            steps_at_level: 0,
+            rest_count: 0,
+            switches: 0,
+            last_switch: None,
+            residual: 0.0,
+            nodes_work: vec![Vec3::zeros(); n],
+            nodes_work2: vec![Vec3::zeros(); n],
+            cage_work: vec![Vec3::zeros(); nv],
+            cage_prior: vec![Vec3::zeros(); nv],
+            terms_work: vec![Vec3::zeros(); nf],
+            surface_work: vec![Vec3::zeros(); surface.len()],
+            surface_targets: vec![Vec3::zeros(); surface.len()],
+            rhs_work: DMatrix::zeros(nv, 3),
+            surface,
+            cage,
+            settings,
+        })
+    }
+
+    fn build_fit(coords: &GreenCoordinates, surface: &[u32]) -> Result<CageFit, PrecisionError> {
+        let nv = coords.vertex_count();
+        let phi_t = DMatrix::from_fn(nv, surface.len(), |r, c| coords.phi(surface[c] as usize)[r]);
+        let mut normal = &phi_t * phi_t.transpose();
+        let mu = 1e-8 * normal.trace() / nv as f64;
+        for i in 0..nv {
+            normal[(i, i)] += mu;
+        }
+        let normal = normal.cholesky().ok_or(PrecisionError::SingularFit)?;
+        Ok(CageFit { phi_t, normal, mu })
+    }
+
+    /// Current level.
+    pub fn level(&self) -> Level {
+        self.level
+    }
+
+    /// Settings the body was built with (the method as last set).
+    pub fn settings(&self) -> &BodySettings {
+        &self.settings
+    }
+
+    /// Pins the body to a level (`None` lets the policy decide). Pinning to a level other than
+    /// the current one switches now.
+    pub fn pin(&mut self, level: Option<Level>) -> Result<Option<SwitchRecord>, PrecisionError> {
+        self.pin = None;
+        let record = match level {
+            Some(Level::Cage) => self.lower()?,
+            Some(Level::Precise) => self.raise()?,
+            None => None,
+        };
+        self.pin = level;
+        Ok(record)
+    }
+
+    /// The pinned level, if any.
+    pub fn pinned(&self) -> Option<Level> {
+        self.pin
+    }
+
+    /// Number of level switches so far.
+    pub fn switch_count(&self) -> u64 {
+        self.switches
+    }
+
+    /// The last switch.
+    pub fn last_switch(&self) -> Option<SwitchRecord> {
+        self.last_switch
+    }
+
+    /// The cage level's current error estimate: the largest distance of a surface vertex
+    /// from the cage's best fit, as of the last fit (every step at rest at the precise level,
+    /// and at each down-switch).
+    pub fn cage_residual(&self) -> f64 {
+        self.residual
+    }
+
+    /// Smallest bounding-box dimension of the rest mesh.
+    pub fn smallest_dimension(&self) -> f64 {
+        self.smallest
+    }
+
+    /// The cage body.
+    pub fn cage(&self) -> &CageBody {
+        &self.cage
+    }
+
+    /// The cage body, mutable (for example to set cage velocities; call
+    /// [`CageBody::update_points`] after moving cage vertices).
+    pub fn cage_mut(&mut self) -> &mut CageBody {
+        &mut self.cage
+    }
+
+    /// The precise body's nodal state.
+    pub fn precise(&self) -> &dyn NodalBody {
+        self.precise.body()
+    }
+
+    /// The precise body's nodal state, mutable (positions, velocities, forces). Setting
+    /// positions far from the last step's on a corotational FEM body should be followed by
+    /// [`FemBody::sync_rotations`] (the next switch up does it).
+    pub fn precise_mut(&mut self) -> &mut dyn NodalBody {
+        self.precise.body_mut()
+    }
+
+    /// The FEM body, when the precise method is FEM.
+    pub fn fem(&self) -> Option<&FemBody> {
+        match &self.precise {
+            Precise::Fem(b) => Some(b),
+            Precise::Msd(_) => None,
+        }
+    }
+
+    /// The MSD body, when the precise method is MSD.
+    pub fn msd(&self) -> Option<&MsdBody> {
+        match &self.precise {
+            Precise::Msd(b) => Some(b),
+            Precise::Fem(_) => None,
+        }
+    }
+
+    /// Indices of the surface vertices among the nodes.
+    pub fn surface_vertices(&self) -> &[u32] {
+        &self.surface
+    }
+
+    /// Current positions of every node, at whichever level the body is.
+    pub fn node_positions(&self) -> &[Vec3] {
+        match self.level {
+            Level::Cage => self.cage.points(),
+            Level::Precise => self.precise.body().positions(),
+        }
+    }
+
+    /// Current position of surface vertex `k` (index into [`LeveledBody::surface_vertices`]).
+    pub fn surface_position(&self, k: usize) -> Vec3 {
+        self.node_positions()[self.surface[k] as usize]
+    }
+
+    /// Adds an external force on node `node` for the next step: on the precise body, or
+    /// mapped onto the cage through the coordinates.
+    pub fn add_force(&mut self, node: usize, force: Vec3) -> Result<(), PrecisionError> {
+        let n = self.rest.len();
+        if node >= n {
+            return Err(PrecisionError::BadNode { node, nodes: n });
+        }
+        match self.level {
+            Level::Cage => self.cage.apply_point_force(node, force)?,
+            Level::Precise => self.precise.body_mut().add_force(node, force),
+        }
+        Ok(())
+    }
+
+    /// Changes the precise method at run time. At the precise level the new solver takes the
+    /// current positions and velocities (no jump).
+    pub fn set_precise_method(
+        &mut self,
+        mesh: &TetMesh,
+        method: PreciseMethod,
+    ) -> Result<(), PrecisionError> {
+        if method == self.settings.precise {
+            return Ok(());
+        }
+        // Linear <-> corotational: same FEM body.
+        if let (Precise::Fem(b), PreciseMethod::Fem(model)) = (&mut self.precise, method) {
+            b.set_model(model);
+            self.settings.precise = method;
+            return Ok(());
+        }
+        let mut settings = self.settings.clone();
+        settings.precise = method;
+        let mut next = build_precise(mesh, &settings)?;
+        if self.level == Level::Precise {
+            let old = self.precise.body();
+            let new = next.body_mut();
+            new.positions_mut().copy_from_slice(old.positions());
+            new.velocities_mut().copy_from_slice(old.velocities());
+            if let Precise::Fem(b) = &mut next {
+                b.sync_rotations();
+            }
+        }
+        self.precise = next;
+        self.settings = settings;
+        Ok(())
+    }
+
+    fn max_surface_jump(&self, before: &[Vec3]) -> f64 {
+        let now = self.node_positions();
+        self.surface
+            .iter()
+            .zip(before)
+            .map(|(&i, b)| (now[i as usize] - b).norm())
+            .fold(0.0, f64::max)
+    }
+
+    fn snapshot_surface(&mut self) {
+        let now = match self.level {
+            Level::Cage => self.cage.points(),
+            Level::Precise => self.precise.body().positions(),
+        };
+        for (o, &i) in self.surface_work.iter_mut().zip(&self.surface) {
+            *o = now[i as usize];
+        }
+    }
+
+    fn record(&mut self, from: Level, to: Level, residual: f64) -> SwitchRecord {
+        let before = std::mem::take(&mut self.surface_work);
+        let jump = self.max_surface_jump(&before);
+        self.surface_work = before;
+        let r = SwitchRecord {
+            from,
+            to,
+            step: self.steps,
+            jump,
+            jump_ratio: jump / self.smallest,
+            residual,
+        };
+        self.switches += 1;
+        self.last_switch = Some(r);
+        self.steps_at_level = 0;
+        self.rest_count = 0;
+        r
+    }
+
+    /// Cage to precise (contact, or a pin). No effect at the precise level or when pinned to
+    /// the cage. Returns the switch.
+    pub fn raise(&mut self) -> Result<Option<SwitchRecord>, PrecisionError> {
+        if self.level == Level::Precise || self.pin == Some(Level::Cage) {
+            return Ok(None);
+        }
+        self.snapshot_surface();
+        let coords = self.cage.coordinates().clone();
+        let x = self.cage.cage_positions().to_vec();
+        let u = self.cage.msd().velocities().to_vec();
+        // Positions: the exact map.
+        coords.face_terms(&x, &mut self.terms_work);
+        coords.evaluate(&x, &self.terms_work, &mut self.nodes_work)?;
+        // Velocities: central difference of the exact map along the cage velocities.
+        let h = 1e-3 * self.settings.dt;
+        for (c, (xi, ui)) in self.cage_work.iter_mut().zip(x.iter().zip(&u)) {
+            *c = xi + ui * h;
+        }
+        coords.face_terms(&self.cage_work, &mut self.terms_work);
+        coords.evaluate(&self.cage_work, &self.terms_work, &mut self.nodes_work2)?;
+        let body = self.precise.body_mut();
+        body.velocities_mut().copy_from_slice(&self.nodes_work2);
+        for (c, (xi, ui)) in self.cage_work.iter_mut().zip(x.iter().zip(&u)) {
+            *c = xi - ui * h;
+        }
+        coords.face_terms(&self.cage_work, &mut self.terms_work);
+        coords.evaluate(&self.cage_work, &self.terms_work, &mut self.nodes_work2)?;
+        // Fixed components stay where the precise body holds them, at rest.
+        {
+            let body = self.precise.body();
+            for (i, (f, held)) in body.fixed().iter().zip(body.positions()).enumerate() {
+                for a in 0..3 {
+                    if f[a] {
+                        self.nodes_work[i][a] = held[a];
+                    }
+                }
+            }
+        }
+        let body = self.precise.body_mut();
+        for (v, m) in body.velocities_mut().iter_mut().zip(&self.nodes_work2) {
+            *v = (*v - m) / (2.0 * h);
+        }
+        body.positions_mut().copy_from_slice(&self.nodes_work);
+        let fixed: Vec<[bool; 3]> = body.fixed().to_vec();
+        for (v, f) in body.velocities_mut().iter_mut().zip(&fixed) {
+            for a in 0..3 {
+                if f[a] {
+                    v[a] = 0.0;
+                }
+            }
+        }
+        if let Precise::Fem(b) = &mut self.precise {
+            b.sync_rotations();
+        }
+        self.level = Level::Precise;
+        Ok(Some(self.record(Level::Cage, Level::Precise, 0.0)))
+    }
+
+    /// Solves the normal equations `(Phi^T Phi + mu I) X = Phi^T (targets) + mu prior` for the
+    /// cage vertices, `targets[c]` the value wanted at surface vertex `c` after the face-term
+    /// part is removed. Result in `rhs_work` (nv x 3).
+    fn normal_solve(&mut self, targets: &[Vec3], prior: &[Vec3]) {
+        let nv = prior.len();
+        self.rhs_work.fill(0.0);
+        for (c, t) in targets.iter().enumerate() {
+            for r in 0..nv {
+                let w = self.fit.phi_t[(r, c)];
+                for a in 0..3 {
+                    self.rhs_work[(r, a)] += w * t[a];
+                }
+            }
+        }
+        for (r, p) in prior.iter().enumerate() {
+            for a in 0..3 {
+                self.rhs_work[(r, a)] += self.fit.mu * p[a];
+            }
+        }
+        self.fit.normal.solve_mut(&mut self.rhs_work);
+    }
+
+    /// Fits the cage to the precise body's current surface into `cage_work` (positions) and
+    /// returns the largest surface distance of the fit. The face terms depend on the cage, so
+    /// the linear fit is repeated with refreshed face terms until the cage stops moving.
+    fn fit_cage(&mut self) -> Result<f64, PrecisionError> {
+        let coords = self.cage.coordinates().clone();
+        self.cage_work.copy_from_slice(self.cage.cage_positions());
+        let mut targets = std::mem::take(&mut self.surface_targets);
+        let mut prior = std::mem::take(&mut self.cage_prior);
+        for _ in 0..MAX_FIT_ITERATIONS {
+            // The Tikhonov term pulls toward the previous iterate: it regularises each solve
+            // and vanishes at the fixed point.
+            prior.copy_from_slice(&self.cage_work);
+            coords.face_terms(&self.cage_work, &mut self.terms_work);
+            let p = self.precise.body().positions();
+            for (t, &i) in targets.iter_mut().zip(&self.surface) {
+                let i = i as usize;
+                *t = p[i];
+                for (psi, term) in coords.psi(i).iter().zip(&self.terms_work) {
+                    *t -= term * *psi;
+                }
+            }
+            self.normal_solve(&targets, &prior);
+            let mut change: f64 = 0.0;
+            for (r, v) in self.cage_work.iter_mut().enumerate() {
+                let new = Vec3::new(
+                    self.rhs_work[(r, 0)],
+                    self.rhs_work[(r, 1)],
+                    self.rhs_work[(r, 2)],
+                );
+                change = change.max((new - *v).norm());
+                *v = new;
+            }
+            if change <= 1e-14 * self.smallest {
+                break;
+            }
+        }
+        self.surface_targets = targets;
+        self.cage_prior = prior;
+        coords.face_terms(&self.cage_work, &mut self.terms_work);
+        coords.evaluate(&self.cage_work, &self.terms_work, &mut self.nodes_work)?;
+        let p = self.precise.body().positions();
+        let residual = self
+            .surface
+            .iter()
+            .map(|&i| (self.nodes_work[i as usize] - p[i as usize]).norm())
+            .fold(0.0, f64::max);
+        if !residual.is_finite() {
+            return Err(PrecisionError::SingularFit);
+        }
+        Ok(residual)
+    }
+
+    /// Cage vertex velocities whose Green-coordinate map (vertex and face terms, linearised
+    /// at the fitted cage `cage_work`) best reproduces the surface velocities, into
+    /// `rhs_work` rows.
+    fn fit_velocities(&mut self) -> Vec<Vec3> {
+        let coords = self.cage.coordinates().clone();
+        let nv = self.cage_work.len();
+        let mut targets = std::mem::take(&mut self.surface_targets);
+        let mut u = vec![Vec3::zeros(); nv];
+        let mut rate = vec![Vec3::zeros(); coords.face_count()];
+        let mut moved = vec![Vec3::zeros(); nv];
+        let h = 1e-3 * self.settings.dt;
+        let zeros = vec![Vec3::zeros(); nv];
+        for _ in 0..MAX_FIT_ITERATIONS {
+            // Rate of the face terms along u (central difference).
+            for (m, (x, ui)) in moved.iter_mut().zip(self.cage_work.iter().zip(&u)) {
+                *m = x + ui * h;
+            }
+            coords.face_terms(&moved, &mut rate);
+            for (m, (x, ui)) in moved.iter_mut().zip(self.cage_work.iter().zip(&u)) {
+                *m = x - ui * h;
+            }
+            coords.face_terms(&moved, &mut self.terms_work);
+            for (r, t) in rate.iter_mut().zip(&self.terms_work) {
+                *r = (*r - t) / (2.0 * h);
+            }
+            let vel = self.precise.body().velocities();
+            for (t, &i) in targets.iter_mut().zip(&self.surface) {
+                let i = i as usize;
+                *t = vel[i];
+                for (psi, r) in coords.psi(i).iter().zip(&rate) {
+                    *t -= r * *psi;
+                }
+            }
+            self.normal_solve(&targets, &zeros);
+            let mut change: f64 = 0.0;
+            let mut size: f64 = 0.0;
+            for (r, v) in u.iter_mut().enumerate() {
+                let new = Vec3::new(
+                    self.rhs_work[(r, 0)],
+                    self.rhs_work[(r, 1)],
+                    self.rhs_work[(r, 2)],
+                );
+                change = change.max((new - *v).norm());
+                size = size.max(new.norm());
+                *v = new;
+            }
+            if change <= 1e-12 * size.max(f64::MIN_POSITIVE) {
+                break;
+            }
+        }
+        self.surface_targets = targets;
+        u
+    }
+
+    /// Precise to cage (rest, or a pin). No effect at the cage level or when pinned to the
+    /// precise level. Returns the switch.
+    pub fn lower(&mut self) -> Result<Option<SwitchRecord>, PrecisionError> {
+        if self.level == Level::Cage || self.pin == Some(Level::Precise) {
+            return Ok(None);
+        }
+        self.snapshot_surface();
+        let residual = self.fit_cage()?;
+        self.residual = residual;
+        let u = self.fit_velocities();
+        let positions = self.cage_work.clone();
+        let msd = self.cage.msd_mut();
+        msd.positions_mut().copy_from_slice(&positions);
+        msd.velocities_mut().copy_from_slice(&u);
+        msd.rebase_rest();
+        self.cage.update_points()?;
+        self.level = Level::Cage;
+        Ok(Some(self.record(Level::Precise, Level::Cage, residual)))
+    }
+
+    /// Advances the current level by one step. `in_contact` (from the contact stage) keeps
+    /// the body from dropping; a body at rest at the precise level with no contact drops to
+    /// its cage per the policy. On a solver error the state of that level is unchanged.
+    pub fn step(&mut self, in_contact: bool) -> Result<LevelStepStats, PrecisionError> {
+        let level = self.level;
+        match level {
+            Level::Cage => {
+                self.cage.step()?;
+            }
+            Level::Precise => match &mut self.precise {
+                Precise::Fem(b) => {
+                    b.step()?;
+                }
+                Precise::Msd(b) => {
+                    b.step()?;
+                }
+            },
+        }
+        self.steps += 1;
+        self.steps_at_level += 1;
+        let mut switched = None;
+        if level == Level::Precise && self.pin.is_none() {
+            let p = self.settings.policy;
+            let slow = self.precise.body().max_speed() <= p.rest_speed * self.smallest;
+            if in_contact || !slow {
+                self.rest_count = 0;
+            } else {
+                self.rest_count += 1;
+                // The fit (the distance from a cage-reproducible shape) is checked once the
+                // body has been slow long enough, not every step.
+                if self.rest_count >= p.rest_steps
+                    && self.steps_at_level >= p.min_precise_steps as u64
+                {
+                    let residual = self.fit_cage()?;
+                    self.residual = residual;
+                    if residual <= p.rest_residual * self.smallest {
+                        switched = self.lower()?;
+                    } else {
+                        self.rest_count = 0;
+                    }
+                }
+            }
+        }
+        Ok(LevelStepStats { level, switched })
+    }
+
+    /// Back to the initial state: cage level, at rest, in the rest shape (the cage's rest
+    /// shape too), counters cleared; the pin is kept.
+    pub fn reset(&mut self) -> Result<(), PrecisionError> {
+        match &mut self.precise {
+            Precise::Fem(b) => b.reset(),
+            Precise::Msd(b) => b.reset(),
+        }
+        let rest_cage = self.cage.cage().vertices().to_vec();
+        let msd = self.cage.msd_mut();
+        msd.positions_mut().copy_from_slice(&rest_cage);
+        msd.velocities_mut().fill(Vec3::zeros());
+        msd.rebase_rest();
+        self.cage.update_points()?;
+        self.level = Level::Cage;
+        self.steps = 0;
+        self.steps_at_level = 0;
+        self.rest_count = 0;
+        self.switches = 0;
+        self.last_switch = None;
+        self.residual = 0.0;
+        if self.pin == Some(Level::Precise) {
+            self.pin = None;
+            self.raise()?;
+            self.pin = Some(Level::Precise);
+        }
+        Ok(())
+    }
+}
+
+fn _assert_send_sync() {
+    fn check<T: Send + Sync>() {}
+    check::<LeveledBody>();
+}

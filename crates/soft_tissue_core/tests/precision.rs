@@ -1,0 +1,284 @@
+//! Levels of precision: state transfer without jumps, the automatic return to the cage,
+//! hysteresis, pinning and run-time method changes.
+
+use soft_tissue_core::boundary::Boundary;
+use soft_tissue_core::fem::FemModel;
+use soft_tissue_core::mesh::TetMesh;
+use soft_tissue_core::mesh::io::read_tet_mesh;
+use soft_tissue_core::msd::MsdIntegrator;
+use soft_tissue_core::precision::{BodySettings, Level, LeveledBody, PreciseMethod};
+use soft_tissue_core::scenario::{CYLINDER_FEM, CYLINDER_MSD, CageKind, ORGAN_FEM};
+use soft_tissue_core::{NodalBody, Vec3};
+
+fn asset(name: &str) -> TetMesh {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(format!("../../assets/meshes/{name}.vtk"));
+    read_tet_mesh(path).unwrap().mesh
+}
+
+fn cylinder_settings(method: PreciseMethod, cage: CageKind, mesh: &TetMesh) -> BodySettings {
+    let mut s = BodySettings::new(CYLINDER_FEM.params, CYLINDER_MSD.params, CYLINDER_FEM.dt);
+    s.precise = method;
+    s.cage = cage;
+    s.boundary = Boundary::fixed_below(mesh.positions(), 1, 0.1);
+    s
+}
+
+const METHODS: [PreciseMethod; 3] = [
+    PreciseMethod::Fem(FemModel::Corotational),
+    PreciseMethod::Fem(FemModel::Linear),
+    PreciseMethod::Msd(MsdIntegrator::ImplicitEuler),
+];
+
+#[test]
+fn switching_at_rest_is_seamless() {
+    let mesh = asset("liver");
+    for cage in [CageKind::BoundingBox, CageKind::Fitted { vertices: 48 }] {
+        for method in METHODS {
+            let mut s = BodySettings::new(ORGAN_FEM.params, CYLINDER_MSD.params, ORGAN_FEM.dt);
+            s.precise = method;
+            s.cage = cage;
+            let mut body = LeveledBody::new(&mesh, s).unwrap();
+            assert_eq!(body.level(), Level::Cage);
+            let up = body.raise().unwrap().unwrap();
+            assert_eq!((up.from, up.to), (Level::Cage, Level::Precise));
+            // The f32 evaluation of the rest shape against the exact one: rounding only.
+            assert!(
+                up.jump_ratio < 1e-9,
+                "{method:?} {cage:?}: up jump {}",
+                up.jump_ratio
+            );
+            let down = body.lower().unwrap().unwrap();
+            assert!(
+                down.jump_ratio < 1e-6,
+                "{method:?} {cage:?}: down jump {}",
+                down.jump_ratio
+            );
+            assert!(down.residual / body.smallest_dimension() < 1e-6);
+            assert_eq!(body.switch_count(), 2);
+        }
+    }
+}
+
+#[test]
+fn a_poked_body_rises_then_returns_to_its_cage_with_a_small_jump() {
+    let mesh = asset("cylinder");
+    let top: Vec<usize> = {
+        let hi = mesh.bbox().max.y;
+        (0..mesh.node_count())
+            .filter(|&i| mesh.positions()[i].y > hi - 0.05 * mesh.bbox().extent().y)
+            .collect()
+    };
+    for method in METHODS {
+        for cage in [CageKind::BoundingBox, CageKind::Fitted { vertices: 40 }] {
+            let mut body = LeveledBody::new(&mesh, cylinder_settings(method, cage, &mesh)).unwrap();
+            // A contact raises the body before the contact force acts.
+            let up = body.raise().unwrap().unwrap();
+            assert!(up.jump_ratio < 1e-9);
+            let mut deformed: f64 = 0.0;
+            for step in 0..3000 {
+                let touching = step < 30;
+                if touching {
+                    for &i in &top {
+                        body.add_force(i, Vec3::new(2.0, 0.0, 0.0)).unwrap();
+                    }
+                }
+                body.step(touching).unwrap();
+                if body.level() == Level::Cage {
+                    break;
+                }
+                let d = body
+                    .node_positions()
+                    .iter()
+                    .zip(mesh.positions())
+                    .map(|(a, b)| (a - b).norm())
+                    .fold(0.0, f64::max);
+                deformed = deformed.max(d);
+                assert!(d.is_finite());
+            }
+            assert!(
+                deformed > 0.02 * body.smallest_dimension(),
+                "{method:?}: the poke should bend the cylinder (max {deformed})"
+            );
+            assert_eq!(
+                body.level(),
+                Level::Cage,
+                "{method:?} {cage:?} did not return to the cage"
+            );
+            let down = body.last_switch().unwrap();
+            assert_eq!(down.to, Level::Cage);
+            assert!(
+                down.jump_ratio < 0.005,
+                "{method:?} {cage:?}: down jump {:.4} % of the width",
+                100.0 * down.jump_ratio
+            );
+            assert_eq!(body.switch_count(), 2, "no flicker");
+            println!(
+                "{} {cage:?}: max deformation {:.1} % of the width, back at the cage at step {}, jump {:.3} %",
+                method.name(),
+                100.0 * deformed / body.smallest_dimension(),
+                down.step,
+                100.0 * down.jump_ratio
+            );
+            // At the cage level it stays put and stays at the cage.
+            for _ in 0..50 {
+                assert_eq!(body.step(false).unwrap().switched, None);
+            }
+        }
+    }
+}
+
+#[test]
+fn motion_is_carried_across_switches() {
+    let mesh = asset("stomach");
+    for cage in [CageKind::BoundingBox, CageKind::Fitted { vertices: 40 }] {
+        let mut s = BodySettings::new(ORGAN_FEM.params, CYLINDER_MSD.params, ORGAN_FEM.dt);
+        s.cage = cage;
+        let mut body = LeveledBody::new(&mesh, s).unwrap();
+        // Cage spinning rigidly about its centre: the nodes get the same rigid velocity field.
+        let w = Vec3::new(0.1, -0.3, 0.2);
+        let u0 = Vec3::new(0.05, 0.0, -0.02);
+        let c = mesh.bbox().center();
+        let cage_x = body.cage().cage_positions().to_vec();
+        // (through the cage MSD's accessors)
+        {
+            let cage_body = body_cage_mut(&mut body);
+            for (v, x) in cage_body.velocities_mut().iter_mut().zip(&cage_x) {
+                *v = u0 + w.cross(&(x - c));
+            }
+        }
+        body.raise().unwrap();
+        let p = body.precise();
+        for (v, x) in p.velocities().iter().zip(p.positions()) {
+            let expected = u0 + w.cross(&(x - c));
+            assert!((v - expected).norm() < 1e-6, "{v:?} vs {expected:?}");
+        }
+        // And back: a rigid motion of the nodes fits the same rigid motion of the cage, in
+        // position (a finite rotation) and velocity.
+        let rot = nalgebra::Rotation3::from_scaled_axis(Vec3::new(0.4, 0.2, -0.3));
+        let moved: Vec<Vec3> = mesh.positions().iter().map(|x| c + rot * (x - c)).collect();
+        let vel: Vec<Vec3> = moved.iter().map(|x| u0 + w.cross(&(x - c))).collect();
+        body.precise_mut().positions_mut().copy_from_slice(&moved);
+        body.precise_mut().velocities_mut().copy_from_slice(&vel);
+        let down = body.lower().unwrap().unwrap();
+        // The displayed surface is the f32 evaluation: rounding of a large displacement.
+        assert!(
+            down.jump_ratio < 1e-6,
+            "rigid motion: jump {}",
+            down.jump_ratio
+        );
+        for (x, x0) in body
+            .cage()
+            .cage_positions()
+            .iter()
+            .zip(body.cage().cage().vertices())
+        {
+            let e = (x - (c + rot * (x0 - c))).norm();
+            // The fit iterates on the face terms (linear convergence): 1e-7 of the size.
+            assert!(
+                e < 1e-7,
+                "cage vertex off by {e:e}, residual {:e}",
+                down.residual
+            );
+        }
+        // (velocities)
+        for (v, x) in body
+            .cage()
+            .msd()
+            .velocities()
+            .iter()
+            .zip(body.cage().cage_positions())
+        {
+            let expected = u0 + w.cross(&(x - c));
+            assert!((v - expected).norm() < 1e-6, "cage {v:?} vs {expected:?}");
+        }
+    }
+}
+
+/// Test access to the cage MSD (velocities), through the public `CageBody` API.
+fn body_cage_mut(body: &mut LeveledBody) -> &mut soft_tissue_core::msd::MsdBody {
+    body.cage_mut().msd_mut()
+}
+
+#[test]
+fn pins_and_hysteresis() {
+    let mesh = asset("cylinder");
+    let s = cylinder_settings(
+        PreciseMethod::Fem(FemModel::Corotational),
+        CageKind::BoundingBox,
+        &mesh,
+    );
+    let min_steps = s.policy.min_precise_steps as u64;
+    let mut body = LeveledBody::new(&mesh, s).unwrap();
+    // Pinned to the cage: contact cannot raise it.
+    body.pin(Some(Level::Cage)).unwrap();
+    assert_eq!(body.raise().unwrap(), None);
+    assert_eq!(body.level(), Level::Cage);
+    // Pinned to the precise level: it switches now and never drops, even at rest.
+    body.pin(Some(Level::Precise)).unwrap();
+    assert_eq!(body.level(), Level::Precise);
+    for _ in 0..200 {
+        assert_eq!(body.step(false).unwrap().switched, None);
+    }
+    assert_eq!(body.lower().unwrap(), None);
+    // Unpinned at rest: drops, but not before the minimum time at the precise level.
+    body.pin(None).unwrap();
+    body.lower().unwrap();
+    body.raise().unwrap();
+    let mut steps = 0;
+    while body.level() == Level::Precise {
+        body.step(false).unwrap();
+        steps += 1;
+        assert!(steps < 1000);
+    }
+    assert!(steps >= min_steps, "dropped after {steps} steps");
+    // Contact every step keeps it up however still it is.
+    body.raise().unwrap();
+    for _ in 0..200 {
+        body.step(true).unwrap();
+    }
+    assert_eq!(body.level(), Level::Precise);
+}
+
+#[test]
+fn the_precise_method_changes_at_run_time_without_a_jump() {
+    let mesh = asset("cylinder");
+    let s = cylinder_settings(
+        PreciseMethod::Fem(FemModel::Corotational),
+        CageKind::BoundingBox,
+        &mesh,
+    );
+    let mut body = LeveledBody::new(&mesh, s).unwrap();
+    body.raise().unwrap();
+    for _ in 0..20 {
+        body.add_force(mesh.node_count() - 1, Vec3::new(5.0, 0.0, 0.0))
+            .unwrap();
+        body.step(true).unwrap();
+    }
+    for method in [
+        PreciseMethod::Msd(MsdIntegrator::ImplicitEuler),
+        PreciseMethod::Fem(FemModel::Linear),
+        PreciseMethod::Fem(FemModel::Corotational),
+        PreciseMethod::Msd(MsdIntegrator::Rk4),
+    ] {
+        let before = body.node_positions().to_vec();
+        body.set_precise_method(&mesh, method).unwrap();
+        assert_eq!(body.settings().precise, method);
+        assert_eq!(body.node_positions(), &before[..], "{method:?}");
+        assert!(body.msd().is_some() == matches!(method, PreciseMethod::Msd(_)));
+        for _ in 0..10 {
+            body.step(true).unwrap();
+        }
+        assert!(
+            body.node_positions()
+                .iter()
+                .all(|p| p.iter().all(|c| c.is_finite()))
+        );
+    }
+    // Reset: back to the cage at rest.
+    body.reset().unwrap();
+    assert_eq!(body.level(), Level::Cage);
+    for (a, b) in body.node_positions().iter().zip(mesh.positions()) {
+        assert!((a - b).norm() < 1e-9);
+    }
+}
