@@ -134,3 +134,49 @@ fn steps_do_not_allocate() {
         }
     }
 }
+
+#[test]
+fn cage_and_leveled_body_steps_do_not_allocate() {
+    use soft_tissue_core::cage::{CageBody, CageBodyConfig, FitOptions, fitted_cage};
+    use soft_tissue_core::precision::{BodySettings, Level, LeveledBody};
+    let mesh = block(Vec3::zeros(), Vec3::new(1.0, 2.0, 1.0), [3, 6, 3]).unwrap();
+    let cage = fitted_cage(
+        mesh.positions(),
+        mesh.surface().triangles(),
+        &FitOptions::for_points(mesh.positions(), 40),
+    )
+    .unwrap();
+    let mut body = CageBody::new(cage, mesh.positions(), &CageBodyConfig::paper(0.02)).unwrap();
+    let n = allocations(|| {
+        for s in 0..50 {
+            body.apply_point_force(3, Vec3::new((s as f64).sin(), 0.0, 0.0))
+                .unwrap();
+            body.step().unwrap();
+        }
+    });
+    assert_eq!(n, 0, "cage body steps allocated {n} times");
+    // A leveled body at either level, including the rest checks (the cage fit) at the
+    // precise level; switches themselves may allocate and are kept out of the count.
+    let mut s = BodySettings::new(ORGAN_FEM.params, CYLINDER_MSD.params, ORGAN_FEM.dt);
+    s.policy.rest_steps = 5;
+    s.policy.min_precise_steps = 0;
+    s.policy.rest_residual = -1.0; // the fit runs every 5 steps, the switch never happens
+    let mut body = LeveledBody::new(&mesh, s).unwrap();
+    let at_cage = allocations(|| {
+        for _ in 0..50 {
+            body.step(false).unwrap();
+        }
+    });
+    assert_eq!(at_cage, 0, "cage-level steps allocated {at_cage} times");
+    body.raise().unwrap();
+    let at_precise = allocations(|| {
+        for _ in 0..50 {
+            body.step(false).unwrap();
+        }
+    });
+    assert_eq!(body.level(), Level::Precise);
+    assert_eq!(
+        at_precise, 0,
+        "precise-level steps allocated {at_precise} times"
+    );
+}
