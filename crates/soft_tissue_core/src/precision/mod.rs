@@ -553,16 +553,12 @@ impl LeveledBody {
         coords.evaluate(&x, &self.terms_work, &mut self.nodes_work)?;
         // Velocities: central difference of the exact map along the cage velocities.
         let h = 1e-3 * self.settings.dt;
-        for (c, (xi, ui)) in self.cage_work.iter_mut().zip(x.iter().zip(&u)) {
-            *c = xi + ui * h;
-        }
+        shifted(&x, &u, h, &mut self.cage_work);
         coords.face_terms(&self.cage_work, &mut self.terms_work);
         coords.evaluate(&self.cage_work, &self.terms_work, &mut self.nodes_work2)?;
         let body = self.precise.body_mut();
         body.velocities_mut().copy_from_slice(&self.nodes_work2);
-        for (c, (xi, ui)) in self.cage_work.iter_mut().zip(x.iter().zip(&u)) {
-            *c = xi - ui * h;
-        }
+        shifted(&x, &u, -h, &mut self.cage_work);
         coords.face_terms(&self.cage_work, &mut self.terms_work);
         coords.evaluate(&self.cage_work, &self.terms_work, &mut self.nodes_work2)?;
         // Fixed components stay where the precise body holds them, at rest.
@@ -684,13 +680,9 @@ impl LeveledBody {
         let zeros = vec![Vec3::zeros(); nv];
         for _ in 0..MAX_FIT_ITERATIONS {
             // Rate of the face terms along u (central difference).
-            for (m, (x, ui)) in moved.iter_mut().zip(self.cage_work.iter().zip(&u)) {
-                *m = x + ui * h;
-            }
+            shifted(&self.cage_work, &u, h, &mut moved);
             coords.face_terms(&moved, &mut rate);
-            for (m, (x, ui)) in moved.iter_mut().zip(self.cage_work.iter().zip(&u)) {
-                *m = x - ui * h;
-            }
+            shifted(&self.cage_work, &u, -h, &mut moved);
             coords.face_terms(&moved, &mut self.terms_work);
             for (r, t) in rate.iter_mut().zip(&self.terms_work) {
                 *r = (*r - t) / (2.0 * h);
@@ -816,6 +808,13 @@ impl LeveledBody {
             self.pin = Some(Level::Precise);
         }
         Ok(())
+    }
+}
+
+/// `out = x + h u`: the cage moved along its velocities, for central differences.
+fn shifted(x: &[Vec3], u: &[Vec3], h: f64, out: &mut [Vec3]) {
+    for (o, (xi, ui)) in out.iter_mut().zip(x.iter().zip(u)) {
+        *o = xi + ui * h;
     }
 }
 
