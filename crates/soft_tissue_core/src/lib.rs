@@ -25,6 +25,7 @@ pub mod bench;
 pub mod boundary;
 pub mod cage;
 pub mod fem;
+pub mod heat;
 pub mod linalg;
 pub mod material;
 pub mod mesh;

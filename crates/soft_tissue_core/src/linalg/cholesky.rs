@@ -16,15 +16,12 @@ use super::{BlockSparse, LinalgError};
 const ENTRY_ZERO: u32 = u32::MAX;
 const ENTRY_ONE: u32 = u32::MAX - 1;
 
-/// `L L^T` factorization of the scalar matrix behind a [`BlockSparse`], where the rows and
-/// columns of fixed degrees of freedom are replaced by the identity (so a right-hand side that
-/// is zero there gives a solution that is zero there).
-pub struct SparseCholesky {
+/// `L L^T` factorization of a symmetric scalar matrix given by its upper triangle in
+/// compressed columns: symbolic analysis once, numeric factorization when the values change,
+/// allocation-free solves. The block and scalar front ends below fill its values.
+struct UpperLlt {
     dim: usize,
     symbolic_a: SymbolicSparseColMat<usize>,
-    /// For each stored upper-triangle entry: the flat index `9 * block + (a + 3 b)` into the
-    /// block storage, or a sentinel for a fixed entry (zero, or one on the diagonal).
-    source: Vec<u32>,
     a_values: Vec<f64>,
     symbolic: SymbolicCholesky<usize>,
     l_values: Vec<f64>,
@@ -32,12 +29,94 @@ pub struct SparseCholesky {
     stack: MemBuffer,
 }
 
+impl UpperLlt {
+    fn new(dim: usize, col_ptr: Vec<usize>, row_idx: Vec<usize>) -> Result<Self, LinalgError> {
+        let nnz = row_idx.len();
+        let symbolic_a = SymbolicSparseColMat::new_checked(dim, dim, col_ptr, None, row_idx);
+        let symbolic = factorize_symbolic_cholesky(
+            symbolic_a.as_ref(),
+            Side::Upper,
+            SymmetricOrdering::Amd,
+            CholeskySymbolicParams::default(),
+        )
+        .map_err(|e| LinalgError::Symbolic(format!("{e:?}")))?;
+        let req = StackReq::any_of(&[
+            symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
+            symbolic.solve_in_place_scratch::<f64>(1, Par::Seq),
+        ]);
+        let stack = MemBuffer::try_new(req).map_err(|_| LinalgError::OutOfMemory)?;
+        Ok(UpperLlt {
+            dim,
+            symbolic_a,
+            a_values: vec![0.0; nnz],
+            l_values: vec![0.0; symbolic.len_val()],
+            symbolic,
+            factored: false,
+            stack,
+        })
+    }
+
+    /// Factorizes the values now in `a_values`; errors name the scalar row.
+    fn factorize(&mut self) -> Result<(), LinalgError> {
+        if let Some(bad) = self.a_values.iter().position(|v| !v.is_finite()) {
+            self.factored = false;
+            return Err(LinalgError::NonFinite {
+                dof: self.symbolic_a.row_idx()[bad],
+            });
+        }
+        let a = SparseColMatRef::new(self.symbolic_a.as_ref(), &self.a_values);
+        let result = self.symbolic.factorize_numeric_llt(
+            &mut self.l_values,
+            a,
+            Side::Upper,
+            LltRegularization::default(),
+            Par::Seq,
+            MemStack::new(&mut self.stack),
+            Default::default(),
+        );
+        match result {
+            Ok(_) => {
+                self.factored = true;
+                Ok(())
+            }
+            Err(LltError::NonPositivePivot { index }) => {
+                self.factored = false;
+                let dof = match self.symbolic.perm() {
+                    Some(p) => p.arrays().0[index],
+                    None => index,
+                };
+                Err(LinalgError::NotPositiveDefinite { dof })
+            }
+        }
+    }
+
+    fn solve_in_place(&mut self, rhs: &mut [f64]) -> Result<(), LinalgError> {
+        if !self.factored {
+            return Err(LinalgError::NotFactored);
+        }
+        let llt = LltRef::new(&self.symbolic, &self.l_values);
+        let rhs = MatMut::from_column_major_slice_mut(rhs, self.dim, 1);
+        llt.solve_in_place_with_conj(Conj::No, rhs, Par::Seq, MemStack::new(&mut self.stack));
+        Ok(())
+    }
+}
+
+/// `L L^T` factorization of the scalar matrix behind a [`BlockSparse`], where the rows and
+/// columns of fixed degrees of freedom are replaced by the identity (so a right-hand side that
+/// is zero there gives a solution that is zero there).
+pub struct SparseCholesky {
+    /// For each stored upper-triangle entry: the flat index `9 * block + (a + 3 b)` into the
+    /// block storage, or a sentinel for a fixed entry (zero, or one on the diagonal).
+    source: Vec<u32>,
+    llt: UpperLlt,
+}
+
 impl std::fmt::Debug for SparseCholesky {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("SparseCholesky")
-            .field("dim", &self.dim)
-            .field("a_nnz", &self.a_values.len())
-            .field("l_nnz", &self.l_values.len())
+            .field("dim", &self.llt.dim)
+            .field("a_nnz", &self.llt.a_values.len())
+            .field("l_nnz", &self.llt.l_values.len())
             .finish()
     }
 }
@@ -87,48 +166,27 @@ impl SparseCholesky {
                 col_ptr.push(row_idx.len());
             }
         }
-        let symbolic_a = SymbolicSparseColMat::new_checked(dim, dim, col_ptr, None, row_idx);
-        let symbolic = factorize_symbolic_cholesky(
-            symbolic_a.as_ref(),
-            Side::Upper,
-            SymmetricOrdering::Amd,
-            CholeskySymbolicParams::default(),
-        )
-        .map_err(|e| LinalgError::Symbolic(format!("{e:?}")))?;
-        let req = StackReq::any_of(&[
-            symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
-            symbolic.solve_in_place_scratch::<f64>(1, Par::Seq),
-        ]);
-        let stack = MemBuffer::try_new(req).map_err(|_| LinalgError::OutOfMemory)?;
-        let l_values = vec![0.0; symbolic.len_val()];
-        let a_values = vec![0.0; source.len()];
         Ok(SparseCholesky {
-            dim,
-            symbolic_a,
+            llt: UpperLlt::new(dim, col_ptr, row_idx)?,
             source,
-            a_values,
-            symbolic,
-            l_values,
-            factored: false,
-            stack,
         })
     }
 
     /// Number of scalar unknowns.
     pub fn dim(&self) -> usize {
-        self.dim
+        self.llt.dim
     }
 
     /// Number of stored entries of the factor `L`.
     pub fn factor_nnz(&self) -> usize {
-        self.l_values.len()
+        self.llt.l_values.len()
     }
 
     /// Numeric factorization of the current values of `matrix` (same pattern as at
     /// construction). On failure the previous factorization is discarded.
     pub fn factorize(&mut self, matrix: &BlockSparse) -> Result<(), LinalgError> {
         let blocks = matrix.blocks();
-        for (v, &s) in self.a_values.iter_mut().zip(&self.source) {
+        for (v, &s) in self.llt.a_values.iter_mut().zip(&self.source) {
             *v = match s {
                 ENTRY_ZERO => 0.0,
                 ENTRY_ONE => 1.0,
@@ -138,36 +196,7 @@ impl SparseCholesky {
                 }
             };
         }
-        if let Some(bad) = self.a_values.iter().position(|v| !v.is_finite()) {
-            self.factored = false;
-            return Err(LinalgError::NonFinite {
-                dof: self.symbolic_a.row_idx()[bad],
-            });
-        }
-        let a = SparseColMatRef::new(self.symbolic_a.as_ref(), &self.a_values);
-        let result = self.symbolic.factorize_numeric_llt(
-            &mut self.l_values,
-            a,
-            Side::Upper,
-            LltRegularization::default(),
-            Par::Seq,
-            MemStack::new(&mut self.stack),
-            Default::default(),
-        );
-        match result {
-            Ok(_) => {
-                self.factored = true;
-                Ok(())
-            }
-            Err(LltError::NonPositivePivot { index }) => {
-                self.factored = false;
-                let dof = match self.symbolic.perm() {
-                    Some(p) => p.arrays().0[index],
-                    None => index,
-                };
-                Err(LinalgError::NotPositiveDefinite { dof })
-            }
-        }
+        self.llt.factorize()
     }
 
     /// Solves `A x = rhs` in place. Does nothing but return an error when no factorization is
@@ -176,13 +205,86 @@ impl SparseCholesky {
     /// # Panics
     /// If `rhs.len() != self.dim()`.
     pub fn solve_in_place(&mut self, rhs: &mut [f64]) -> Result<(), LinalgError> {
-        if !self.factored {
-            return Err(LinalgError::NotFactored);
+        self.llt.solve_in_place(rhs)
+    }
+}
+
+/// `L L^T` factorization of a symmetric scalar sparse matrix assembled from entries, with
+/// fixed unknowns replaced by identity rows and columns (as [`SparseCholesky`] does for
+/// blocks). Used by the heat solver. Errors name the scalar unknown in `dof`.
+pub struct ScalarCholesky {
+    llt: UpperLlt,
+}
+
+impl std::fmt::Debug for ScalarCholesky {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ScalarCholesky")
+            .field("dim", &self.llt.dim)
+            .field("l_nnz", &self.llt.l_values.len())
+            .finish()
+    }
+}
+
+impl ScalarCholesky {
+    /// Assembles and factorizes the `dim x dim` symmetric matrix summed from `entries`
+    /// (`(row, column, value)`, duplicates add). Only the upper triangle is read: entries with
+    /// `row > column` are skipped, so a full symmetric assembly can be passed as it is. The
+    /// rows and columns of `fixed` unknowns are replaced by the identity.
+    ///
+    /// # Panics
+    /// If `fixed.len() != dim` or an entry index is `>= dim`.
+    pub fn new(
+        dim: usize,
+        entries: impl IntoIterator<Item = (usize, usize, f64)>,
+        fixed: &[bool],
+    ) -> Result<Self, LinalgError> {
+        assert_eq!(fixed.len(), dim, "one fixed flag per unknown");
+        let mut columns: Vec<std::collections::BTreeMap<usize, f64>> =
+            vec![Default::default(); dim];
+        for (r, c, v) in entries {
+            assert!(
+                r < dim && c < dim,
+                "entry ({r}, {c}) outside a {dim} x {dim} matrix"
+            );
+            if r > c || fixed[r] || fixed[c] {
+                continue;
+            }
+            *columns[c].entry(r).or_insert(0.0) += v;
         }
-        let llt = LltRef::new(&self.symbolic, &self.l_values);
-        let dim = self.dim;
-        let rhs = MatMut::from_column_major_slice_mut(rhs, dim, 1);
-        llt.solve_in_place_with_conj(Conj::No, rhs, Par::Seq, MemStack::new(&mut self.stack));
-        Ok(())
+        for (i, &f) in fixed.iter().enumerate() {
+            if f {
+                columns[i].insert(i, 1.0);
+            } else {
+                columns[i].entry(i).or_insert(0.0);
+            }
+        }
+        let mut col_ptr = Vec::with_capacity(dim + 1);
+        let mut row_idx = Vec::new();
+        let mut values = Vec::new();
+        col_ptr.push(0);
+        for col in &columns {
+            for (&r, &v) in col {
+                row_idx.push(r);
+                values.push(v);
+            }
+            col_ptr.push(row_idx.len());
+        }
+        let mut llt = UpperLlt::new(dim, col_ptr, row_idx)?;
+        llt.a_values.copy_from_slice(&values);
+        llt.factorize()?;
+        Ok(ScalarCholesky { llt })
+    }
+
+    /// Number of unknowns.
+    pub fn dim(&self) -> usize {
+        self.llt.dim
+    }
+
+    /// Solves `A x = rhs` in place (no allocation).
+    ///
+    /// # Panics
+    /// If `rhs.len() != self.dim()`.
+    pub fn solve_in_place(&mut self, rhs: &mut [f64]) -> Result<(), LinalgError> {
+        self.llt.solve_in_place(rhs)
     }
 }

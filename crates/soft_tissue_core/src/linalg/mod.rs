@@ -6,7 +6,7 @@ mod cholesky;
 mod pcg;
 
 pub use bsr::BlockSparse;
-pub use cholesky::SparseCholesky;
+pub use cholesky::{ScalarCholesky, SparseCholesky};
 pub use pcg::{CgStats, ImplicitSystem};
 
 /// A failure of the linear algebra, naming the degree of freedom (`3 * node + axis`).
