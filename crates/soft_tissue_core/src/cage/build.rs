@@ -20,9 +20,9 @@
 
 use std::collections::HashMap;
 
-use super::geometry::{point_triangle_distance, solid_angle, triangles_cross, triangles_intersect};
 use super::{Cage, CageError};
 use crate::Vec3;
+use crate::geometry::{point_triangle_distance, solid_angle, triangles_cross, triangles_intersect};
 
 fn bounds(points: &[Vec3]) -> Result<(Vec3, Vec3), CageError> {
     let Some(first) = points.first() else {

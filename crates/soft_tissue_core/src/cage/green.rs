@@ -88,7 +88,7 @@ fn coordinates_into(
     let mut winding = 0.0;
     for (j, f) in faces.iter().enumerate() {
         let a = f.v.map(|i| vertices[i as usize] - eta);
-        let omega = super::geometry::solid_angle(&a[0], &a[1], &a[2]);
+        let omega = crate::geometry::solid_angle(&a[0], &a[1], &a[2]);
         let h = a[0].dot(&f.n);
         let mut w = f.n * omega;
         let mut single = -h * omega;

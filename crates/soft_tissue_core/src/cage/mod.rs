@@ -16,7 +16,7 @@ pub mod build;
 pub mod green;
 
 mod body;
-mod geometry;
+use crate::geometry;
 
 pub use body::{CageBody, CageBodyConfig, CageSprings, CageStepStats};
 pub use build::{FitOptions, box_cage, fitted_cage};

@@ -1,4 +1,5 @@
-//! Small geometric predicates of the cage code: solid angles, point-triangle distance,
+//! Small geometric predicates shared by the cage and contact code: solid angles, closest
+//! points on triangles and segments, point-triangle distance,
 //! segment-triangle and triangle-triangle intersection.
 
 use crate::Vec3;
@@ -16,46 +17,63 @@ pub(crate) fn solid_angle(a: &Vec3, b: &Vec3, c: &Vec3) -> f64 {
 
 /// Distance from `p` to the triangle `(a, b, c)`.
 pub(crate) fn point_triangle_distance(p: &Vec3, a: &Vec3, b: &Vec3, c: &Vec3) -> f64 {
-    // Ericson, Real-Time Collision Detection, 5.1.5 (closest point by Voronoi regions).
+    let w = closest_on_triangle(p, a, b, c);
+    (p - (a * w[0] + b * w[1] + c * w[2])).norm()
+}
+
+/// Barycentric weights of the point of triangle `(a, b, c)` closest to `p` (Ericson,
+/// Real-Time Collision Detection, 5.1.5: the Voronoi region of `p`). Weights that are zero
+/// name the edge or vertex the point lies on.
+pub(crate) fn closest_on_triangle(p: &Vec3, a: &Vec3, b: &Vec3, c: &Vec3) -> [f64; 3] {
     let ab = b - a;
     let ac = c - a;
     let ap = p - a;
     let d1 = ab.dot(&ap);
     let d2 = ac.dot(&ap);
     if d1 <= 0.0 && d2 <= 0.0 {
-        return ap.norm();
+        return [1.0, 0.0, 0.0];
     }
     let bp = p - b;
     let d3 = ab.dot(&bp);
     let d4 = ac.dot(&bp);
     if d3 >= 0.0 && d4 <= d3 {
-        return bp.norm();
+        return [0.0, 1.0, 0.0];
     }
     let vc = d1 * d4 - d3 * d2;
     if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
         let v = d1 / (d1 - d3);
-        return (p - (a + ab * v)).norm();
+        return [1.0 - v, v, 0.0];
     }
     let cp = p - c;
     let d5 = ab.dot(&cp);
     let d6 = ac.dot(&cp);
     if d6 >= 0.0 && d5 <= d6 {
-        return cp.norm();
+        return [0.0, 0.0, 1.0];
     }
     let vb = d5 * d2 - d1 * d6;
     if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
         let w = d2 / (d2 - d6);
-        return (p - (a + ac * w)).norm();
+        return [1.0 - w, 0.0, w];
     }
     let va = d3 * d6 - d5 * d4;
     if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
         let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return (p - (b + (c - b) * w)).norm();
+        return [0.0, 1.0 - w, w];
     }
     let denom = 1.0 / (va + vb + vc);
     let v = vb * denom;
     let w = vc * denom;
-    (p - (a + ab * v + ac * w)).norm()
+    [1.0 - v - w, v, w]
+}
+
+/// Parameter in [0, 1] of the point of segment `a b` closest to `p`.
+pub(crate) fn closest_on_segment(p: &Vec3, a: &Vec3, b: &Vec3) -> f64 {
+    let d = b - a;
+    let len2 = d.norm_squared();
+    if len2 <= 0.0 {
+        return 0.0;
+    }
+    ((p - a).dot(&d) / len2).clamp(0.0, 1.0)
 }
 
 /// Whether the open segment `p q` crosses the interior of triangle `(a, b, c)`, with a
