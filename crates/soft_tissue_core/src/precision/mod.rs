@@ -235,6 +235,7 @@ pub struct LeveledBody {
     steps: u64,
     steps_at_level: u64,
     rest_count: u32,
+    slow_steps: u32,
     switches: u64,
     last_switch: Option<SwitchRecord>,
     residual: f64,
@@ -263,6 +264,64 @@ impl std::fmt::Debug for LeveledBody {
 /// Most fixed-point iterations of the cage fits (they stop earlier once converged).
 const MAX_FIT_ITERATIONS: usize = 100;
 
+/// The cage body of the settings' kind around `nodes` (surface `triangles` for fitted cages),
+/// embedding every node.
+fn build_cage(
+    nodes: &[Vec3],
+    triangles: &[[u32; 3]],
+    settings: &BodySettings,
+) -> Result<CageBody, PrecisionError> {
+    let options = FitOptions::for_points(
+        nodes,
+        match settings.cage {
+            CageKind::BoundingBox => 8,
+            CageKind::Fitted { vertices } => vertices,
+        },
+    );
+    let cage_shape = match settings.cage {
+        CageKind::BoundingBox => box_cage(nodes, options.margin)?,
+        CageKind::Fitted { .. } => fitted_cage(nodes, triangles, &options)?,
+    };
+    let mut cage_config = CageBodyConfig::paper(settings.dt);
+    cage_config.msd.stiffness = settings.cage_msd.stiffness;
+    cage_config.msd.mass = settings.cage_msd.mass;
+    cage_config.msd.damping = settings.cage_msd.damping;
+    // A body held in place (anchored or fixed) cannot drift as a whole at the precise level;
+    // its cage, whose springs resist only changes of shape, gets soft anchors to its rest so
+    // its rigid motions are held too, at the rate the body's own supports give: the anchors'
+    // total stiffness over the body's mass, or for fixed nodes the cage springs' own rate.
+    let nv = cage_shape.vertices().len();
+    let vertex_mass = settings.cage_msd.mass / nv as f64;
+    let body_mass = match settings.precise {
+        PreciseMethod::Fem(_) => settings.fem.mass,
+        PreciseMethod::Msd(_) => settings.msd.mass,
+    };
+    let anchor_total: f64 = settings
+        .boundary
+        .anchors
+        .iter()
+        .map(|&(_, k)| k.max(0.0))
+        .sum();
+    let rate = if !settings.boundary.fixed.is_empty() {
+        settings.cage_msd.stiffness / vertex_mass
+    } else if anchor_total > 0.0 && body_mass > 0.0 {
+        anchor_total / body_mass
+    } else {
+        0.0
+    };
+    let boundary = if rate > 0.0 && rate.is_finite() {
+        Boundary::anchored(nv, rate * vertex_mass)
+    } else {
+        Boundary::free()
+    };
+    Ok(CageBody::with_boundary(
+        cage_shape,
+        nodes,
+        &cage_config,
+        &boundary,
+    )?)
+}
+
 fn build_precise(mesh: &TetMesh, s: &BodySettings) -> Result<Precise, PrecisionError> {
     Ok(match s.precise {
         PreciseMethod::Fem(model) => {
@@ -285,22 +344,7 @@ impl LeveledBody {
     /// starts at rest at the cage level.
     pub fn new(mesh: &TetMesh, settings: BodySettings) -> Result<Self, PrecisionError> {
         let nodes = mesh.positions();
-        let options = FitOptions::for_points(
-            nodes,
-            match settings.cage {
-                CageKind::BoundingBox => 8,
-                CageKind::Fitted { vertices } => vertices,
-            },
-        );
-        let cage_shape = match settings.cage {
-            CageKind::BoundingBox => box_cage(nodes, options.margin)?,
-            CageKind::Fitted { .. } => fitted_cage(nodes, mesh.surface().triangles(), &options)?,
-        };
-        let mut cage_config = CageBodyConfig::paper(settings.dt);
-        cage_config.msd.stiffness = settings.cage_msd.stiffness;
-        cage_config.msd.mass = settings.cage_msd.mass;
-        cage_config.msd.damping = settings.cage_msd.damping;
-        let cage = CageBody::new(cage_shape, nodes, &cage_config)?;
+        let cage = build_cage(nodes, mesh.surface().triangles(), &settings)?;
         let precise = build_precise(mesh, &settings)?;
         let surface = mesh.surface().vertices().to_vec();
         let fit = Self::build_fit(cage.coordinates(), &surface)?;
@@ -317,6 +361,7 @@ impl LeveledBody {
             steps: 0,
             steps_at_level: 0,
             rest_count: 0,
+            slow_steps: 0,
             switches: 0,
             last_switch: None,
             residual: 0.0,
@@ -344,6 +389,13 @@ impl LeveledBody {
         }
         let normal = normal.cholesky().ok_or(PrecisionError::SingularFit)?;
         Ok(CageFit { phi_t, normal, mu })
+    }
+
+    /// Whether the body is at the precise level and has not been slow (by the policy's rest
+    /// speed) for `rest_steps` consecutive steps, whatever its contacts: what a neighbour
+    /// uses to decide that a contact with this body still presses it.
+    pub fn is_moving(&self) -> bool {
+        self.level == Level::Precise && self.slow_steps < self.settings.policy.rest_steps
     }
 
     /// Current level.
@@ -535,6 +587,7 @@ impl LeveledBody {
         self.last_switch = Some(r);
         self.steps_at_level = 0;
         self.rest_count = 0;
+        self.slow_steps = 0;
         r
     }
 
@@ -730,7 +783,8 @@ impl LeveledBody {
         let msd = self.cage.msd_mut();
         msd.positions_mut().copy_from_slice(&positions);
         msd.velocities_mut().copy_from_slice(&u);
-        msd.rebase_rest();
+        // The cage keeps its rest shape (the body's equilibrium, see `settle`): whatever
+        // motion is left carries on at the cage level and its springs bring it back to rest.
         self.cage.update_points()?;
         self.level = Level::Cage;
         Ok(Some(self.record(Level::Precise, Level::Cage, residual)))
@@ -760,6 +814,7 @@ impl LeveledBody {
         if level == Level::Precise && self.pin.is_none() {
             let p = self.settings.policy;
             let slow = self.precise.body().max_speed() <= p.rest_speed * self.smallest;
+            self.slow_steps = if slow { self.slow_steps + 1 } else { 0 };
             if in_contact || !slow {
                 self.rest_count = 0;
             } else {
@@ -782,8 +837,65 @@ impl LeveledBody {
         Ok(LevelStepStats { level, switched })
     }
 
-    /// Back to the initial state: cage level, at rest, in the rest shape (the cage's rest
-    /// shape too), counters cleared; the pin is kept.
+    /// Lets the precise method find the body's equilibrium under its loads (gravity against
+    /// its supports) and makes that the cage level's rest state and the initial state, so the
+    /// first touch does not start a visible sag and the body can return to its cage once it is
+    /// back at that equilibrium. Steps the precise level until it is at rest by a tenth of
+    /// the policy's speed test for `rest_steps` steps (at most `max_steps`), then rebuilds
+    /// the cage around the settled shape (`mesh` is the body's mesh). Returns the steps taken and whether it came to rest. A body without gravity is
+    /// already at equilibrium: nothing is done. Counters are cleared afterwards.
+    pub fn settle(
+        &mut self,
+        mesh: &TetMesh,
+        max_steps: u32,
+    ) -> Result<(u32, bool), PrecisionError> {
+        if self.settings.gravity.norm() == 0.0 {
+            return Ok((0, true));
+        }
+        let pin = self.pin.take();
+        self.raise()?;
+        let p = self.settings.policy;
+        let mut slow = 0;
+        let mut steps = 0;
+        let mut rested = false;
+        while steps < max_steps {
+            match &mut self.precise {
+                Precise::Fem(b) => {
+                    b.step()?;
+                }
+                Precise::Msd(b) => {
+                    b.step()?;
+                }
+            }
+            steps += 1;
+            if self.precise.body().max_speed() <= 0.1 * p.rest_speed * self.smallest {
+                slow += 1;
+                if slow >= p.rest_steps && steps >= p.min_precise_steps {
+                    rested = true;
+                    break;
+                }
+            } else {
+                slow = 0;
+            }
+        }
+        // The cage is rebuilt around the settled shape, which it then reproduces exactly at
+        // rest: the settled shape is the cage level's rest state and the initial state.
+        let settled = self.precise.body().positions().to_vec();
+        self.cage = build_cage(&settled, mesh.surface().triangles(), &self.settings)?;
+        self.fit = Self::build_fit(self.cage.coordinates(), &self.surface)?;
+        self.cage_work = vec![Vec3::zeros(); self.cage.cage().vertices().len()];
+        self.cage_prior = self.cage_work.clone();
+        self.terms_work = vec![Vec3::zeros(); self.cage.cage().triangles().len()];
+        self.rhs_work = DMatrix::zeros(self.cage_work.len(), 3);
+        self.level = Level::Cage;
+        self.pin = pin;
+        self.reset()?;
+        Ok((steps, rested))
+    }
+
+    /// Back to the initial state: cage level, at rest, in the rest shape (the settled shape
+    /// after [`LeveledBody::settle`]; the cage's rest shape too), counters cleared; the pin is
+    /// kept.
     pub fn reset(&mut self) -> Result<(), PrecisionError> {
         match &mut self.precise {
             Precise::Fem(b) => b.reset(),
@@ -799,6 +911,7 @@ impl LeveledBody {
         self.steps = 0;
         self.steps_at_level = 0;
         self.rest_count = 0;
+        self.slow_steps = 0;
         self.switches = 0;
         self.last_switch = None;
         self.residual = 0.0;
