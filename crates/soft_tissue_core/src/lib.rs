@@ -24,7 +24,9 @@
 pub mod bench;
 pub mod boundary;
 pub mod cage;
+pub mod contact;
 pub mod fem;
+mod geometry;
 pub mod heat;
 pub mod linalg;
 pub mod material;
@@ -33,6 +35,7 @@ pub mod msd;
 pub mod precision;
 pub mod scenario;
 pub mod state;
+pub mod world;
 
 pub use state::NodalBody;
 

@@ -131,6 +131,10 @@ pub struct BodySpec {
     pub cage: CageLevel,
     /// How it is held.
     pub anchor: Anchor,
+    /// Thermal parameters: the body gets a temperature field (heat conduction, cautery,
+    /// damage). Absent: no heat is modelled and nothing is paid for it.
+    #[serde(default)]
+    pub heat: Option<crate::heat::HeatParams>,
 }
 
 /// A scene: bodies and global settings.
@@ -225,6 +229,7 @@ impl Scene {
             msd: Some(CYLINDER_MSD),
             cage: PAPER_CAGE,
             anchor: Anchor::FixedBottom { fraction: 0.05 },
+            heat: None,
         };
         Scene {
             name: "cylinders".into(),
@@ -251,6 +256,9 @@ impl Scene {
                 msd: None,
                 cage: PAPER_CAGE,
                 anchor: Anchor::SoftToRest { stiffness: 1.0 },
+                // The liver is the organ the cautery script works on; the others do not pay
+                // for a temperature field.
+                heat: (*o == Organ::Liver).then(crate::heat::HeatParams::liver),
             })
             .collect();
         Scene {

@@ -1,0 +1,1112 @@
+//! `SoftTissueWorld`: many bodies, each at its own level of precision, tools, contact and heat.
+//!
+//! One fixed step runs the stages of the design in order, each a public function over a slice
+//! of bodies so the Bevy plugin calls the same code on its components:
+//!
+//! ```text
+//! prepare -> detect_contacts -> switch_precision -> step_solvers -> collide -> writeback
+//! ```
+//!
+//! - [`prepare`]: tool velocities from their poses, body surfaces and bounds gathered.
+//! - [`detect_contacts`]: broad phase, tool and body narrow phases on the positions at the
+//!   start of the step (with the margins, so a body is raised before anything reaches it),
+//!   grabs resolved. Marks every touched body.
+//! - [`switch_precision`]: touched bodies rise to their precise method (same step, before
+//!   the contact is resolved).
+//! - [`step_solvers`]: cautery power into the heat fields, heat steps, every body's level
+//!   steps (a resting precise body may drop back to its cage there).
+//! - [`collide`]: contact response on the new positions (see [`crate::contact`]), grips
+//!   follow their tools, reaction forces on the tools.
+//! - [`writeback`]: surface positions in `f32` for rendering, diagnostics.
+//!
+//! Everything runs on one thread in index order, so a run is bit-for-bit repeatable.
+
+mod scene;
+mod script;
+
+pub use scene::{body_settings, load_mesh, placed_mesh};
+pub use script::{Script, ScriptAction, ScriptError, ScriptEvent, Waypoint};
+
+use std::borrow::BorrowMut;
+use std::sync::Arc;
+use std::time::Instant;
+
+use crate::Vec3;
+use crate::contact::{
+    BodyContact, ContactConfig, ContactError, SurfaceCollider, Tool, ToolContact, broad_phase,
+    detect_pair, detect_tool, grab_vertices, tool_distance,
+};
+use crate::heat::{HeatBoundary, HeatError, HeatField, HeatParams};
+use crate::mesh::TetMesh;
+use crate::precision::{BodySettings, Level, LeveledBody, PrecisionError, SwitchRecord};
+use crate::scenario::SceneError;
+
+/// A failure of the world, naming the body or tool.
+#[derive(Debug, thiserror::Error)]
+pub enum WorldError {
+    /// A body's levels failed.
+    #[error("body `{body}`: {source}")]
+    Precision {
+        /// Body name.
+        body: String,
+        /// Underlying error.
+        source: PrecisionError,
+    },
+    /// A body's heat field failed.
+    #[error("body `{body}`: {source}")]
+    Heat {
+        /// Body name.
+        body: String,
+        /// Underlying error.
+        source: HeatError,
+    },
+    /// A body's surface or a tool is unusable for contact.
+    #[error("`{name}`: {source}")]
+    Contact {
+        /// Body or tool name.
+        name: String,
+        /// Underlying error.
+        source: ContactError,
+    },
+    /// A scene could not be loaded.
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    /// A mesh could not be read or placed.
+    #[error("body `{body}`: mesh: {message}")]
+    Mesh {
+        /// Body name.
+        body: String,
+        /// What failed.
+        message: String,
+    },
+    /// A time step is not usable.
+    #[error("time step: {0}")]
+    TimeStep(String),
+    /// Two bodies share a name.
+    #[error("a body named `{0}` already exists")]
+    DuplicateName(String),
+    /// No body or tool by that name or index.
+    #[error("no {kind} `{name}`")]
+    Unknown {
+        /// "body" or "tool".
+        kind: &'static str,
+        /// Name or index asked for.
+        name: String,
+    },
+    /// A step left a non-finite position (the state of that body is not trusted).
+    #[error("body `{body}`: non-finite position at node {node} after {stage}")]
+    NonFinite {
+        /// Body name.
+        body: String,
+        /// Node.
+        node: usize,
+        /// Stage.
+        stage: &'static str,
+    },
+}
+
+/// World settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WorldConfig {
+    /// Fixed step, s. Every body's solver step must equal it.
+    pub dt: f64,
+    /// Contact settings.
+    pub contact: ContactConfig,
+}
+
+/// What a body reports after a step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BodyDiagnostics {
+    /// Level after the step.
+    pub level: Level,
+    /// Name of the method now running: `cage`, `fem` or `msd`.
+    pub method: &'static str,
+    /// Wall time of this body's solver step (level and heat), microseconds.
+    pub step_us: f64,
+    /// Contacts (tool triangles and vertex-triangle pairs) found this step.
+    pub contacts: u32,
+    /// Whether the body counted as touched this step.
+    pub touched: bool,
+    /// Switches so far.
+    pub switch_count: u64,
+    /// The switch made during this step, if any.
+    pub switched: Option<SwitchRecord>,
+    /// The last switch ever made.
+    pub last_switch: Option<SwitchRecord>,
+    /// Largest surface displacement from the initial (settled) shape, scene units.
+    pub max_displacement: f64,
+    /// Largest temperature, C (`None` without a heat field).
+    pub max_temperature: Option<f64>,
+}
+
+/// Wall time of each stage of the last step, microseconds.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageTimes {
+    /// [`prepare`].
+    pub prepare_us: f64,
+    /// [`detect_contacts`].
+    pub detect_us: f64,
+    /// [`switch_precision`].
+    pub switch_us: f64,
+    /// [`step_solvers`].
+    pub solve_us: f64,
+    /// [`collide`].
+    pub collide_us: f64,
+    /// [`writeback`].
+    pub writeback_us: f64,
+}
+
+impl StageTimes {
+    /// Sum of the stages.
+    pub fn total_us(&self) -> f64 {
+        self.prepare_us
+            + self.detect_us
+            + self.switch_us
+            + self.solve_us
+            + self.collide_us
+            + self.writeback_us
+    }
+}
+
+/// Jacobi rounds of the tool response per step.
+const TOOL_ROUNDS: usize = 3;
+
+/// Most precise steps [`SimBody::new`] spends settling a body under gravity.
+pub const SETTLE_STEPS: u32 = 5000;
+
+/// One simulated body: its levels, contact surface, optional heat field and outputs.
+#[derive(Debug)]
+pub struct SimBody {
+    name: String,
+    mesh: Arc<TetMesh>,
+    body: LeveledBody,
+    collider: SurfaceCollider,
+    heat: Option<HeatField>,
+    rest_surface: Vec<Vec3>,
+    surface_out: Vec<[f32; 3]>,
+    diagnostics: BodyDiagnostics,
+    // Per-step contact bookkeeping and response workspaces.
+    touched: bool,
+    contacts: u32,
+    active: bool,
+    correction: Vec<Vec3>,
+    weight: Vec<f64>,
+}
+
+impl SimBody {
+    /// Builds a body from a mesh (in scene coordinates) and its settings; `heat` adds a
+    /// temperature field stepped at `settings.dt`.
+    pub fn new(
+        name: impl Into<String>,
+        mesh: Arc<TetMesh>,
+        settings: BodySettings,
+        heat: Option<(HeatParams, HeatBoundary)>,
+    ) -> Result<Self, WorldError> {
+        let name = name.into();
+        let dt = settings.dt;
+        let precision = |source| WorldError::Precision {
+            body: name.clone(),
+            source,
+        };
+        let mut body = LeveledBody::new(&mesh, settings).map_err(precision)?;
+        // Under gravity the cage level starts from the equilibrium the precise method finds.
+        let (_, settled) = body.settle(&mesh, SETTLE_STEPS).map_err(precision)?;
+        if !settled {
+            log::warn!(
+                "body `{name}` did not come to rest under its loads within {SETTLE_STEPS} steps; its cage holds the last shape"
+            );
+        }
+        let mut collider = SurfaceCollider::new(&mesh).map_err(|source| WorldError::Contact {
+            name: name.clone(),
+            source,
+        })?;
+        collider.gather(body.node_positions());
+        collider.refresh();
+        let heat = match heat {
+            Some((params, boundary)) => Some(
+                HeatField::new(&mesh, params, dt, &boundary).map_err(|source| {
+                    WorldError::Heat {
+                        body: name.clone(),
+                        source,
+                    }
+                })?,
+            ),
+            None => None,
+        };
+        let rest_surface = collider.positions().to_vec();
+        let n = mesh.node_count();
+        let mut b = SimBody {
+            surface_out: vec![[0.0; 3]; rest_surface.len()],
+            rest_surface,
+            diagnostics: BodyDiagnostics {
+                level: Level::Cage,
+                method: "cage",
+                step_us: 0.0,
+                contacts: 0,
+                touched: false,
+                switch_count: 0,
+                switched: None,
+                last_switch: None,
+                max_displacement: 0.0,
+                max_temperature: heat.as_ref().map(|h| max_of(h.temperatures())),
+            },
+            name,
+            mesh,
+            body,
+            collider,
+            heat,
+            touched: false,
+            contacts: 0,
+            active: false,
+            correction: vec![Vec3::zeros(); n],
+            weight: vec![0.0; n],
+        };
+        b.write_surface();
+        Ok(b)
+    }
+
+    /// Name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The tetrahedral mesh (rest shape, scene coordinates).
+    pub fn mesh(&self) -> &Arc<TetMesh> {
+        &self.mesh
+    }
+
+    /// The levels.
+    pub fn body(&self) -> &LeveledBody {
+        &self.body
+    }
+
+    /// The levels, to pin, change method or push.
+    pub fn body_mut(&mut self) -> &mut LeveledBody {
+        &mut self.body
+    }
+
+    /// Contact surface.
+    pub fn collider(&self) -> &SurfaceCollider {
+        &self.collider
+    }
+
+    /// Heat field, if the body has one.
+    pub fn heat(&self) -> Option<&HeatField> {
+        self.heat.as_ref()
+    }
+
+    /// Heat field, to heat or cool.
+    pub fn heat_mut(&mut self) -> Option<&mut HeatField> {
+        self.heat.as_mut()
+    }
+
+    /// Surface positions written by [`writeback`] (order of the collider's vertices, the
+    /// surface vertices of the mesh), `f32` for rendering.
+    pub fn surface_positions(&self) -> &[[f32; 3]] {
+        &self.surface_out
+    }
+
+    /// Mesh node of each entry of [`SimBody::surface_positions`].
+    pub fn surface_nodes(&self) -> &[u32] {
+        self.collider.nodes()
+    }
+
+    /// Surface triangles, indexing [`SimBody::surface_positions`].
+    pub fn surface_triangles(&self) -> &[[u32; 3]] {
+        self.collider.triangles()
+    }
+
+    /// What the last step did.
+    pub fn diagnostics(&self) -> &BodyDiagnostics {
+        &self.diagnostics
+    }
+
+    fn write_surface(&mut self) {
+        let x = self.body.node_positions();
+        let mut max_d: f64 = 0.0;
+        for ((o, &i), r) in self
+            .surface_out
+            .iter_mut()
+            .zip(self.collider.nodes())
+            .zip(&self.rest_surface)
+        {
+            let p = x[i as usize];
+            *o = [p.x as f32, p.y as f32, p.z as f32];
+            max_d = max_d.max((p - r).norm());
+        }
+        self.diagnostics.max_displacement = max_d;
+        self.diagnostics.level = self.body.level();
+        self.diagnostics.method = match self.body.level() {
+            Level::Cage => "cage",
+            Level::Precise => match self.body.settings().precise {
+                crate::precision::PreciseMethod::Fem(_) => "fem",
+                crate::precision::PreciseMethod::Msd(_) => "msd",
+            },
+        };
+        self.diagnostics.switch_count = self.body.switch_count();
+        self.diagnostics.last_switch = self.body.last_switch();
+        self.diagnostics.max_temperature = self.heat.as_ref().map(|h| max_of(h.temperatures()));
+    }
+
+    /// At the precise level and not yet slow for the policy's rest steps.
+    fn moving(&self) -> bool {
+        self.body.is_moving()
+    }
+
+    fn precision_err(&self, source: PrecisionError) -> WorldError {
+        WorldError::Precision {
+            body: self.name.clone(),
+            source,
+        }
+    }
+
+    /// Back to the initial state (cage level, rest shape, initial temperature).
+    pub fn reset(&mut self) -> Result<(), WorldError> {
+        self.body.reset().map_err(|e| self.precision_err(e))?;
+        if let Some(h) = &mut self.heat {
+            h.reset();
+        }
+        self.collider.gather(self.body.node_positions());
+        self.touched = false;
+        self.contacts = 0;
+        self.diagnostics.switched = None;
+        self.diagnostics.step_us = 0.0;
+        self.diagnostics.contacts = 0;
+        self.diagnostics.touched = false;
+        self.write_surface();
+        Ok(())
+    }
+}
+
+fn max_of(v: &[f64]) -> f64 {
+    v.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+}
+
+/// Contacts and pairs of the current step (kept between stages, reused between steps).
+#[derive(Debug, Default)]
+pub struct ContactState {
+    /// Body pairs whose grown bounds overlap.
+    pub pairs: Vec<(u32, u32)>,
+    /// Tool contacts at the start of the step.
+    pub tool_contacts: Vec<ToolContact>,
+    /// Body contacts at the start of the step.
+    pub body_contacts: Vec<BodyContact>,
+    bounds: Vec<(Vec3, Vec3)>,
+    order: Vec<u32>,
+    scratch: Vec<BodyContact>,
+    tool_scratch: Vec<ToolContact>,
+}
+
+/// Prepare: tool velocities over `dt`, surfaces gathered from the bodies.
+pub fn prepare<B: BorrowMut<SimBody>>(bodies: &mut [B], tools: &mut [Tool], dt: f64) {
+    for t in tools.iter_mut() {
+        t.begin_step(dt);
+    }
+    for b in bodies.iter_mut() {
+        let b = b.borrow_mut();
+        b.collider.gather(b.body.node_positions());
+        b.touched = false;
+        b.contacts = 0;
+        b.active = false;
+    }
+}
+
+/// Detect contacts on the positions at the start of the step (margins included) and resolve
+/// pending grabs; marks touched bodies.
+pub fn detect_contacts<B: BorrowMut<SimBody>>(
+    bodies: &mut [B],
+    tools: &mut [Tool],
+    config: &ContactConfig,
+    state: &mut ContactState,
+) {
+    state.bounds.clear();
+    state
+        .bounds
+        .extend(bodies.iter().map(|b| b.borrow().collider.bounds()));
+    let grow = 0.5
+        * config
+            .search_radius
+            .max(config.thickness + config.body_margin);
+    broad_phase(&state.bounds, grow, &mut state.order, &mut state.pairs);
+    state.tool_contacts.clear();
+    state.body_contacts.clear();
+    // Tools.
+    for (it, tool) in tools.iter_mut().enumerate() {
+        let (lo, hi) = tool.bounds(config.tool_margin);
+        for (ib, b) in bodies.iter_mut().enumerate() {
+            let b = b.borrow_mut();
+            let (blo, bhi) = b.collider.bounds();
+            if (0..3).any(|k| lo[k] > bhi[k] || blo[k] > hi[k]) {
+                continue;
+            }
+            b.collider.refresh();
+            b.active = true;
+            let before = state.tool_contacts.len();
+            detect_tool(
+                it as u32,
+                tool,
+                ib as u32,
+                &b.collider,
+                config.tool_margin,
+                &mut state.tool_contacts,
+            );
+            let found = (state.tool_contacts.len() - before) as u32;
+            if found > 0 {
+                b.touched = true;
+                b.contacts += found;
+            }
+        }
+        if tool.grab_requested() {
+            // The nearest body under the tip.
+            let mut best: Option<(f64, usize)> = None;
+            for (ib, b) in bodies.iter().enumerate() {
+                let b = b.borrow();
+                for p in b.collider.positions() {
+                    let d = tool_distance(tool, p).0;
+                    if d <= config.tool_margin && best.is_none_or(|(bd, _)| d < bd) {
+                        best = Some((d, ib));
+                    }
+                }
+            }
+            let grips = match best {
+                Some((_, ib)) => grab_vertices(
+                    tool,
+                    ib as u32,
+                    &bodies[ib].borrow().collider,
+                    config.tool_margin,
+                ),
+                None => Vec::new(),
+            };
+            tool.take_grips(grips);
+        }
+        for g in tool.grips() {
+            let b = bodies[g.body as usize].borrow_mut();
+            b.touched = true;
+            b.active = true;
+        }
+    }
+    // Body pairs.
+    for &(i, j) in &state.pairs {
+        let (bi, bj) = pair_mut(bodies, i as usize, j as usize);
+        if bi.body.level() == Level::Cage && bj.body.level() == Level::Cage {
+            // Resting cages have no contact response and do not wake each other: nothing to
+            // find, so a resting scene pays nothing here.
+            continue;
+        }
+        bi.collider.refresh();
+        bj.collider.refresh();
+        bi.active = true;
+        bj.active = true;
+        let before = state.body_contacts.len();
+        detect_pair(
+            i,
+            &bi.collider,
+            j,
+            &bj.collider,
+            config,
+            config.body_margin,
+            &mut state.body_contacts,
+        );
+        detect_pair(
+            j,
+            &bj.collider,
+            i,
+            &bi.collider,
+            config,
+            config.body_margin,
+            &mut state.body_contacts,
+        );
+        let found = (state.body_contacts.len() - before) as u32;
+        if found > 0 {
+            // Bodies resting against each other (organs do, in the paper's scene) do not
+            // count as touching: a pair counts while one side is precise and still moving.
+            if bi.moving() || bj.moving() {
+                bi.touched = true;
+                bj.touched = true;
+            }
+            bi.contacts += found;
+            bj.contacts += found;
+        }
+    }
+}
+
+fn pair_mut<B: BorrowMut<SimBody>>(
+    bodies: &mut [B],
+    i: usize,
+    j: usize,
+) -> (&mut SimBody, &mut SimBody) {
+    debug_assert!(i < j);
+    let (lo, hi) = bodies.split_at_mut(j);
+    (lo[i].borrow_mut(), hi[0].borrow_mut())
+}
+
+/// Raise every touched body to its precise method (before the contact is resolved).
+pub fn switch_precision<B: BorrowMut<SimBody>>(bodies: &mut [B]) -> Result<(), WorldError> {
+    for b in bodies.iter_mut() {
+        let b = b.borrow_mut();
+        b.diagnostics.switched = None;
+        if b.touched {
+            match b.body.raise() {
+                Ok(Some(r)) => b.diagnostics.switched = Some(r),
+                Ok(None) => {}
+                Err(e) => return Err(b.precision_err(e)),
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Cautery power into the heat fields, then every body's heat and level step.
+pub fn step_solvers<B: BorrowMut<SimBody>>(
+    bodies: &mut [B],
+    tools: &[Tool],
+    state: &ContactState,
+) -> Result<(), WorldError> {
+    // Cautery: each tool's power is shared over the triangle points it touches (within the
+    // skin), by their weights.
+    for (it, tool) in tools.iter().enumerate() {
+        let watts = tool.cautery_watts();
+        if watts <= 0.0 {
+            continue;
+        }
+        let touching = |c: &&ToolContact| c.tool == it as u32 && c.depth > 0.0;
+        let total = state.tool_contacts.iter().filter(touching).count();
+        if total == 0 {
+            continue;
+        }
+        let share = watts / total as f64;
+        for c in state.tool_contacts.iter().filter(touching) {
+            let b = bodies[c.body as usize].borrow_mut();
+            let Some(h) = b.heat.as_mut() else { continue };
+            for (v, w) in c.vertices.iter().zip(&c.weights) {
+                let node = b.collider.nodes()[*v as usize] as usize;
+                h.add_power(node, share * w)
+                    .map_err(|source| WorldError::Heat {
+                        body: b.name.clone(),
+                        source,
+                    })?;
+            }
+        }
+    }
+    for b in bodies.iter_mut() {
+        let b = b.borrow_mut();
+        let start = Instant::now();
+        if let Some(h) = b.heat.as_mut() {
+            h.step().map_err(|source| WorldError::Heat {
+                body: b.name.clone(),
+                source,
+            })?;
+        }
+        let stats = b.body.step(b.touched).map_err(|e| b.precision_err(e))?;
+        if let Some(r) = stats.switched {
+            b.diagnostics.switched = Some(r);
+        }
+        b.diagnostics.step_us = start.elapsed().as_secs_f64() * 1e6;
+    }
+    Ok(())
+}
+
+/// Inverse mass of a node for contact (0 when fixed or when its body is at the cage level).
+fn inverse_mass(b: &SimBody, node: usize) -> f64 {
+    if b.body.level() == Level::Cage {
+        return 0.0;
+    }
+    let p = b.body.precise();
+    if p.fixed()[node].iter().any(|&f| f) {
+        return 0.0;
+    }
+    1.0 / p.masses()[node]
+}
+
+/// Contact response on the positions after the solvers, grips, reaction forces.
+pub fn collide<B: BorrowMut<SimBody>>(
+    bodies: &mut [B],
+    tools: &mut [Tool],
+    config: &ContactConfig,
+    state: &mut ContactState,
+    dt: f64,
+) -> Result<(), WorldError> {
+    for b in bodies.iter_mut() {
+        let b = b.borrow_mut();
+        if b.active {
+            b.collider.gather(b.body.node_positions());
+            b.collider.refresh();
+        }
+    }
+    // Body against body: Jacobi average of the mass-weighted splits.
+    for &(i, j) in &state.pairs {
+        let (bi, bj) = pair_mut(bodies, i as usize, j as usize);
+        if bi.body.level() == Level::Cage && bj.body.level() == Level::Cage {
+            continue;
+        }
+        state.scratch.clear();
+        detect_pair(
+            i,
+            &bi.collider,
+            j,
+            &bj.collider,
+            config,
+            0.0,
+            &mut state.scratch,
+        );
+        detect_pair(
+            j,
+            &bj.collider,
+            i,
+            &bi.collider,
+            config,
+            0.0,
+            &mut state.scratch,
+        );
+        for c in &state.scratch {
+            let (a, b) = if c.a == i {
+                (&mut *bi, &mut *bj)
+            } else {
+                (&mut *bj, &mut *bi)
+            };
+            resolve_body_contact(a, b, c, dt);
+        }
+    }
+    for b in bodies.iter_mut() {
+        apply_corrections(b.borrow_mut(), None, dt)?;
+    }
+    // Tools: every surface vertex inside a tool goes to its surface and every triangle
+    // crossing it is pushed out as a whole, a few Jacobi rounds on fresh positions.
+    for (it, tool) in tools.iter_mut().enumerate() {
+        let (lo, hi) = tool.bounds(0.0);
+        for (ib, b) in bodies.iter_mut().enumerate() {
+            let b = b.borrow_mut();
+            let (blo, bhi) = b.collider.bounds();
+            if (0..3).any(|k| lo[k] > bhi[k] || blo[k] > hi[k]) {
+                continue;
+            }
+            for round in 0..TOOL_ROUNDS {
+                if round > 0 {
+                    b.collider.gather(b.body.node_positions());
+                    b.collider.refresh();
+                }
+                let mut touched = 0u32;
+                for (v, p) in b.collider.positions().iter().enumerate() {
+                    let (d, n) = tool_distance(tool, p);
+                    if d < 0.0 {
+                        let node = b.collider.nodes()[v] as usize;
+                        b.correction[node] += -d * n;
+                        b.weight[node] += 1.0;
+                        touched += 1;
+                    }
+                }
+                state.tool_scratch.clear();
+                detect_tool(
+                    it as u32,
+                    tool,
+                    ib as u32,
+                    &b.collider,
+                    0.0,
+                    &mut state.tool_scratch,
+                );
+                for c in &state.tool_scratch {
+                    if c.depth <= 0.0 {
+                        continue;
+                    }
+                    touched += 1;
+                    let ids = c.vertices.map(|v| b.collider.nodes()[v as usize] as usize);
+                    let denom: f64 = ids
+                        .iter()
+                        .zip(&c.weights)
+                        .map(|(&n, w)| w * w * inverse_mass_or_one(b, n))
+                        .sum();
+                    if denom <= 0.0 {
+                        continue;
+                    }
+                    for (&n, w) in ids.iter().zip(&c.weights) {
+                        let s = w * inverse_mass_or_one(b, n) / denom;
+                        b.correction[n] += c.normal * (c.depth * s);
+                        b.weight[n] += 1.0;
+                    }
+                }
+                if touched == 0 {
+                    break;
+                }
+                if round == 0 {
+                    tool.add_contacts(touched);
+                }
+                let reaction = apply_corrections(b, Some(tool.velocity()), dt)?;
+                tool.add_reaction(-reaction);
+            }
+            b.collider.gather(b.body.node_positions());
+        }
+        // Grips follow the tool.
+        let grips = tool.grips().to_vec();
+        for g in &grips {
+            let b = bodies[g.body as usize].borrow_mut();
+            let node = g.node as usize;
+            let target = tool.position() + g.offset;
+            let x = b.body.node_positions()[node];
+            b.correction[node] += target - x;
+            b.weight[node] += 1.0;
+        }
+        let mut seen: Vec<u32> = grips.iter().map(|g| g.body).collect();
+        seen.dedup();
+        for ib in seen {
+            let b = bodies[ib as usize].borrow_mut();
+            let reaction = apply_corrections(b, Some(tool.velocity()), dt)?;
+            tool.add_reaction(-reaction);
+        }
+    }
+    Ok(())
+}
+
+fn inverse_mass_or_one(b: &SimBody, node: usize) -> f64 {
+    match b.body.level() {
+        Level::Cage => 1.0,
+        Level::Precise => inverse_mass(b, node),
+    }
+}
+
+/// Splits one vertex-triangle correction between the two bodies by inverse mass, removes the
+/// approaching relative normal velocity (an inelastic impulse), and maps what a cage-level side
+/// receives onto its cage as a force.
+fn resolve_body_contact(a: &mut SimBody, b: &mut SimBody, c: &BodyContact, dt: f64) {
+    if c.depth <= 0.0 {
+        return;
+    }
+    let pa = a.collider.nodes()[c.vertex as usize] as usize;
+    let tb = c.vertices.map(|v| b.collider.nodes()[v as usize] as usize);
+    let wa = inverse_mass(a, pa);
+    let wb: f64 = tb
+        .iter()
+        .zip(&c.weights)
+        .map(|(&n, w)| w * w * inverse_mass(b, n))
+        .sum();
+    let n = c.normal;
+    if a.body.level() == Level::Cage && b.body.level() == Level::Cage {
+        // Two cages resting against each other: the cheap level has no contact response.
+        return;
+    }
+    if wa + wb <= 0.0 {
+        // Both sides immovable here (cage level or fixed): push the cages apart instead.
+        let k = 0.5 / (dt * dt);
+        let ma = a.body.precise().masses()[pa];
+        if a.body.level() == Level::Cage {
+            let _ = a.body.add_force(pa, n * (c.depth * ma * k));
+        }
+        if b.body.level() == Level::Cage {
+            for (&nb, w) in tb.iter().zip(&c.weights) {
+                let _ = b.body.add_force(nb, -n * (c.depth * ma * k * w));
+            }
+        }
+        return;
+    }
+    let lambda = c.depth / (wa + wb);
+    if wa > 0.0 {
+        a.correction[pa] += n * (lambda * wa);
+        a.weight[pa] += 1.0;
+    }
+    for (&nb, w) in tb.iter().zip(&c.weights) {
+        let wi = inverse_mass(b, nb);
+        if wi > 0.0 {
+            b.correction[nb] -= n * (lambda * w * wi);
+            b.weight[nb] += 1.0;
+        }
+    }
+    // Inelastic normal impulse.
+    let va = if wa > 0.0 {
+        a.body.precise().velocities()[pa]
+    } else {
+        Vec3::zeros()
+    };
+    let vb: Vec3 = if wb > 0.0 {
+        let v = b.body.precise().velocities();
+        tb.iter().zip(&c.weights).map(|(&nb, w)| v[nb] * *w).sum()
+    } else {
+        Vec3::zeros()
+    };
+    let vn = (va - vb).dot(&n);
+    if vn < 0.0 {
+        let j = -vn / (wa + wb);
+        if wa > 0.0 {
+            a.body.precise_mut().velocities_mut()[pa] += n * (j * wa);
+        } else if a.body.level() == Level::Cage {
+            let _ = a.body.add_force(pa, -n * (j / dt));
+        }
+        if wb > 0.0 {
+            let inv: [f64; 3] = tb.map(|nb| inverse_mass(b, nb));
+            let v = b.body.precise_mut().velocities_mut();
+            for ((&nb, w), wi) in tb.iter().zip(&c.weights).zip(inv) {
+                v[nb] -= n * (j * w * wi);
+            }
+        } else if b.body.level() == Level::Cage {
+            for (&nb, w) in tb.iter().zip(&c.weights) {
+                let _ = b.body.add_force(nb, n * (j * w / dt));
+            }
+        }
+    }
+}
+
+/// Applies the averaged corrections gathered in a body's workspace. With a tool velocity, the
+/// approach toward the tool along each correction is removed. Returns `sum m dx / dt^2`, the
+/// force the corrections stand for (on the body). Clears the workspace.
+fn apply_corrections(
+    b: &mut SimBody,
+    tool_velocity: Option<Vec3>,
+    dt: f64,
+) -> Result<Vec3, WorldError> {
+    let mut force = Vec3::zeros();
+    if !b.weight.iter().any(|&w| w > 0.0) {
+        return Ok(force);
+    }
+    match b.body.level() {
+        Level::Precise => {
+            let masses = b.body.precise().masses().to_vec();
+            let fixed = b.body.precise().fixed().to_vec();
+            let precise = b.body.precise_mut();
+            for i in 0..b.weight.len() {
+                let w = b.weight[i];
+                if w <= 0.0 {
+                    continue;
+                }
+                let mut dx = b.correction[i] / w;
+                for k in 0..3 {
+                    if fixed[i][k] {
+                        dx[k] = 0.0;
+                    }
+                }
+                precise.positions_mut()[i] += dx;
+                force += dx * (masses[i] / (dt * dt));
+                if let (Some(vt), Some(dir)) = (tool_velocity, dx.try_normalize(0.0)) {
+                    let v = &mut precise.velocities_mut()[i];
+                    let vn = (*v - vt).dot(&dir);
+                    if vn < 0.0 {
+                        *v -= dir * vn;
+                    }
+                }
+                if !precise.positions()[i].iter().all(|x| x.is_finite()) {
+                    return Err(WorldError::NonFinite {
+                        body: b.name.clone(),
+                        node: i,
+                        stage: "collide",
+                    });
+                }
+            }
+        }
+        Level::Cage => {
+            let x = b.body.node_positions();
+            let mut targets = Vec::new();
+            let masses = b.body.precise().masses();
+            for i in 0..b.weight.len() {
+                let w = b.weight[i];
+                if w > 0.0 {
+                    let dx = b.correction[i] / w;
+                    targets.push((i, x[i] + dx));
+                    force += dx * (masses[i] / (dt * dt));
+                }
+            }
+            b.body
+                .cage_mut()
+                .displace_points(&targets)
+                .map_err(|e| WorldError::Precision {
+                    body: b.name.clone(),
+                    source: e.into(),
+                })?;
+        }
+    }
+    b.correction.fill(Vec3::zeros());
+    b.weight.fill(0.0);
+    Ok(force)
+}
+
+/// Writes the surfaces and diagnostics of every body.
+pub fn writeback<B: BorrowMut<SimBody>>(bodies: &mut [B]) {
+    for b in bodies.iter_mut() {
+        let b = b.borrow_mut();
+        b.diagnostics.contacts = b.contacts;
+        b.diagnostics.touched = b.touched;
+        b.write_surface();
+    }
+}
+
+/// Bodies, tools and the stages (see the module docs).
+#[derive(Debug)]
+pub struct SoftTissueWorld {
+    config: WorldConfig,
+    bodies: Vec<SimBody>,
+    tools: Vec<Tool>,
+    contacts: ContactState,
+    steps: u64,
+    accumulator: f64,
+    times: StageTimes,
+}
+
+impl SoftTissueWorld {
+    /// An empty world.
+    pub fn new(config: WorldConfig) -> Result<Self, WorldError> {
+        if !(config.dt.is_finite() && config.dt > 0.0) {
+            return Err(WorldError::TimeStep(format!(
+                "world step {} must be finite and > 0",
+                config.dt
+            )));
+        }
+        config
+            .contact
+            .validate()
+            .map_err(|source| WorldError::Contact {
+                name: "world".into(),
+                source,
+            })?;
+        Ok(SoftTissueWorld {
+            config,
+            bodies: Vec::new(),
+            tools: Vec::new(),
+            contacts: ContactState::default(),
+            steps: 0,
+            accumulator: 0.0,
+            times: StageTimes::default(),
+        })
+    }
+
+    /// Settings.
+    pub fn config(&self) -> &WorldConfig {
+        &self.config
+    }
+
+    /// Adds a body; its solver step must be the world's.
+    pub fn add_body(&mut self, body: SimBody) -> Result<usize, WorldError> {
+        let dt = body.body.settings().dt;
+        if (dt - self.config.dt).abs() > 1e-12 * self.config.dt {
+            return Err(WorldError::TimeStep(format!(
+                "body `{}` steps {dt} s but the world steps {} s",
+                body.name, self.config.dt
+            )));
+        }
+        if self.bodies.iter().any(|b| b.name == body.name) {
+            return Err(WorldError::DuplicateName(body.name));
+        }
+        self.bodies.push(body);
+        Ok(self.bodies.len() - 1)
+    }
+
+    /// Adds a tool.
+    pub fn add_tool(&mut self, tool: Tool) -> usize {
+        self.tools.push(tool);
+        self.tools.len() - 1
+    }
+
+    /// Bodies.
+    pub fn bodies(&self) -> &[SimBody] {
+        &self.bodies
+    }
+
+    /// Bodies, to change.
+    pub fn bodies_mut(&mut self) -> &mut [SimBody] {
+        &mut self.bodies
+    }
+
+    /// Index of the body named `name`.
+    pub fn body_index(&self, name: &str) -> Result<usize, WorldError> {
+        self.bodies
+            .iter()
+            .position(|b| b.name == name)
+            .ok_or_else(|| WorldError::Unknown {
+                kind: "body",
+                name: name.into(),
+            })
+    }
+
+    /// Tools.
+    pub fn tools(&self) -> &[Tool] {
+        &self.tools
+    }
+
+    /// Tools, to move and operate.
+    pub fn tools_mut(&mut self) -> &mut [Tool] {
+        &mut self.tools
+    }
+
+    /// Contacts of the last step (start-of-step detection).
+    pub fn contacts(&self) -> &ContactState {
+        &self.contacts
+    }
+
+    /// Fixed steps run so far.
+    pub fn step_count(&self) -> u64 {
+        self.steps
+    }
+
+    /// Simulated time, s.
+    pub fn time(&self) -> f64 {
+        self.steps as f64 * self.config.dt
+    }
+
+    /// Stage times of the last step.
+    pub fn stage_times(&self) -> StageTimes {
+        self.times
+    }
+
+    /// Advances by `dt` seconds of frame time: runs as many fixed steps as the accumulated
+    /// time holds (the remainder carries over). Returns the number of steps run.
+    pub fn step(&mut self, dt: f64) -> Result<u32, WorldError> {
+        if !(dt.is_finite() && dt >= 0.0) {
+            return Err(WorldError::TimeStep(format!(
+                "frame time {dt} must be finite and >= 0"
+            )));
+        }
+        self.accumulator += dt;
+        let mut n = 0;
+        // A tolerance so 0.02 + 0.02 + ... does not drop a step to round-off.
+        while self.accumulator >= self.config.dt * (1.0 - 1e-9) {
+            self.accumulator -= self.config.dt;
+            self.step_fixed()?;
+            n += 1;
+        }
+        Ok(n)
+    }
+
+    /// Runs exactly one fixed step through every stage.
+    pub fn step_fixed(&mut self) -> Result<(), WorldError> {
+        let dt = self.config.dt;
+        let c = self.config.contact;
+        let mut t = Instant::now();
+        let lap = |t: &mut Instant| {
+            let e = t.elapsed().as_secs_f64() * 1e6;
+            *t = Instant::now();
+            e
+        };
+        prepare(&mut self.bodies, &mut self.tools, dt);
+        self.times.prepare_us = lap(&mut t);
+        detect_contacts(&mut self.bodies, &mut self.tools, &c, &mut self.contacts);
+        self.times.detect_us = lap(&mut t);
+        switch_precision(&mut self.bodies)?;
+        self.times.switch_us = lap(&mut t);
+        step_solvers(&mut self.bodies, &self.tools, &self.contacts)?;
+        self.times.solve_us = lap(&mut t);
+        collide(
+            &mut self.bodies,
+            &mut self.tools,
+            &c,
+            &mut self.contacts,
+            dt,
+        )?;
+        self.times.collide_us = lap(&mut t);
+        writeback(&mut self.bodies);
+        self.times.writeback_us = lap(&mut t);
+        self.steps += 1;
+        Ok(())
+    }
+
+    /// Back to the initial state: every body at rest at the cage level in its rest shape,
+    /// tools idle at the origin, counters cleared. A run after `reset` repeats the first run
+    /// bit for bit given the same inputs.
+    pub fn reset(&mut self) -> Result<(), WorldError> {
+        for b in &mut self.bodies {
+            b.reset()?;
+        }
+        for t in &mut self.tools {
+            t.reset();
+        }
+        self.contacts = ContactState::default();
+        self.steps = 0;
+        self.accumulator = 0.0;
+        self.times = StageTimes::default();
+        Ok(())
+    }
+}

@@ -1,0 +1,136 @@
+//! Building a world from a [`Scene`]: meshes read or generated, placed, bodies configured.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use nalgebra::Rotation3;
+
+use super::{SimBody, SoftTissueWorld, WorldConfig, WorldError};
+use crate::Vec3;
+use crate::boundary::Boundary;
+use crate::contact::ContactConfig;
+use crate::fem::FemModel;
+use crate::heat::HeatBoundary;
+use crate::material::{FemParams, MsdParams};
+use crate::mesh::TetMesh;
+use crate::mesh::io::read_tet_mesh;
+use crate::msd::MsdIntegrator;
+use crate::precision::{BodySettings, PreciseMethod as LevelMethod};
+use crate::scenario::{
+    Anchor, BodySpec, CYLINDER_FEM, CYLINDER_MSD, MeshSource, Placement, PreciseMethod, Scene,
+};
+
+/// `mesh` rotated (XYZ Euler angles in degrees: about x, then y, then z) and translated.
+pub fn placed_mesh(mesh: &TetMesh, placement: &Placement) -> Result<TetMesh, String> {
+    let [rx, ry, rz] = placement.rotation_deg.map(f64::to_radians);
+    let r = Rotation3::from_euler_angles(rx, ry, rz);
+    let t = Vec3::from(placement.translation);
+    if !t
+        .iter()
+        .chain(placement.rotation_deg.iter())
+        .all(|x| x.is_finite())
+    {
+        return Err("placement is not finite".into());
+    }
+    let positions = mesh.positions().iter().map(|p| r * p + t).collect();
+    let tets = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
+    TetMesh::new(positions, tets).map_err(|e| e.to_string())
+}
+
+/// Reads (relative to `assets`) or generates the body's mesh and places it.
+pub fn load_mesh(spec: &BodySpec, assets: &Path) -> Result<TetMesh, WorldError> {
+    let err = |message: String| WorldError::Mesh {
+        body: spec.name.clone(),
+        message,
+    };
+    let mesh = match &spec.mesh {
+        MeshSource::File(file) => {
+            let path = assets.join(file);
+            read_tet_mesh(&path)
+                .map_err(|e| err(format!("{}: {e}", path.display())))?
+                .mesh
+        }
+        MeshSource::Generated { organ, resolution } => organ
+            .generate(*resolution)
+            .map_err(|e| err(format!("generating {}: {e}", organ.name())))?,
+    };
+    placed_mesh(&mesh, &spec.placement).map_err(err)
+}
+
+/// The level settings of a scene body on its placed mesh.
+pub fn body_settings(
+    spec: &BodySpec,
+    mesh: &TetMesh,
+    gravity: Vec3,
+) -> Result<BodySettings, WorldError> {
+    let bad = |message: &str| WorldError::Mesh {
+        body: spec.name.clone(),
+        message: message.into(),
+    };
+    let (method, dt) = match spec.precise {
+        PreciseMethod::LinearFem | PreciseMethod::CorotationalFem => {
+            let fem = spec
+                .fem
+                .ok_or_else(|| bad("a FEM precise method needs `fem` settings"))?;
+            let model = if spec.precise == PreciseMethod::LinearFem {
+                FemModel::Linear
+            } else {
+                FemModel::Corotational
+            };
+            (LevelMethod::Fem(model), fem.dt)
+        }
+        PreciseMethod::Msd => {
+            let msd = spec
+                .msd
+                .ok_or_else(|| bad("the MSD precise method needs `msd` settings"))?;
+            (LevelMethod::Msd(MsdIntegrator::ImplicitEuler), msd.dt)
+        }
+    };
+    let fem: FemParams = spec.fem.map(|f| f.params).unwrap_or(CYLINDER_FEM.params);
+    let msd: MsdParams = spec.msd.map(|m| m.params).unwrap_or(CYLINDER_MSD.params);
+    let mut s = BodySettings::new(fem, msd, dt);
+    s.precise = method;
+    s.cage = spec.cage.kind;
+    s.cage_msd = spec.cage.msd.params;
+    s.gravity = gravity;
+    s.boundary = match spec.anchor {
+        Anchor::None => Boundary::free(),
+        Anchor::FixedBottom { fraction } => Boundary::fixed_below(mesh.positions(), 1, fraction),
+        Anchor::SoftToRest { stiffness } => Boundary::anchored(mesh.node_count(), stiffness),
+    };
+    Ok(s)
+}
+
+impl SoftTissueWorld {
+    /// Builds the scene's bodies (mesh files relative to `assets`). The world step is the
+    /// bodies' common precise step (an error names a body that differs); contact settings
+    /// scale with the smallest body dimension.
+    pub fn from_scene(scene: &Scene, assets: &Path) -> Result<Self, WorldError> {
+        scene.validate()?;
+        let gravity = Vec3::from(scene.gravity);
+        let mut built = Vec::with_capacity(scene.bodies.len());
+        for spec in &scene.bodies {
+            let mesh = load_mesh(spec, assets)?;
+            let settings = body_settings(spec, &mesh, gravity)?;
+            built.push((spec, mesh, settings));
+        }
+        let Some(first) = built.first() else {
+            return Err(WorldError::TimeStep("the scene has no bodies".into()));
+        };
+        let dt = first.2.dt;
+        let scale = built
+            .iter()
+            .map(|(_, m, _)| m.bbox().smallest_dimension())
+            .fold(f64::INFINITY, f64::min);
+        let mut world = SoftTissueWorld::new(WorldConfig {
+            dt,
+            contact: ContactConfig::for_scale(scale),
+        })?;
+        for (spec, mesh, settings) in built {
+            let heat = spec.heat.map(|p| (p, HeatBoundary::insulated()));
+            let body = SimBody::new(spec.name.clone(), Arc::new(mesh), settings, heat)?;
+            world.add_body(body)?;
+        }
+        Ok(world)
+    }
+}

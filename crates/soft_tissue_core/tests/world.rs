@@ -1,0 +1,343 @@
+//! The levels-of-precision world on the paper's scenes: which bodies rise and fall, switch
+//! jumps, no interpenetration, determinism, tools and heat.
+
+use std::path::Path;
+
+use soft_tissue_core::Vec3;
+use soft_tissue_core::contact::{Tool, ToolShape};
+use soft_tissue_core::heat::HeatParams;
+use soft_tissue_core::precision::Level;
+use soft_tissue_core::scenario::{PreciseMethod, Scene};
+use soft_tissue_core::world::{Script, ScriptAction, SoftTissueWorld, WorldError};
+
+fn assets() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets"))
+}
+
+fn cylinders() -> SoftTissueWorld {
+    let scene = Scene::paper_cylinders(PreciseMethod::LinearFem, PreciseMethod::LinearFem);
+    SoftTissueWorld::from_scene(&scene, assets()).unwrap()
+}
+
+fn organs() -> SoftTissueWorld {
+    SoftTissueWorld::from_scene(&Scene::paper_organs(), assets()).unwrap()
+}
+
+/// What happened to each body over a run.
+#[derive(Debug, Default, Clone)]
+struct History {
+    raised: bool,
+    worst_jump_ratio: f64,
+    switches: u64,
+}
+
+/// Runs `script` for `steps` steps, calling `check` after each; returns per-body histories.
+fn run(
+    world: &mut SoftTissueWorld,
+    script: &Script,
+    steps: usize,
+    mut check: impl FnMut(&SoftTissueWorld),
+) -> Vec<History> {
+    let tool = world.add_tool(Tool::new("tool", script.tool).unwrap());
+    let dt = world.config().dt;
+    let mut hist = vec![History::default(); world.bodies().len()];
+    for k in 0..steps {
+        let t = (k + 1) as f64 * dt;
+        let (p, a) = script.pose_at(t);
+        world.tools_mut()[tool].set_pose(p, a).unwrap();
+        for e in script.events_in(t - dt, t) {
+            let tl = &mut world.tools_mut()[tool];
+            match e.action {
+                ScriptAction::Cautery(w) => tl.set_cautery(w).unwrap(),
+                ScriptAction::Grab => tl.grab(),
+                ScriptAction::Release => tl.release(),
+            }
+        }
+        world.step_fixed().unwrap();
+        for (h, b) in hist.iter_mut().zip(world.bodies()) {
+            let d = b.diagnostics();
+            assert!(d.max_displacement.is_finite(), "{} NaN", b.name());
+            h.raised |= d.level == Level::Precise;
+            if let Some(s) = d.switched {
+                h.worst_jump_ratio = h.worst_jump_ratio.max(s.jump_ratio);
+            }
+            h.switches = d.switch_count;
+        }
+        check(world);
+    }
+    hist
+}
+
+fn levels(world: &SoftTissueWorld) -> Vec<Level> {
+    world.bodies().iter().map(|b| b.body().level()).collect()
+}
+
+#[test]
+fn table_ii_poking_a_raises_only_a_and_a_returns_to_its_cage() {
+    let mut w = cylinders();
+    let s = Script::builtin("poke-a", &w).unwrap();
+    let h = run(&mut w, &s, 600, |_| {});
+    let (a, b) = (&h[0], &h[1]);
+    assert!(a.raised, "A never rose");
+    assert!(!b.raised && b.switches == 0, "B left its cage: {b:?}");
+    assert_eq!(levels(&w), vec![Level::Cage, Level::Cage], "{h:?}");
+    assert!(
+        a.worst_jump_ratio < 0.005,
+        "A jump {:.4}",
+        a.worst_jump_ratio
+    );
+}
+
+#[test]
+fn table_iii_pushing_a_into_b_raises_both_and_both_return() {
+    let mut w = cylinders();
+    let s = Script::builtin("push-a-into-b", &w).unwrap();
+    let h = run(&mut w, &s, 600, |_| {});
+    assert!(h[0].raised && h[1].raised, "{h:?}");
+    assert_eq!(levels(&w), vec![Level::Cage, Level::Cage], "{h:?}");
+    for x in &h {
+        assert!(x.worst_jump_ratio < 0.005, "{h:?}");
+    }
+}
+
+/// Deepest surface vertex of any body inside another, as a fraction of the smaller body's
+/// smallest dimension.
+fn deepest_overlap(w: &SoftTissueWorld) -> f64 {
+    let bodies = w.bodies();
+    let mut worst: f64 = 0.0;
+    for a in bodies {
+        for b in bodies {
+            if std::ptr::eq(a, b) {
+                continue;
+            }
+            let scale = a
+                .body()
+                .smallest_dimension()
+                .min(b.body().smallest_dimension());
+            for p in a.collider().positions() {
+                if let Some(hit) = b.collider().closest(p, 0.2 * scale) {
+                    worst = worst.max(-hit.distance / scale);
+                }
+            }
+        }
+    }
+    worst
+}
+
+#[test]
+fn organs_poking_the_liver_reaches_its_neighbours_and_all_return() {
+    let mut w = organs();
+    let rest_overlap = deepest_overlap(&w);
+    let s = Script::builtin("poke-liver", &w).unwrap();
+    let mut worst_overlap: f64 = 0.0;
+    let mut k = 0;
+    let h = run(&mut w, &s, 700, |w| {
+        k += 1;
+        if k % 5 == 0 {
+            worst_overlap = worst_overlap.max(deepest_overlap(w));
+        }
+    });
+    let liver = w.body_index("Liver").unwrap();
+    assert!(h[liver].raised);
+    let neighbours = h
+        .iter()
+        .enumerate()
+        .filter(|(i, x)| *i != liver && x.raised)
+        .count();
+    assert!(neighbours >= 1, "contact did not propagate: {h:?}");
+    assert!(levels(&w).iter().all(|&l| l == Level::Cage), "{h:?}");
+    for x in &h {
+        assert!(x.worst_jump_ratio < 0.005, "{h:?}");
+    }
+    // Pressed together, the organs do not pass through each other: no vertex goes deeper
+    // than 2 % of the smaller organ (beyond what the meshes overlap at rest).
+    assert!(
+        worst_overlap < rest_overlap + 0.02,
+        "overlap {worst_overlap:.4} (at rest {rest_overlap:.4})"
+    );
+}
+
+fn snapshot(w: &SoftTissueWorld) -> Vec<u64> {
+    w.bodies()
+        .iter()
+        .flat_map(|b| {
+            b.body()
+                .node_positions()
+                .iter()
+                .flat_map(|p| p.iter().map(|x| x.to_bits()))
+        })
+        .chain(w.tools().iter().flat_map(|t| {
+            t.reaction_force()
+                .iter()
+                .map(|x| x.to_bits())
+                .collect::<Vec<_>>()
+        }))
+        .collect()
+}
+
+#[test]
+fn runs_are_bit_identical_and_reset_restores_the_start() {
+    let mut w = organs();
+    let start = snapshot(&w);
+    let s = Script::builtin("poke-liver", &w).unwrap();
+    run(&mut w, &s, 200, |_| {});
+    let first = snapshot(&w);
+    w.reset().unwrap();
+    assert_eq!(w.step_count(), 0);
+    let tools_len = w.tools().len();
+    assert_eq!(
+        snapshot(&w)[..start.len()],
+        start[..],
+        "reset did not restore the bodies"
+    );
+    // Same script again with the same tool (index 0).
+    let dt = w.config().dt;
+    for k in 0..200 {
+        let t = (k + 1) as f64 * dt;
+        let (p, a) = s.pose_at(t);
+        w.tools_mut()[0].set_pose(p, a).unwrap();
+        w.step_fixed().unwrap();
+    }
+    assert_eq!(tools_len, 1);
+    assert_eq!(snapshot(&w), first, "second run differs");
+    // A fresh world gives the same run too.
+    let mut fresh = organs();
+    run(&mut fresh, &s, 200, |_| {});
+    assert_eq!(snapshot(&fresh), first);
+}
+
+#[test]
+fn cautery_delivers_its_power_and_damages_the_tissue() {
+    let mut w = organs();
+    let s = Script::builtin("cauterize-liver", &w).unwrap();
+    let liver = w.body_index("Liver").unwrap();
+    let q0 = w.bodies()[liver].heat().unwrap().heat_content();
+    let dt = w.config().dt;
+    let mut on_steps = 0;
+    let tool = w.add_tool(Tool::new("cautery", s.tool).unwrap());
+    for k in 0..400 {
+        let t = (k + 1) as f64 * dt;
+        let (p, a) = s.pose_at(t);
+        w.tools_mut()[tool].set_pose(p, a).unwrap();
+        for e in s.events_in(t - dt, t) {
+            if let ScriptAction::Cautery(x) = e.action {
+                w.tools_mut()[tool].set_cautery(x).unwrap();
+            }
+        }
+        let touching = w.tools()[tool].cautery_watts() > 0.0;
+        w.step_fixed().unwrap();
+        let delivering = w
+            .contacts()
+            .tool_contacts
+            .iter()
+            .any(|c| c.tool == tool as u32 && c.depth > 0.0);
+        if touching && delivering {
+            on_steps += 1;
+        }
+    }
+    let heat = w.bodies()[liver].heat().unwrap();
+    let delivered = heat.heat_content() - q0;
+    let expected = 30.0 * dt * on_steps as f64;
+    assert!(
+        on_steps > 100,
+        "the cautery touched for {on_steps} steps only"
+    );
+    assert!(
+        (delivered - expected).abs() < 1e-6 * expected,
+        "delivered {delivered} J, expected {expected} J"
+    );
+    // The organ meshes are coarse (a node stands for about 3 cm^3 of liver, 11 J/K), so
+    // 60 J warm the tip's nodes by a few kelvin rather than burning a millimetre spot; the
+    // rise is bounded by the energy over the capacity of the hottest node.
+    let (hot, hottest) = heat
+        .temperatures()
+        .iter()
+        .copied()
+        .enumerate()
+        .fold((0, f64::MIN), |a, b| if b.1 > a.1 { b } else { a });
+    assert!(hottest > 40.0, "hottest {hottest} C");
+    assert!(hottest - 37.0 < delivered / heat.capacities()[hot]);
+    // Above 43 C damage accumulates, below it does not.
+    assert!(heat.damage()[hot] > 0.0);
+    for (t, d) in heat.temperatures().iter().zip(heat.damage()) {
+        if *d > 0.0 {
+            assert!(*t > 37.0, "damage at {t} C");
+        }
+    }
+    // Bodies without heat parameters pay nothing for heat.
+    assert!(w.bodies().iter().filter(|b| b.heat().is_some()).count() == 1);
+    let _ = HeatParams::liver();
+}
+
+#[test]
+fn pick_tool_drags_the_surface_and_lets_go() {
+    let mut w = organs();
+    let liver = w.body_index("Liver").unwrap();
+    let top = w.bodies()[liver]
+        .collider()
+        .positions()
+        .iter()
+        .copied()
+        .fold(Vec3::repeat(f64::MIN), |a, b| if b.y > a.y { b } else { a });
+    let r = 0.05;
+    let tool = w.add_tool(Tool::new("grasper", ToolShape::Sphere { radius: r }).unwrap());
+    w.tools_mut()[tool]
+        .set_position(top + Vec3::y() * r)
+        .unwrap();
+    w.tools_mut()[tool].grab();
+    w.step_fixed().unwrap();
+    let grips = w.tools()[tool].grips().to_vec();
+    assert!(!grips.is_empty(), "nothing grabbed");
+    assert!(grips.iter().all(|g| g.body == liver as u32));
+    assert_eq!(w.bodies()[liver].body().level(), Level::Precise);
+    // Lift by 0.1 over 0.5 s: the held nodes follow the tool, and the tissue pulls it back.
+    let lift = 0.1;
+    for k in 1..=50 {
+        let p = top + Vec3::y() * (r + lift * k as f64 / 50.0);
+        w.tools_mut()[tool].set_position(p).unwrap();
+        w.step_fixed().unwrap();
+    }
+    let tp = w.tools()[tool].position();
+    let x = w.bodies()[liver].body().node_positions();
+    for g in &grips {
+        let err = (x[g.node as usize] - (tp + g.offset)).norm();
+        assert!(err < 1e-9, "grip off by {err}");
+    }
+    let f = w.tools()[tool].reaction_force();
+    assert!(f.y < 0.0, "the tissue should pull the tool down: {f:?}");
+    w.tools_mut()[tool].release();
+    w.tools_mut()[tool]
+        .set_position(top + Vec3::y() * 2.0)
+        .unwrap();
+    for _ in 0..800 {
+        w.step_fixed().unwrap();
+    }
+    assert_eq!(w.bodies()[liver].body().level(), Level::Cage);
+}
+
+#[test]
+fn world_inputs_are_checked() {
+    let mut w = organs();
+    assert!(w.tools_mut().is_empty());
+    let mut t = Tool::new("t", ToolShape::Sphere { radius: 0.1 }).unwrap();
+    assert!(t.set_position(Vec3::new(f64::NAN, 0.0, 0.0)).is_err());
+    assert!(t.set_pose(Vec3::zeros(), Vec3::zeros()).is_err());
+    assert!(t.set_cautery(-1.0).is_err());
+    assert!(Tool::new("bad", ToolShape::Sphere { radius: 0.0 }).is_err());
+    assert!(matches!(w.step(f64::NAN), Err(WorldError::TimeStep(_))));
+    assert!(matches!(
+        w.body_index("Heart"),
+        Err(WorldError::Unknown { .. })
+    ));
+    // Frame time is split into fixed steps with the remainder carried.
+    let dt = w.config().dt;
+    assert_eq!(w.step(2.5 * dt).unwrap(), 2);
+    assert_eq!(w.step(0.5 * dt).unwrap(), 1);
+    // A scene whose bodies disagree on the step is refused, naming the body.
+    let mut scene = Scene::paper_cylinders(PreciseMethod::LinearFem, PreciseMethod::LinearFem);
+    if let Some(f) = scene.bodies[1].fem.as_mut() {
+        f.dt = 0.01;
+    }
+    let err = SoftTissueWorld::from_scene(&scene, assets()).unwrap_err();
+    assert!(err.to_string().contains("Model B"), "{err}");
+}
