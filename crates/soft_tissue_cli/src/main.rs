@@ -1,5 +1,7 @@
 //! `soft-tissue`: command-line tool of bevy_soft_tissue (mesh inspection, conversion,
-//! generation, scene files).
+//! generation, scene files, cages, benchmarks, headless simulation).
+
+mod simulate;
 
 use clap::{Args, Parser, Subcommand};
 use soft_tissue_core::mesh::TetMesh;
@@ -34,6 +36,9 @@ enum Command {
     /// Build cages and deform meshes with Green coordinates.
     #[command(subcommand)]
     Cage(CageCommand),
+    /// Run a scene headless under a scripted tool (levels switching, contact, heat), with a
+    /// JSON line per step on request.
+    Simulate(simulate::SimulateArgs),
 }
 
 #[derive(Subcommand)]
@@ -186,6 +191,7 @@ fn main() -> ExitCode {
         Command::Mesh(MeshCommand::Generate(args)) => generate(&args),
         Command::Scene(SceneCommand::Export { out }) => export_scenes(&out),
         Command::Bench(args) => bench(&args),
+        Command::Simulate(args) => simulate::simulate(&args),
         Command::Cage(CageCommand::Deform {
             cage_rest,
             cage_deformed,

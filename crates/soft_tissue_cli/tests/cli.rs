@@ -129,3 +129,82 @@ fn convert_and_generate() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("unknown body 'kidney'"));
     std::fs::remove_dir_all(dir).ok();
 }
+
+#[test]
+fn simulate_json_lines_and_script_replay() {
+    let assets = root().join("assets");
+    let dir = tmp("simulate");
+    let saved = dir.join("poke-a.ron");
+    let args = |script: &std::path::Path| {
+        vec![
+            "simulate".into(),
+            "--scene".into(),
+            "cylinders".into(),
+            "--script".into(),
+            script.as_os_str().to_owned(),
+            "--steps".into(),
+            "40".into(),
+            "--json".into(),
+            "--assets".into(),
+            assets.as_os_str().to_owned(),
+        ]
+    };
+    let mut first: Vec<std::ffi::OsString> = args(Path::new("poke-a"));
+    first.extend(["--save-script".into(), saved.as_os_str().to_owned()]);
+    let refs: Vec<&std::ffi::OsStr> = first.iter().map(|s| s.as_os_str()).collect();
+    let out = String::from_utf8(run_ok(&refs)).unwrap();
+    let lines: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 41);
+    for (k, l) in lines[..40].iter().enumerate() {
+        assert_eq!(l["step"], k + 1);
+        assert!(l["t"].as_f64().unwrap() > 0.0);
+        let bodies = l["bodies"].as_array().unwrap();
+        assert_eq!(bodies.len(), 2);
+        for b in bodies {
+            assert!(["cage", "fem", "msd"].contains(&b["level"].as_str().unwrap()));
+            assert!(b["step_us"].as_f64().unwrap() >= 0.0);
+            assert!(b["max_displacement"].as_f64().unwrap().is_finite());
+            assert!(b["switch_jump"].is_null() || b["switch_jump"].as_f64().is_some());
+            assert!(b["contacts"].as_u64().is_some());
+            assert!(b["name"].is_string());
+        }
+    }
+    // The tool reaches A at 0.5 s (step 25): A rises, B does not.
+    assert_eq!(lines[39]["bodies"][0]["level"], "fem");
+    assert_eq!(lines[39]["bodies"][1]["level"], "cage");
+    let summary = &lines[40];
+    assert_eq!(summary["summary"], true);
+    assert_eq!(summary["steps"], 40);
+    // The saved script replays to the same states.
+    let replay = String::from_utf8(run_ok(
+        &args(&saved)
+            .iter()
+            .map(|s| s.as_os_str())
+            .collect::<Vec<_>>(),
+    ))
+    .unwrap();
+    let strip = |s: &str| -> Vec<String> {
+        s.lines()
+            .take(40)
+            .map(|l| {
+                let v: serde_json::Value = serde_json::from_str(l).unwrap();
+                let b = &v["bodies"];
+                format!(
+                    "{} {} {}",
+                    v["step"], b[0]["max_displacement"], b[0]["level"]
+                )
+            })
+            .collect()
+    };
+    assert_eq!(strip(&out), strip(&replay));
+    // A missing scene file is an error naming it.
+    let bad = bin()
+        .args(["simulate", "--scene", "no-such.ron", "--steps", "1"])
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("no-such.ron"));
+}

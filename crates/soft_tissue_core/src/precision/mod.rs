@@ -236,6 +236,7 @@ pub struct LeveledBody {
     steps_at_level: u64,
     rest_count: u32,
     slow_steps: u32,
+    asleep: bool,
     switches: u64,
     last_switch: Option<SwitchRecord>,
     residual: f64,
@@ -362,6 +363,7 @@ impl LeveledBody {
             steps_at_level: 0,
             rest_count: 0,
             slow_steps: 0,
+            asleep: true,
             switches: 0,
             last_switch: None,
             residual: 0.0,
@@ -389,6 +391,34 @@ impl LeveledBody {
         }
         let normal = normal.cholesky().ok_or(PrecisionError::SingularFit)?;
         Ok(CageFit { phi_t, normal, mu })
+    }
+
+    /// Whether the body sleeps: at the cage level, in its rest shape, at rest, with no load,
+    /// so its steps cost nothing and its points do not change. A load, a contact or a switch
+    /// wakes it; a cage that comes back within 1e-4 of the smallest dimension of its rest
+    /// shape, slower than 1e-4 of it per second, is put to sleep there (snapped to rest).
+    pub fn is_asleep(&self) -> bool {
+        self.asleep && self.level == Level::Cage
+    }
+
+    fn try_sleep(&mut self) -> Result<(), PrecisionError> {
+        let eps = 1e-4 * self.smallest;
+        let msd = self.cage.msd();
+        let near = msd
+            .positions()
+            .iter()
+            .zip(self.cage.cage().vertices())
+            .all(|(x, r)| (x - r).norm() < eps);
+        let pending = msd.external_forces().iter().any(|f| *f != Vec3::zeros());
+        if near && !pending && msd.max_speed() < eps {
+            let rest = self.cage.cage().vertices().to_vec();
+            let msd = self.cage.msd_mut();
+            msd.positions_mut().copy_from_slice(&rest);
+            msd.velocities_mut().fill(Vec3::zeros());
+            self.cage.update_points()?;
+            self.asleep = true;
+        }
+        Ok(())
     }
 
     /// Whether the body is at the precise level and has not been slow (by the policy's rest
@@ -456,6 +486,7 @@ impl LeveledBody {
     /// The cage body, mutable (for example to set cage velocities; call
     /// [`CageBody::update_points`] after moving cage vertices).
     pub fn cage_mut(&mut self) -> &mut CageBody {
+        self.asleep = false;
         &mut self.cage
     }
 
@@ -513,7 +544,10 @@ impl LeveledBody {
             return Err(PrecisionError::BadNode { node, nodes: n });
         }
         match self.level {
-            Level::Cage => self.cage.apply_point_force(node, force)?,
+            Level::Cage => {
+                self.asleep = false;
+                self.cage.apply_point_force(node, force)?
+            }
             Level::Precise => self.precise.body_mut().add_force(node, force),
         }
         Ok(())
@@ -588,6 +622,7 @@ impl LeveledBody {
         self.steps_at_level = 0;
         self.rest_count = 0;
         self.slow_steps = 0;
+        self.asleep = false;
         r
     }
 
@@ -797,7 +832,17 @@ impl LeveledBody {
         let level = self.level;
         match level {
             Level::Cage => {
+                if self.asleep && !in_contact {
+                    // At rest in its rest shape with no load: stepping would change nothing.
+                    self.steps += 1;
+                    self.steps_at_level += 1;
+                    return Ok(LevelStepStats {
+                        level,
+                        switched: None,
+                    });
+                }
                 self.cage.step()?;
+                self.try_sleep()?;
             }
             Level::Precise => match &mut self.precise {
                 Precise::Fem(b) => {
@@ -912,6 +957,7 @@ impl LeveledBody {
         self.steps_at_level = 0;
         self.rest_count = 0;
         self.slow_steps = 0;
+        self.asleep = true;
         self.switches = 0;
         self.last_switch = None;
         self.residual = 0.0;

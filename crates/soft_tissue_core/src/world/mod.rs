@@ -191,6 +191,8 @@ pub struct SimBody {
     active: bool,
     correction: Vec<Vec3>,
     weight: Vec<f64>,
+    /// The surface was last written while the body slept (nothing to write again).
+    written_asleep: bool,
 }
 
 impl SimBody {
@@ -260,6 +262,7 @@ impl SimBody {
             active: false,
             correction: vec![Vec3::zeros(); n],
             weight: vec![0.0; n],
+            written_asleep: false,
         };
         b.write_surface();
         Ok(b)
@@ -322,6 +325,15 @@ impl SimBody {
     }
 
     fn write_surface(&mut self) {
+        self.diagnostics.level = self.body.level();
+        self.diagnostics.switch_count = self.body.switch_count();
+        self.diagnostics.last_switch = self.body.last_switch();
+        if self.heat.is_none() && self.body.is_asleep() && self.written_asleep {
+            // Asleep and already written: the surface has not changed.
+            self.diagnostics.method = "cage";
+            return;
+        }
+        self.written_asleep = self.body.is_asleep();
         let x = self.body.node_positions();
         let mut max_d: f64 = 0.0;
         for ((o, &i), r) in self
@@ -373,6 +385,7 @@ impl SimBody {
         self.diagnostics.step_us = 0.0;
         self.diagnostics.contacts = 0;
         self.diagnostics.touched = false;
+        self.written_asleep = false;
         self.write_surface();
         Ok(())
     }
@@ -404,7 +417,10 @@ pub fn prepare<B: BorrowMut<SimBody>>(bodies: &mut [B], tools: &mut [Tool], dt: 
     }
     for b in bodies.iter_mut() {
         let b = b.borrow_mut();
-        b.collider.gather(b.body.node_positions());
+        // A sleeping body has not moved since it was last gathered.
+        if !(b.body.is_asleep() && b.written_asleep) {
+            b.collider.gather(b.body.node_positions());
+        }
         b.touched = false;
         b.contacts = 0;
         b.active = false;
@@ -852,7 +868,8 @@ fn apply_corrections(
     dt: f64,
 ) -> Result<Vec3, WorldError> {
     let mut force = Vec3::zeros();
-    if !b.weight.iter().any(|&w| w > 0.0) {
+    // Only bodies the contact stage looked at (pairs, tools, grips) can hold corrections.
+    if !b.active || !b.weight.iter().any(|&w| w > 0.0) {
         return Ok(force);
     }
     match b.body.level() {

@@ -1,0 +1,297 @@
+//! `soft-tissue simulate`: a scene run headless under a scripted tool.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use clap::Args;
+use serde_json::json;
+use soft_tissue_core::contact::Tool;
+use soft_tissue_core::precision::Level;
+use soft_tissue_core::scenario::{PreciseMethod, Scene};
+use soft_tissue_core::world::{Script, ScriptAction, SoftTissueWorld};
+
+#[derive(Args)]
+pub struct SimulateArgs {
+    /// `cylinders`, `organs` (the paper's scenes) or a scene RON file.
+    #[arg(long)]
+    scene: String,
+    /// Built-in script (`poke-a`, `push-a-into-b`, `poke-liver`, `cauterize-liver`) or a
+    /// script RON file. Without one, nothing touches the bodies.
+    #[arg(long)]
+    script: Option<String>,
+    /// Fixed steps to run.
+    #[arg(long)]
+    steps: usize,
+    /// One JSON object per step on stdout, then a summary object.
+    #[arg(long)]
+    json: bool,
+    /// Folder the scene's mesh files are relative to.
+    #[arg(long, default_value = "assets")]
+    assets: PathBuf,
+    /// Adds this many resting copies of the scene's last body, laid out in a grid beside the
+    /// scene (to measure how the cost grows with bodies nobody touches).
+    #[arg(long, default_value_t = 0)]
+    resting: usize,
+    /// Write the script used (built-in ones included) to this RON file, for replay.
+    #[arg(long)]
+    save_script: Option<PathBuf>,
+}
+
+/// `cylinders` and `organs` are read from `<assets>/scenes/<name>.ron` (the scenario files),
+/// falling back to the built-in definitions when that file is absent; anything else is a RON
+/// file path.
+fn load_scene(name: &str, assets: &Path) -> Result<Scene, String> {
+    let (path, builtin) = match name {
+        "cylinders" => (
+            assets.join("scenes/cylinders.ron"),
+            Some(Scene::paper_cylinders(
+                PreciseMethod::LinearFem,
+                PreciseMethod::LinearFem,
+            )),
+        ),
+        "organs" => (
+            assets.join("scenes/organs.ron"),
+            Some(Scene::paper_organs()),
+        ),
+        _ => (PathBuf::from(name), None),
+    };
+    match (std::fs::read_to_string(&path), builtin) {
+        (Ok(text), _) => {
+            Scene::from_ron(&text, &path.display().to_string()).map_err(|e| e.to_string())
+        }
+        (Err(_), Some(scene)) => Ok(scene),
+        (Err(e), None) => Err(format!("{}: {e}", path.display())),
+    }
+}
+
+fn add_resting_copies(scene: &mut Scene, n: usize, world: &SoftTissueWorld) {
+    let Some(last) = scene.bodies.last().cloned() else {
+        return;
+    };
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    let mut ext = [0.0f64; 3];
+    for b in world.bodies() {
+        let (l, h) = b.collider().bounds();
+        for k in 0..3 {
+            lo[k] = lo[k].min(l[k]);
+            hi[k] = hi[k].max(h[k]);
+        }
+    }
+    if let Some(b) = world.bodies().last() {
+        let (l, h) = b.collider().bounds();
+        for k in 0..3 {
+            ext[k] = h[k] - l[k];
+        }
+    }
+    let spacing = 1.5 * ext[0].max(ext[2]).max(1e-6);
+    let per_row = 16;
+    for k in 0..n {
+        let mut spec = last.clone();
+        spec.name = format!("{} copy {}", last.name, k + 1);
+        spec.placement.translation[0] += hi[0] - lo[0] + spacing * (1 + k % per_row) as f64;
+        spec.placement.translation[2] += spacing * (k / per_row) as f64;
+        scene.bodies.push(spec);
+    }
+}
+
+fn level_name(world: &SoftTissueWorld, i: usize) -> &'static str {
+    world.bodies()[i].diagnostics().method
+}
+
+pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
+    let mut scene = load_scene(&args.scene, &args.assets)?;
+    let build_start = Instant::now();
+    let mut world = SoftTissueWorld::from_scene(&scene, &args.assets)?;
+    if args.resting > 0 {
+        add_resting_copies(&mut scene, args.resting, &world);
+        world = SoftTissueWorld::from_scene(&scene, &args.assets)?;
+    }
+    let build_s = build_start.elapsed().as_secs_f64();
+    let script = match &args.script {
+        None => None,
+        Some(s) if s.ends_with(".ron") => {
+            let text = std::fs::read_to_string(s).map_err(|e| format!("{s}: {e}"))?;
+            Some(Script::from_ron(&text, s)?)
+        }
+        Some(s) => Some(Script::builtin(s, &world)?),
+    };
+    if let (Some(path), Some(s)) = (&args.save_script, &script) {
+        std::fs::write(path, s.to_ron()).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
+    let tool = match &script {
+        Some(s) => Some(world.add_tool(Tool::new(s.name.clone(), s.tool)?)),
+        None => None,
+    };
+    let dt = world.config().dt;
+    let nb = world.bodies().len();
+    let mut step_times = Vec::with_capacity(args.steps);
+    let mut precise_steps = vec![0u64; nb];
+    let mut body_us = vec![0.0f64; nb];
+    let mut worst_jump = vec![0.0f64; nb];
+    let mut stage_sum = [0.0f64; 6];
+    for k in 0..args.steps {
+        let t = (k + 1) as f64 * dt;
+        if let (Some(s), Some(ti)) = (&script, tool) {
+            let (p, a) = s.pose_at(t);
+            let tl = &mut world.tools_mut()[ti];
+            tl.set_pose(p, a)?;
+            for e in s.events_in(t - dt, t) {
+                match e.action {
+                    ScriptAction::Grab => tl.grab(),
+                    ScriptAction::Release => tl.release(),
+                    ScriptAction::Cautery(w) => tl.set_cautery(w)?,
+                }
+            }
+        }
+        world.step_fixed()?;
+        let st = world.stage_times();
+        step_times.push(st.total_us());
+        for (acc, v) in stage_sum.iter_mut().zip([
+            st.prepare_us,
+            st.detect_us,
+            st.switch_us,
+            st.solve_us,
+            st.collide_us,
+            st.writeback_us,
+        ]) {
+            *acc += v;
+        }
+        for (i, b) in world.bodies().iter().enumerate() {
+            let d = b.diagnostics();
+            if d.level == Level::Precise {
+                precise_steps[i] += 1;
+            }
+            body_us[i] += d.step_us;
+            if let Some(s) = d.switched {
+                worst_jump[i] = worst_jump[i].max(s.jump_ratio);
+            }
+        }
+        if args.json {
+            let bodies: Vec<_> = world
+                .bodies()
+                .iter()
+                .enumerate()
+                .map(|(i, b)| {
+                    let d = b.diagnostics();
+                    json!({
+                        "name": b.name(),
+                        "level": level_name(&world, i),
+                        "step_us": d.step_us,
+                        "max_displacement": d.max_displacement,
+                        "switch_jump": d.switched.map(|s| s.jump),
+                        "switch_jump_ratio": d.switched.map(|s| s.jump_ratio),
+                        "contacts": d.contacts,
+                        "max_temperature": d.max_temperature,
+                    })
+                })
+                .collect();
+            let tool_json = tool.map(|ti| {
+                let tl = &world.tools()[ti];
+                json!({
+                    "position": tl.position().as_slice(),
+                    "force": tl.reaction_force().as_slice(),
+                    "contacts": tl.contact_count(),
+                })
+            });
+            println!(
+                "{}",
+                json!({
+                    "step": k + 1,
+                    "t": t,
+                    "step_us": st.total_us(),
+                    "bodies": bodies,
+                    "tool": tool_json,
+                })
+            );
+        }
+    }
+    let mut sorted = step_times.clone();
+    sorted.sort_by(f64::total_cmp);
+    let n = sorted.len().max(1) as f64;
+    let mean = step_times.iter().sum::<f64>() / n;
+    let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
+    let max = sorted.last().copied().unwrap_or(0.0);
+    let bodies: Vec<_> = world
+        .bodies()
+        .iter()
+        .enumerate()
+        .map(|(i, b)| {
+            json!({
+                "name": b.name(),
+                "final_level": level_name(&world, i),
+                "switches": b.body().switch_count(),
+                "precise_steps": precise_steps[i],
+                "max_switch_jump_ratio": worst_jump[i],
+                "mean_step_us": body_us[i] / n,
+            })
+        })
+        .collect();
+    let stages = json!({
+        "prepare_us": stage_sum[0] / n,
+        "detect_us": stage_sum[1] / n,
+        "switch_us": stage_sum[2] / n,
+        "solve_us": stage_sum[3] / n,
+        "collide_us": stage_sum[4] / n,
+        "writeback_us": stage_sum[5] / n,
+    });
+    if args.json {
+        println!(
+            "{}",
+            json!({
+                "summary": true,
+                "scene": scene.name,
+                "script": script.as_ref().map(|s| s.name.clone()),
+                "steps": args.steps,
+                "dt": dt,
+                "body_count": nb,
+                "build_s": build_s,
+                "mean_step_us": mean,
+                "median_step_us": median,
+                "max_step_us": max,
+                "mean_stage_us": stages,
+                "bodies": bodies,
+            })
+        );
+    } else {
+        println!(
+            "scene {} ({} bodies, built in {:.2} s), script {}, {} steps of {} s",
+            scene.name,
+            nb,
+            build_s,
+            script.as_ref().map_or("none", |s| s.name.as_str()),
+            args.steps,
+            dt
+        );
+        println!(
+            "step time: mean {mean:.1} us, median {median:.1} us, max {max:.1} us (wall clock, this machine)"
+        );
+        println!(
+            "stages (mean us): prepare {:.1}, detect {:.1}, switch {:.1}, solve {:.1}, collide {:.1}, writeback {:.1}",
+            stage_sum[0] / n,
+            stage_sum[1] / n,
+            stage_sum[2] / n,
+            stage_sum[3] / n,
+            stage_sum[4] / n,
+            stage_sum[5] / n
+        );
+        println!(
+            "{:<24} {:>6} {:>9} {:>14} {:>13} {:>12}",
+            "body", "final", "switches", "precise steps", "max jump %", "mean us"
+        );
+        for (i, b) in world.bodies().iter().enumerate().take(12) {
+            println!(
+                "{:<24} {:>6} {:>9} {:>14} {:>13.3} {:>12.1}",
+                b.name(),
+                level_name(&world, i),
+                b.body().switch_count(),
+                precise_steps[i],
+                100.0 * worst_jump[i],
+                body_us[i] / n
+            );
+        }
+        if nb > 12 {
+            println!("... {} more bodies", nb - 12);
+        }
+    }
+    Ok(())
+}
