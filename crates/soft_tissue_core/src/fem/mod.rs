@@ -444,9 +444,19 @@ impl FemBody {
     pub fn sync_rotations(&mut self) {
         for t in 0..self.tets.len() {
             let p = self.tets[t].map(|i| self.nodes.x[i as usize]);
-            let r = rotation::rotation_of(&element::deformation_gradient(&p, &self.grads[t]));
+            let f = element::deformation_gradient(&p, &self.grads[t]);
+            // Warm start from the held rotation (a few iterations when the shape is near the
+            // last one); the cold, saddle-proof search only where that lands in a wrong basin.
+            let (mut q, mut r) = (self.quats[t], self.rots[t]);
+            rotation::extract_rotation(&f, &mut q, &mut r, 50, 1e-15);
+            if (r.transpose() * f).trace() <= 0.0 {
+                r = rotation::rotation_of(&f);
+                q = UnitQuaternion::from_rotation_matrix(
+                    &nalgebra::Rotation3::from_matrix_unchecked(r),
+                );
+            }
             self.rots[t] = r;
-            self.quats[t] = UnitQuaternion::from_matrix(&r);
+            self.quats[t] = q;
         }
         self.matrix_current = false;
     }
