@@ -12,6 +12,9 @@
 //! - [`msd`]: mass-spring-damper bodies with RK4, symplectic and implicit Euler.
 //! - [`cage`]: Green-coordinate cages (the cheap level), cage builders and cage bodies.
 //! - [`precision`]: levels of precision, the switching policy and the state transfer.
+//! - [`contact`]: surface colliders, broad and narrow phase, tools.
+//! - [`heat`]: heat conduction and thermal damage.
+//! - [`world`]: `SoftTissueWorld`, the stage functions, scenes and tool scripts.
 //! - [`boundary`]: fixed nodes and soft anchors shared by the solvers.
 //! - [`state`]: the per-node state of every precise body and the [`NodalBody`] accessors.
 //! - [`bench`](mod@bench): the benchmark load shared by the command-line tool and criterion.
