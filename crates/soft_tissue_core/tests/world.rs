@@ -373,3 +373,95 @@ fn resting_bodies_sleep_and_a_push_wakes_them() {
     assert!(slept_at.is_some(), "never settled back");
     assert!(w.bodies()[spleen].diagnostics().max_displacement < 1e-3);
 }
+
+#[test]
+fn a_collision_between_two_bodies_gains_no_energy() {
+    use soft_tissue_core::contact::ContactConfig;
+    use soft_tissue_core::fem::FemModel;
+    use soft_tissue_core::material::{FemParams, MsdParams};
+    use soft_tissue_core::mesh::generate::block;
+    use soft_tissue_core::precision::{BodySettings, PreciseMethod as Method};
+    use soft_tissue_core::world::{SimBody, WorldConfig};
+    use std::sync::Arc;
+    let dt = 0.005;
+    let mut world = SoftTissueWorld::new(WorldConfig {
+        dt,
+        contact: ContactConfig::for_scale(1.0),
+    })
+    .unwrap();
+    let fem = FemParams {
+        young_modulus: 2000.0,
+        poisson_ratio: 0.3,
+        mass: 1.0,
+        damping: 0.0,
+    };
+    let msd = MsdParams {
+        stiffness: 100.0,
+        mass: 1.0,
+        damping: 0.0,
+    };
+    for (name, x0) in [("left", -1.05), ("right", 0.05)] {
+        let mesh = block(
+            Vec3::new(x0, 0.0, 0.0),
+            Vec3::new(x0 + 1.0, 1.0, 1.0),
+            [4, 4, 4],
+        )
+        .unwrap();
+        let mut s = BodySettings::new(fem, msd, dt);
+        s.precise = Method::Fem(FemModel::Corotational);
+        let body = SimBody::new(name, Arc::new(mesh), s, None).unwrap();
+        world.add_body(body).unwrap();
+    }
+    // Both precise for the whole run; the left block flies right at 2 units/s.
+    for b in world.bodies_mut() {
+        b.body_mut().pin(Some(Level::Precise)).unwrap();
+    }
+    for v in world.bodies_mut()[0]
+        .body_mut()
+        .precise_mut()
+        .velocities_mut()
+    {
+        *v = Vec3::new(2.0, 0.0, 0.0);
+    }
+    let energy = |w: &SoftTissueWorld| -> f64 {
+        w.bodies()
+            .iter()
+            .map(|b| b.body().precise().kinetic_energy() + b.body().fem().unwrap().elastic_energy())
+            .sum()
+    };
+    let momentum = |w: &SoftTissueWorld| -> Vec3 {
+        w.bodies()
+            .iter()
+            .map(|b| {
+                let p = b.body().precise();
+                p.velocities()
+                    .iter()
+                    .zip(p.masses())
+                    .map(|(v, m)| v * *m)
+                    .sum::<Vec3>()
+            })
+            .sum()
+    };
+    let e0 = energy(&world);
+    let p0 = momentum(&world);
+    let mut touched = false;
+    for _ in 0..200 {
+        world.step_fixed().unwrap();
+        touched |= world.bodies()[1].diagnostics().contacts > 0;
+        let e = energy(&world);
+        assert!(e <= e0 * (1.0 + 1e-9), "energy rose from {e0} to {e}");
+    }
+    assert!(touched, "the blocks never met");
+    // The right block was pushed, and momentum along x is conserved within the
+    // implicit-Euler damping (no external force acts).
+    let p1 = momentum(&world);
+    let right_vx: f64 = {
+        let p = world.bodies()[1].body().precise();
+        p.velocities().iter().map(|v| v.x).sum::<f64>() / p.velocities().len() as f64
+    };
+    assert!(right_vx > 0.1, "right block at {right_vx}");
+    assert!(
+        (p1.x - p0.x).abs() < 0.05 * p0.x,
+        "momentum {p0:?} -> {p1:?}"
+    );
+}

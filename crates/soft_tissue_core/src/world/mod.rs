@@ -168,6 +168,12 @@ impl StageTimes {
     }
 }
 
+/// Fraction of a body-body penetration corrected per step. Correcting all of it at once (a
+/// full projection) pushes the contact layers apart faster than the solvers can follow and
+/// adds elastic energy (+4.7 % in the colliding-blocks test); half per step removes the
+/// overlap within a few steps and the collision then gains no energy.
+const RELAX: f64 = 0.5;
+
 /// Jacobi rounds of the tool response per step.
 const TOOL_ROUNDS: usize = 3;
 
@@ -813,7 +819,7 @@ fn resolve_body_contact(a: &mut SimBody, b: &mut SimBody, c: &BodyContact, dt: f
         }
         return;
     }
-    let lambda = c.depth / (wa + wb);
+    let lambda = RELAX * c.depth / (wa + wb);
     if wa > 0.0 {
         a.correction[pa] += n * (lambda * wa);
         a.weight[pa] += 1.0;
