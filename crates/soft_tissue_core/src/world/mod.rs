@@ -880,9 +880,9 @@ fn apply_corrections(
     }
     match b.body.level() {
         Level::Precise => {
-            let masses = b.body.precise().masses().to_vec();
-            let fixed = b.body.precise().fixed().to_vec();
-            let precise = b.body.precise_mut();
+            // One mutable borrow of the node state: positions, velocities, masses and fixed
+            // axes side by side, without copies.
+            let nodes = b.body.precise_mut().nodes_mut();
             for i in 0..b.weight.len() {
                 let w = b.weight[i];
                 if w <= 0.0 {
@@ -890,20 +890,20 @@ fn apply_corrections(
                 }
                 let mut dx = b.correction[i] / w;
                 for k in 0..3 {
-                    if fixed[i][k] {
+                    if nodes.fixed[i][k] {
                         dx[k] = 0.0;
                     }
                 }
-                precise.positions_mut()[i] += dx;
-                force += dx * (masses[i] / (dt * dt));
+                nodes.x[i] += dx;
+                force += dx * (nodes.mass[i] / (dt * dt));
                 if let (Some(vt), Some(dir)) = (tool_velocity, dx.try_normalize(0.0)) {
-                    let v = &mut precise.velocities_mut()[i];
+                    let v = &mut nodes.v[i];
                     let vn = (*v - vt).dot(&dir);
                     if vn < 0.0 {
                         *v -= dir * vn;
                     }
                 }
-                if !precise.positions()[i].iter().all(|x| x.is_finite()) {
+                if !nodes.x[i].iter().all(|x| x.is_finite()) {
                     return Err(WorldError::NonFinite {
                         body: b.name.clone(),
                         node: i,
