@@ -199,6 +199,18 @@ enum Precise {
 }
 
 impl Precise {
+    fn step(&mut self) -> Result<(), PrecisionError> {
+        match self {
+            Precise::Fem(b) => {
+                b.step()?;
+            }
+            Precise::Msd(b) => {
+                b.step()?;
+            }
+        }
+        Ok(())
+    }
+
     fn body(&self) -> &dyn NodalBody {
         match self {
             Precise::Fem(b) => b.as_ref(),
@@ -379,6 +391,19 @@ impl LeveledBody {
             cage,
             settings,
         })
+    }
+
+    /// Replaces the cage: its fit and the workspaces sized by it follow.
+    fn install_cage(&mut self, cage: CageBody) -> Result<(), PrecisionError> {
+        let nv = cage.cage().vertices().len();
+        let nf = cage.cage().triangles().len();
+        self.fit = Self::build_fit(cage.coordinates(), &self.surface)?;
+        self.cage = cage;
+        self.cage_work = vec![Vec3::zeros(); nv];
+        self.cage_prior = vec![Vec3::zeros(); nv];
+        self.terms_work = vec![Vec3::zeros(); nf];
+        self.rhs_work = DMatrix::zeros(nv, 3);
+        Ok(())
     }
 
     fn build_fit(coords: &GreenCoordinates, surface: &[u32]) -> Result<CageFit, PrecisionError> {
@@ -844,14 +869,7 @@ impl LeveledBody {
                 self.cage.step()?;
                 self.try_sleep()?;
             }
-            Level::Precise => match &mut self.precise {
-                Precise::Fem(b) => {
-                    b.step()?;
-                }
-                Precise::Msd(b) => {
-                    b.step()?;
-                }
-            },
+            Level::Precise => self.precise.step()?,
         }
         self.steps += 1;
         self.steps_at_level += 1;
@@ -904,14 +922,7 @@ impl LeveledBody {
         let mut steps = 0;
         let mut rested = false;
         while steps < max_steps {
-            match &mut self.precise {
-                Precise::Fem(b) => {
-                    b.step()?;
-                }
-                Precise::Msd(b) => {
-                    b.step()?;
-                }
-            }
+            self.precise.step()?;
             steps += 1;
             if self.precise.body().max_speed() <= 0.1 * p.rest_speed * self.smallest {
                 slow += 1;
@@ -926,12 +937,8 @@ impl LeveledBody {
         // The cage is rebuilt around the settled shape, which it then reproduces exactly at
         // rest: the settled shape is the cage level's rest state and the initial state.
         let settled = self.precise.body().positions().to_vec();
-        self.cage = build_cage(&settled, mesh.surface().triangles(), &self.settings)?;
-        self.fit = Self::build_fit(self.cage.coordinates(), &self.surface)?;
-        self.cage_work = vec![Vec3::zeros(); self.cage.cage().vertices().len()];
-        self.cage_prior = self.cage_work.clone();
-        self.terms_work = vec![Vec3::zeros(); self.cage.cage().triangles().len()];
-        self.rhs_work = DMatrix::zeros(self.cage_work.len(), 3);
+        let cage = build_cage(&settled, mesh.surface().triangles(), &self.settings)?;
+        self.install_cage(cage)?;
         self.level = Level::Cage;
         self.pin = pin;
         self.reset()?;

@@ -233,9 +233,9 @@ impl Script {
                         script: name.into(),
                         body: "Liver".into(),
                     })?;
-                // The liver surface point closest to another organ, and the way to it.
+                // The liver surface point closest to another organ.
                 let lp = world.bodies()[liver].collider().positions();
-                let mut best: Option<(f64, Vec3, Vec3)> = None;
+                let mut best: Option<(f64, Vec3)> = None;
                 for (i, other) in world.bodies().iter().enumerate() {
                     if i == liver {
                         continue;
@@ -243,19 +243,18 @@ impl Script {
                     for q in other.collider().positions() {
                         for p in lp {
                             let d = (q - p).norm_squared();
-                            if best.is_none_or(|(bd, _, _)| d < bd) {
-                                best = Some((d, *p, *q));
+                            if best.is_none_or(|(bd, _)| d < bd) {
+                                best = Some((d, *p));
                             }
                         }
                     }
                 }
-                let Some((_, p, q)) = best else {
+                let Some((_, p)) = best else {
                     return Err(ScriptError::MissingBody {
                         script: name.into(),
                         body: "another organ".into(),
                     });
                 };
-                let _ = q;
                 // Press down (-y) on the top of the liver above that point, so the liver is
                 // pushed onto what lies under and beside it.
                 let bb = crate::mesh::Aabb::from_points(lp.iter()).ok_or_else(|| {
@@ -287,14 +286,7 @@ impl Script {
             }
             "cauterize-liver" => {
                 let l = body_box(world, name, "Liver")?;
-                let lp = world.bodies()[world.body_index("Liver").map_err(|_| {
-                    ScriptError::MissingBody {
-                        script: name.into(),
-                        body: "Liver".into(),
-                    }
-                })?]
-                .collider()
-                .positions();
+                let lp = world.bodies()[l.index].collider().positions();
                 // The highest liver vertex.
                 let top = lp
                     .iter()
@@ -335,6 +327,7 @@ impl Script {
 }
 
 struct BodyBox {
+    index: usize,
     lo: Vec3,
     hi: Vec3,
     center: Vec3,
@@ -350,6 +343,7 @@ fn body_box(world: &SoftTissueWorld, script: &str, body: &str) -> Result<BodyBox
         })?;
     let (lo, hi) = world.bodies()[i].collider().bounds();
     Ok(BodyBox {
+        index: i,
         lo,
         hi,
         center: (lo + hi) / 2.0,
