@@ -35,6 +35,11 @@ pub struct SimulateArgs {
     /// Write the script used (built-in ones included) to this RON file, for replay.
     #[arg(long)]
     save_script: Option<PathBuf>,
+    /// Run a shadow precise simulation beside every body's cage level and report the
+    /// distance between the two (the cage level's error). Each body's step time then
+    /// includes its shadow's step.
+    #[arg(long)]
+    shadow: bool,
 }
 
 /// `cylinders` and `organs` are read from `<assets>/scenes/<name>.ron` (the scenario files),
@@ -106,6 +111,11 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
         add_resting_copies(&mut scene, args.resting, &world);
         world = SoftTissueWorld::from_scene(&scene, &args.assets)?;
     }
+    if args.shadow {
+        for b in world.bodies_mut() {
+            b.set_shadow(true)?;
+        }
+    }
     let build_s = build_start.elapsed().as_secs_f64();
     let script = match &args.script {
         None => None,
@@ -128,6 +138,8 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     let mut precise_steps = vec![0u64; nb];
     let mut body_us = vec![0.0f64; nb];
     let mut worst_jump = vec![0.0f64; nb];
+    let mut worst_shadow = vec![0.0f64; nb];
+    let mut shadow_sum = vec![(0.0f64, 0u64); nb];
     let mut stage_sum = [0.0f64; 6];
     for k in 0..args.steps {
         let t = (k + 1) as f64 * dt;
@@ -165,6 +177,11 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
             if let Some(s) = d.switched {
                 worst_jump[i] = worst_jump[i].max(s.jump_ratio);
             }
+            if let Some(e) = d.shadow {
+                worst_shadow[i] = worst_shadow[i].max(e.max_ratio);
+                shadow_sum[i].0 += e.mean / b.body().smallest_dimension();
+                shadow_sum[i].1 += 1;
+            }
         }
         if args.json {
             let bodies: Vec<_> = world
@@ -182,6 +199,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                         "switch_jump_ratio": d.switched.map(|s| s.jump_ratio),
                         "contacts": d.contacts,
                         "max_temperature": d.max_temperature,
+                        "shadow_error_ratio": d.shadow.map(|e| e.max_ratio),
                     })
                 })
                 .collect();
@@ -223,6 +241,10 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "precise_steps": precise_steps[i],
                 "max_switch_jump_ratio": worst_jump[i],
                 "mean_step_us": body_us[i] / n,
+                "worst_shadow_error_ratio": args.shadow.then_some(worst_shadow[i]),
+                "mean_shadow_error_ratio": args.shadow.then(|| {
+                    shadow_sum[i].0 / shadow_sum[i].1.max(1) as f64
+                }),
             })
         })
         .collect();
@@ -291,6 +313,20 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
         }
         if nb > 12 {
             println!("... {} more bodies", nb - 12);
+        }
+        if args.shadow {
+            println!(
+                "cage level against its shadow precise simulation (surface distance, % of the smallest dimension):"
+            );
+            for (i, b) in world.bodies().iter().enumerate().take(12) {
+                let (sum, count) = shadow_sum[i];
+                println!(
+                    "{:<24} mean {:>8.3} %  worst {:>8.3} %  over {count} cage steps",
+                    b.name(),
+                    100.0 * sum / count.max(1) as f64,
+                    100.0 * worst_shadow[i],
+                );
+            }
         }
     }
     Ok(())

@@ -208,3 +208,44 @@ fn simulate_json_lines_and_script_replay() {
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("no-such.ron"));
 }
+
+#[test]
+fn simulate_reports_the_cage_error_against_a_shadow() {
+    let assets = root().join("assets");
+    let out = run_ok(&[
+        "simulate".as_ref(),
+        "--scene".as_ref(),
+        "cylinders".as_ref(),
+        "--script".as_ref(),
+        "poke-a".as_ref(),
+        "--steps".as_ref(),
+        "900".as_ref(),
+        "--json".as_ref(),
+        "--shadow".as_ref(),
+        "--assets".as_ref(),
+        assets.as_os_str(),
+    ]);
+    let out = String::from_utf8(out).unwrap();
+    let lines: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let mut precise_then_cage = false;
+    for l in &lines[..900] {
+        for b in l["bodies"].as_array().unwrap() {
+            // A shadow gap exists exactly while the body is at its cage.
+            let at_cage = b["level"] == "cage";
+            assert_eq!(b["shadow_error_ratio"].is_number(), at_cage, "{b}");
+            precise_then_cage |= !at_cage;
+        }
+    }
+    assert!(precise_then_cage, "poke-a should raise model A");
+    let summary = &lines[900];
+    for b in summary["bodies"].as_array().unwrap() {
+        let worst = b["worst_shadow_error_ratio"].as_f64().unwrap();
+        let mean = b["mean_shadow_error_ratio"].as_f64().unwrap();
+        // The paper's bound for the cage against FEM: 4 % of the smallest dimension.
+        assert!(worst.is_finite() && worst < 0.04, "{b}");
+        assert!(mean <= worst, "{b}");
+    }
+}

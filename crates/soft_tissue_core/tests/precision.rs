@@ -282,3 +282,142 @@ fn the_precise_method_changes_at_run_time_without_a_jump() {
         assert!((a - b).norm() < 1e-9);
     }
 }
+
+fn surface_gap(body: &LeveledBody, other: &[Vec3]) -> (f64, f64) {
+    let x = body.node_positions();
+    let mut sum = 0.0;
+    let mut max: f64 = 0.0;
+    for &i in body.surface_vertices() {
+        let d = (x[i as usize] - other[i as usize]).norm();
+        sum += d;
+        max = max.max(d);
+    }
+    (sum / body.surface_vertices().len() as f64, max)
+}
+
+#[test]
+fn a_shadow_is_the_precise_method_under_the_same_loads_and_leaves_the_cage_alone() {
+    let mesh = asset("cylinder");
+    let top: Vec<usize> = {
+        let hi = mesh.bbox().max.y;
+        (0..mesh.node_count())
+            .filter(|&i| mesh.positions()[i].y > hi - 0.05 * mesh.bbox().extent().y)
+            .collect()
+    };
+    for method in METHODS {
+        let settings = cylinder_settings(method, CageKind::BoundingBox, &mesh);
+        let mut plain = LeveledBody::new(&mesh, settings.clone()).unwrap();
+        let mut shadowed = LeveledBody::new(&mesh, settings.clone()).unwrap();
+        shadowed.set_shadow(&mesh, true).unwrap();
+        assert!(shadowed.has_shadow() && !plain.has_shadow());
+        // An independent precise run: the same solver pinned to its level, raised from the
+        // same cage state the shadow starts from.
+        let mut precise = LeveledBody::new(&mesh, settings).unwrap();
+        precise.pin(Some(Level::Precise)).unwrap();
+        let mut worst: f64 = 0.0;
+        for step in 0..300 {
+            // Loads applied at the cage level: no contact is reported, so the body stays at
+            // its cage.
+            if step < 40 {
+                for &i in &top {
+                    let f = Vec3::new(0.5, 0.0, 0.2);
+                    plain.add_force(i, f).unwrap();
+                    shadowed.add_force(i, f).unwrap();
+                    precise.add_force(i, f).unwrap();
+                }
+            }
+            plain.step(false).unwrap();
+            shadowed.step(false).unwrap();
+            precise.step(false).unwrap();
+            assert_eq!(shadowed.level(), Level::Cage);
+            // The shadow changes nothing in the body it watches.
+            assert_eq!(plain.node_positions(), shadowed.node_positions());
+            // The shadow is the precise method under the same loads, bit for bit.
+            let sh = shadowed.shadow_positions().unwrap();
+            assert_eq!(sh, precise.node_positions(), "{method:?} step {step}");
+            // Its report is the surface distance between the two.
+            let e = shadowed.shadow_error().unwrap();
+            let (mean, max) = surface_gap(&shadowed, sh);
+            assert_eq!(e.steps, step as u64 + 1);
+            assert!((e.mean - mean).abs() <= 1e-12 * (1.0 + mean));
+            assert!((e.max - max).abs() <= 1e-12 * (1.0 + max));
+            assert!((e.max_ratio - max / shadowed.smallest_dimension()).abs() < 1e-12);
+            worst = worst.max(e.max_ratio);
+            assert!((e.worst_ratio - worst).abs() < 1e-15);
+            if step == 0 {
+                // Both start from the same rest state: one step apart only by the load.
+                assert!(
+                    e.max_ratio < 0.01,
+                    "{method:?}: first step gap {}",
+                    e.max_ratio
+                );
+            }
+        }
+        // A cage cannot bend a cylinder the way its FEM or MSD does: the gap is real.
+        assert!(worst > 1e-4, "{method:?}: worst gap {worst}");
+        println!(
+            "{}: worst cage-vs-shadow gap {:.3} % of the width",
+            method.name(),
+            100.0 * worst
+        );
+        shadowed.set_shadow(&mesh, false).unwrap();
+        assert!(shadowed.shadow_error().is_none() && shadowed.shadow_positions().is_none());
+    }
+}
+
+#[test]
+fn a_shadow_restarts_from_the_precise_state_at_a_down_switch() {
+    let mesh = asset("cylinder");
+    let method = PreciseMethod::Fem(FemModel::Corotational);
+    let settings = cylinder_settings(method, CageKind::BoundingBox, &mesh);
+    let mut body = LeveledBody::new(&mesh, settings.clone()).unwrap();
+    body.set_shadow(&mesh, true).unwrap();
+    body.raise().unwrap();
+    // A twin that stays precise under the same loads: what the shadow must go on doing.
+    let mut twin = LeveledBody::new(&mesh, settings).unwrap();
+    twin.pin(Some(Level::Precise)).unwrap();
+    let top = (0..mesh.node_count())
+        .max_by(|&a, &b| mesh.positions()[a].y.total_cmp(&mesh.positions()[b].y))
+        .unwrap();
+    for _ in 0..20 {
+        body.add_force(top, Vec3::new(1.0, 0.0, 0.0)).unwrap();
+        twin.add_force(top, Vec3::new(1.0, 0.0, 0.0)).unwrap();
+        body.step(true).unwrap();
+        twin.step(true).unwrap();
+    }
+    assert_eq!(body.level(), Level::Precise);
+    assert_eq!(body.node_positions(), twin.node_positions());
+    let x = body.precise().positions().to_vec();
+    // Forced down mid-motion: the cage takes over, the shadow carries on precisely.
+    let down = body.lower().unwrap().unwrap();
+    assert_eq!(body.shadow_positions().unwrap(), &x[..]);
+    assert_eq!(body.shadow_error().unwrap().steps, 0);
+    let scale = body.smallest_dimension();
+    let mut worst_twin: f64 = 0.0;
+    for k in 0..30 {
+        body.step(false).unwrap();
+        twin.step(false).unwrap();
+        let gap = body
+            .shadow_positions()
+            .unwrap()
+            .iter()
+            .zip(twin.node_positions())
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        // Equal but for the warm-started rotations and the CG tolerance (1e-6).
+        assert!(gap < 1e-5 * scale, "step {k}: shadow vs twin {gap}");
+        worst_twin = worst_twin.max(gap);
+    }
+    println!("shadow vs twin: {:.2e} of the width", worst_twin / scale);
+    // The gap it reports starts from the fit residual of the switch and grows as the cage
+    // and the bent cylinder go their own ways.
+    let e = body.shadow_error().unwrap();
+    assert!(
+        e.worst_ratio * scale >= down.residual * 0.5,
+        "{e:?} {down:?}"
+    );
+    // Reset puts it back beside the rest state.
+    body.reset().unwrap();
+    body.step(false).unwrap();
+    assert!(body.shadow_error().unwrap().max_ratio < 1e-9);
+}

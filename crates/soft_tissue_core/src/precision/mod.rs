@@ -13,14 +13,19 @@
 //!   fitted so its coordinates reproduce the current surface in the least-squares sense
 //!   (`min |Phi V + Psi T(V) - P|^2`, face terms `T` refreshed by a fixed-point iteration,
 //!   a small Tikhonov term toward the current cage), cage velocities by the same normal
-//!   equations on the surface velocities, and the cage MSD takes the fitted shape as its rest
-//!   shape, so a body that settled in a deformed equilibrium (a sagging cylinder) stays there.
+//!   equations on the surface velocities. The cage keeps its rest shape, the body's settled
+//!   equilibrium ([`LeveledBody::settle`]), so what motion is left dies out toward it.
 //! - Every switch records the largest surface-vertex jump ([`SwitchRecord`]).
 //! - Automatic down-switch ([`PrecisionPolicy`]): no contact, largest nodal speed and the cage
 //!   fit residual (the distance from a cage-reproducible shape) below thresholds for
 //!   `rest_steps` consecutive steps, and at least `min_precise_steps` steps at the precise
 //!   level (hysteresis: a body never flickers). The fit is computed once the body has been
 //!   slow for `rest_steps` steps, not every step.
+//!
+//! - Error of the cage level: the fit residual at every down-switch ([`SwitchRecord`]) and,
+//!   on request ([`LeveledBody::set_shadow`]), a shadow precise simulation that runs beside
+//!   the cage level under the same loads so the distance between the two surfaces can be
+//!   read every step ([`ShadowError`]). It costs a precise step per step: a validation tool.
 //!
 //! Steps do not allocate; a switch (a rare event) may.
 
@@ -252,6 +257,8 @@ pub struct LeveledBody {
     switches: u64,
     last_switch: Option<SwitchRecord>,
     residual: f64,
+    shadow: Option<Box<Precise>>,
+    shadow_error: Option<ShadowError>,
     // Workspaces of the transfers.
     nodes_work: Vec<Vec3>,
     nodes_work2: Vec<Vec3>,
@@ -272,6 +279,22 @@ impl std::fmt::Debug for LeveledBody {
             .field("switches", &self.switches)
             .finish()
     }
+}
+
+/// Distance between the cage level and its shadow precise simulation (see
+/// [`LeveledBody::set_shadow`]), over the surface vertices, after the last step.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct ShadowError {
+    /// Steps the shadow has run beside the cage level since it was (re)started.
+    pub steps: u64,
+    /// Mean surface-vertex distance this step, scene units.
+    pub mean: f64,
+    /// Largest surface-vertex distance this step, scene units.
+    pub max: f64,
+    /// `max` as a fraction of the body's smallest bounding-box dimension.
+    pub max_ratio: f64,
+    /// Largest `max_ratio` seen since the shadow was enabled.
+    pub worst_ratio: f64,
 }
 
 /// Most fixed-point iterations of the cage fits (they stop earlier once converged).
@@ -379,6 +402,8 @@ impl LeveledBody {
             switches: 0,
             last_switch: None,
             residual: 0.0,
+            shadow: None,
+            shadow_error: None,
             nodes_work: vec![Vec3::zeros(); n],
             nodes_work2: vec![Vec3::zeros(); n],
             cage_work: vec![Vec3::zeros(); nv],
@@ -571,11 +596,24 @@ impl LeveledBody {
         match self.level {
             Level::Cage => {
                 self.asleep = false;
-                self.cage.apply_point_force(node, force)?
+                self.cage.apply_point_force(node, force)?;
+                self.add_shadow_force(node, force);
             }
             Level::Precise => self.precise.body_mut().add_force(node, force),
         }
         Ok(())
+    }
+
+    /// Adds a force on node `node` of the shadow simulation only, for loads applied to the
+    /// cage some other way (a contact displacing the cage directly). No effect without a
+    /// shadow, at the precise level or for a node out of range.
+    pub fn add_shadow_force(&mut self, node: usize, force: Vec3) {
+        if self.level != Level::Cage || node >= self.rest.len() {
+            return;
+        }
+        if let Some(s) = self.shadow.as_mut() {
+            s.body_mut().add_force(node, force);
+        }
     }
 
     /// Changes the precise method at run time. At the precise level the new solver takes the
@@ -591,6 +629,9 @@ impl LeveledBody {
         // Linear <-> corotational: same FEM body.
         if let (Precise::Fem(b), PreciseMethod::Fem(model)) = (&mut self.precise, method) {
             b.set_model(model);
+            if let Some(Precise::Fem(s)) = self.shadow.as_deref_mut() {
+                s.set_model(model);
+            }
             self.settings.precise = method;
             return Ok(());
         }
@@ -608,6 +649,10 @@ impl LeveledBody {
         }
         self.precise = next;
         self.settings = settings;
+        if self.shadow.is_some() {
+            self.shadow = Some(Box::new(build_precise(mesh, &self.settings)?));
+            self.restart_shadow()?;
+        }
         Ok(())
     }
 
@@ -658,51 +703,120 @@ impl LeveledBody {
             return Ok(None);
         }
         self.snapshot_surface();
+        self.cage_state()?;
+        load_state(&mut self.precise, &self.nodes_work, &self.nodes_work2);
+        self.level = Level::Precise;
+        Ok(Some(self.record(Level::Cage, Level::Precise, 0.0)))
+    }
+
+    /// The state the cage gives every node: positions (the exact map) into `nodes_work`,
+    /// velocities (central difference of the exact map along the cage vertex velocities)
+    /// into `nodes_work2`.
+    fn cage_state(&mut self) -> Result<(), PrecisionError> {
         let coords = self.cage.coordinates().clone();
         let x = self.cage.cage_positions().to_vec();
         let u = self.cage.msd().velocities().to_vec();
-        // Positions: the exact map.
         coords.face_terms(&x, &mut self.terms_work);
         coords.evaluate(&x, &self.terms_work, &mut self.nodes_work)?;
-        // Velocities: central difference of the exact map along the cage velocities.
         let h = 1e-3 * self.settings.dt;
         shifted(&x, &u, h, &mut self.cage_work);
         coords.face_terms(&self.cage_work, &mut self.terms_work);
         coords.evaluate(&self.cage_work, &self.terms_work, &mut self.nodes_work2)?;
-        let body = self.precise.body_mut();
-        body.velocities_mut().copy_from_slice(&self.nodes_work2);
+        let forward = self.nodes_work2.clone();
         shifted(&x, &u, -h, &mut self.cage_work);
         coords.face_terms(&self.cage_work, &mut self.terms_work);
         coords.evaluate(&self.cage_work, &self.terms_work, &mut self.nodes_work2)?;
-        // Fixed components stay where the precise body holds them, at rest.
-        {
-            let body = self.precise.body();
-            for (i, (f, held)) in body.fixed().iter().zip(body.positions()).enumerate() {
-                for a in 0..3 {
-                    if f[a] {
-                        self.nodes_work[i][a] = held[a];
-                    }
+        for (v, f) in self.nodes_work2.iter_mut().zip(&forward) {
+            *v = (f - *v) / (2.0 * h);
+        }
+        Ok(())
+    }
+
+    /// Turns the shadow precise simulation on or off (`mesh` is the body's mesh). The shadow
+    /// is a second solver of the body's precise method that, while the body is at the cage
+    /// level, starts from the cage's state, takes the same external forces and steps beside
+    /// it, so [`LeveledBody::shadow_error`] measures how far the cage level is from what the
+    /// precise method would do under the same loads. At the precise level it waits, and it
+    /// restarts from the precise state at each down-switch. Costs one precise step per step.
+    pub fn set_shadow(&mut self, mesh: &TetMesh, on: bool) -> Result<(), PrecisionError> {
+        if !on {
+            self.shadow = None;
+            self.shadow_error = None;
+            return Ok(());
+        }
+        if self.shadow.is_none() {
+            self.shadow = Some(Box::new(build_precise(mesh, &self.settings)?));
+            self.restart_shadow()?;
+        }
+        Ok(())
+    }
+
+    /// Whether a shadow precise simulation runs (see [`LeveledBody::set_shadow`]).
+    pub fn has_shadow(&self) -> bool {
+        self.shadow.is_some()
+    }
+
+    /// Distance between the cage level and its shadow after the last step; `None` without a
+    /// shadow or while the body is at the precise level.
+    pub fn shadow_error(&self) -> Option<ShadowError> {
+        self.shadow_error
+    }
+
+    /// The shadow's node positions (`None` without a shadow).
+    pub fn shadow_positions(&self) -> Option<&[Vec3]> {
+        self.shadow.as_ref().map(|s| s.body().positions())
+    }
+
+    /// Puts the shadow in the body's current state (from the cage or the precise solver).
+    fn restart_shadow(&mut self) -> Result<(), PrecisionError> {
+        let Some(mut shadow) = self.shadow.take() else {
+            return Ok(());
+        };
+        let worst = self.shadow_error.map_or(0.0, |e| e.worst_ratio);
+        match self.level {
+            Level::Cage => {
+                self.cage_state()?;
+                load_state(&mut shadow, &self.nodes_work, &self.nodes_work2);
+            }
+            Level::Precise => {
+                let from = self.precise.body();
+                let to = shadow.body_mut();
+                to.positions_mut().copy_from_slice(from.positions());
+                to.velocities_mut().copy_from_slice(from.velocities());
+                if let Precise::Fem(b) = shadow.as_mut() {
+                    b.sync_rotations();
                 }
             }
         }
-        let body = self.precise.body_mut();
-        for (v, m) in body.velocities_mut().iter_mut().zip(&self.nodes_work2) {
-            *v = (*v - m) / (2.0 * h);
+        self.shadow = Some(shadow);
+        self.shadow_error = Some(ShadowError {
+            worst_ratio: worst,
+            ..ShadowError::default()
+        });
+        Ok(())
+    }
+
+    /// Steps the shadow beside a cage step and measures the distance of the two surfaces.
+    fn step_shadow(&mut self) -> Result<(), PrecisionError> {
+        let Some(shadow) = self.shadow.as_mut() else {
+            return Ok(());
+        };
+        shadow.step()?;
+        let a = self.cage.points();
+        let b = shadow.body().positions();
+        let (mut sum, mut max) = (0.0, 0.0_f64);
+        for &i in &self.surface {
+            let d = (a[i as usize] - b[i as usize]).norm();
+            sum += d;
+            max = max.max(d);
         }
-        body.positions_mut().copy_from_slice(&self.nodes_work);
-        let fixed: Vec<[bool; 3]> = body.fixed().to_vec();
-        for (v, f) in body.velocities_mut().iter_mut().zip(&fixed) {
-            for a in 0..3 {
-                if f[a] {
-                    v[a] = 0.0;
-                }
-            }
-        }
-        if let Precise::Fem(b) = &mut self.precise {
-            b.sync_rotations();
-        }
-        self.level = Level::Precise;
-        Ok(Some(self.record(Level::Cage, Level::Precise, 0.0)))
+        let e = self.shadow_error.get_or_insert_with(ShadowError::default);
+        e.steps += 1;
+        e.mean = sum / self.surface.len().max(1) as f64;
+        e.max = max;
+        e.max_ratio = max / self.smallest;
+        e.worst_ratio = e.worst_ratio.max(e.max_ratio);
+        Ok(())
     }
 
     /// Solves the normal equations `(Phi^T Phi + mu I) X = Phi^T (targets) + mu prior` for the
@@ -846,6 +960,8 @@ impl LeveledBody {
         // The cage keeps its rest shape (the body's equilibrium, see `settle`): whatever
         // motion is left carries on at the cage level and its springs bring it back to rest.
         self.cage.update_points()?;
+        // The shadow carries on from the precise state the cage now stands for.
+        self.restart_shadow()?;
         self.level = Level::Cage;
         Ok(Some(self.record(Level::Precise, Level::Cage, residual)))
     }
@@ -859,6 +975,7 @@ impl LeveledBody {
             Level::Cage => {
                 if self.asleep && !in_contact {
                     // At rest in its rest shape with no load: stepping would change nothing.
+                    self.step_shadow()?;
                     self.steps += 1;
                     self.steps_at_level += 1;
                     return Ok(LevelStepStats {
@@ -868,6 +985,7 @@ impl LeveledBody {
                 }
                 self.cage.step()?;
                 self.try_sleep()?;
+                self.step_shadow()?;
             }
             Level::Precise => self.precise.step()?,
         }
@@ -973,7 +1091,42 @@ impl LeveledBody {
             self.raise()?;
             self.pin = Some(Level::Precise);
         }
+        if let Some(shadow) = self.shadow.as_mut() {
+            match shadow.as_mut() {
+                Precise::Fem(b) => b.reset(),
+                Precise::Msd(b) => b.reset(),
+            }
+            self.shadow_error = None;
+            self.restart_shadow()?;
+        }
         Ok(())
+    }
+}
+
+/// Sets a precise solver's nodes to `x`, `v`; components it holds fixed keep their position
+/// and get no velocity.
+fn load_state(target: &mut Precise, x: &[Vec3], v: &[Vec3]) {
+    let body = target.body_mut();
+    let fixed: Vec<[bool; 3]> = body.fixed().to_vec();
+    let held: Vec<Vec3> = body.positions().to_vec();
+    for (i, ((p, w), f)) in body
+        .positions_mut()
+        .iter_mut()
+        .zip(x)
+        .zip(&fixed)
+        .enumerate()
+    {
+        for a in 0..3 {
+            p[a] = if f[a] { held[i][a] } else { w[a] };
+        }
+    }
+    for ((u, w), f) in body.velocities_mut().iter_mut().zip(v).zip(&fixed) {
+        for a in 0..3 {
+            u[a] = if f[a] { 0.0 } else { w[a] };
+        }
+    }
+    if let Precise::Fem(b) = target {
+        b.sync_rotations();
     }
 }
 

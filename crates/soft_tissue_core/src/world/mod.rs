@@ -38,7 +38,9 @@ use crate::contact::{
 };
 use crate::heat::{HeatBoundary, HeatError, HeatField, HeatParams};
 use crate::mesh::TetMesh;
-use crate::precision::{BodySettings, Level, LeveledBody, PrecisionError, SwitchRecord};
+use crate::precision::{
+    BodySettings, Level, LeveledBody, PrecisionError, ShadowError, SwitchRecord,
+};
 use crate::scenario::SceneError;
 
 /// A failure of the world, naming the body or tool.
@@ -137,6 +139,9 @@ pub struct BodyDiagnostics {
     pub max_displacement: f64,
     /// Largest temperature, C (`None` without a heat field).
     pub max_temperature: Option<f64>,
+    /// Distance of the cage level from its shadow precise simulation after this step
+    /// (`None` unless [`SimBody::set_shadow`] turned it on and the body is at its cage).
+    pub shadow: Option<ShadowError>,
 }
 
 /// Wall time of each stage of the last step, microseconds.
@@ -257,6 +262,7 @@ impl SimBody {
                 last_switch: None,
                 max_displacement: 0.0,
                 max_temperature: heat.as_ref().map(|h| max_of(h.temperatures())),
+                shadow: None,
             },
             name,
             mesh,
@@ -330,8 +336,27 @@ impl SimBody {
         &self.diagnostics
     }
 
+    /// Turns on or off a shadow precise simulation beside the cage level, for validation:
+    /// [`BodyDiagnostics::shadow`] then reports the distance between the two each step
+    /// (see [`LeveledBody::set_shadow`]; it costs one precise step per step).
+    pub fn set_shadow(&mut self, on: bool) -> Result<(), WorldError> {
+        self.body
+            .set_shadow(&self.mesh, on)
+            .map_err(|source| WorldError::Precision {
+                body: self.name.clone(),
+                source,
+            })?;
+        self.diagnostics.shadow = self.body.shadow_error();
+        Ok(())
+    }
+
     fn write_surface(&mut self) {
         self.diagnostics.level = self.body.level();
+        self.diagnostics.shadow = if self.body.level() == Level::Cage {
+            self.body.shadow_error()
+        } else {
+            None
+        };
         self.diagnostics.switch_count = self.body.switch_count();
         self.diagnostics.last_switch = self.body.last_switch();
         if self.heat.is_none() && self.body.is_asleep() && self.written_asleep {
@@ -915,6 +940,7 @@ fn apply_corrections(
         Level::Cage => {
             let x = b.body.node_positions();
             let mut targets = Vec::new();
+            let mut shadow_loads = Vec::new();
             let masses = b.body.precise().masses();
             for i in 0..b.weight.len() {
                 let w = b.weight[i];
@@ -922,6 +948,7 @@ fn apply_corrections(
                     let dx = b.correction[i] / w;
                     targets.push((i, x[i] + dx));
                     force += dx * (masses[i] / (dt * dt));
+                    shadow_loads.push((i, dx * (masses[i] / (dt * dt))));
                 }
             }
             b.body
@@ -931,6 +958,9 @@ fn apply_corrections(
                     body: b.name.clone(),
                     source: e.into(),
                 })?;
+            for (i, f) in shadow_loads {
+                b.body.add_shadow_force(i, f);
+            }
         }
     }
     b.correction.fill(Vec3::zeros());
