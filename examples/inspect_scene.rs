@@ -1,4 +1,4 @@
-//! Headless example: load the paper's organs scene from `assets/scenes/organs.ron`, load each
+//! Headless example: load the paper's organs scene from `assets/scenes/organs.scene.ron`, load each
 //! body's tetrahedral mesh and print its size, quality and precise-method settings.
 //!
 //! Run: `cargo run --example inspect_scene [-- path/to/scene.ron]`
@@ -12,7 +12,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let scene_path = std::env::args()
         .nth(1)
         .map(Into::into)
-        .unwrap_or_else(|| assets.join("scenes/organs.ron"));
+        .unwrap_or_else(|| assets.join("scenes/organs.scene.ron"));
     let text = std::fs::read_to_string(&scene_path)?;
     let scene = Scene::from_ron(&text, &scene_path.display().to_string())?;
     println!("scene '{}', gravity {:?}", scene.name, scene.gravity);

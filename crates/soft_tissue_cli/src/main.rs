@@ -171,7 +171,7 @@ struct GenerateArgs {
 
 #[derive(Subcommand)]
 enum SceneCommand {
-    /// Write cylinders.ron and organs.ron (the paper's parameters) into DIR.
+    /// Write cylinders.scene.ron and organs.scene.ron (the paper's parameters) into DIR.
     Export {
         /// Output folder (created if missing).
         #[arg(long)]
@@ -325,7 +325,7 @@ fn export_scenes(out: &Path) -> Res {
         Scene::paper_organs(),
     ];
     for s in scenes {
-        let path = out.join(format!("{}.ron", s.name));
+        let path = out.join(format!("{}.scene.ron", s.name));
         std::fs::write(&path, s.to_ron())?;
         println!("wrote {}", path.display());
     }

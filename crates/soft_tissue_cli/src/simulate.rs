@@ -42,20 +42,20 @@ pub struct SimulateArgs {
     shadow: bool,
 }
 
-/// `cylinders` and `organs` are read from `<assets>/scenes/<name>.ron` (the scenario files),
+/// `cylinders` and `organs` are read from `<assets>/scenes/<name>.scene.ron` (the scenario files),
 /// falling back to the built-in definitions when that file is absent; anything else is a RON
 /// file path.
 fn load_scene(name: &str, assets: &Path) -> Result<Scene, String> {
     let (path, builtin) = match name {
         "cylinders" => (
-            assets.join("scenes/cylinders.ron"),
+            assets.join("scenes/cylinders.scene.ron"),
             Some(Scene::paper_cylinders(
                 PreciseMethod::LinearFem,
                 PreciseMethod::LinearFem,
             )),
         ),
         "organs" => (
-            assets.join("scenes/organs.ron"),
+            assets.join("scenes/organs.scene.ron"),
             Some(Scene::paper_organs()),
         ),
         _ => (PathBuf::from(name), None),

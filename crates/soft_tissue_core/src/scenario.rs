@@ -5,7 +5,7 @@
 //! seconds, Young's modulus is force per area in the same units. Coordinates are y-up, as in
 //! Bevy. Each level keeps its own time step, as in the paper.
 //!
-//! `assets/scenes/cylinders.ron` and `assets/scenes/organs.ron` are these definitions written
+//! `assets/scenes/cylinders.scene.ron` and `assets/scenes/organs.scene.ron` are these definitions written
 //! out; a test keeps them in sync with [`Scene::paper_cylinders`] and [`Scene::paper_organs`].
 
 use crate::material::{FemParams, MsdParams, PAPER_CAGE_MSD};

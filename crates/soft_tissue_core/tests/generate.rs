@@ -223,7 +223,7 @@ fn generation_is_reproducible_and_assets_are_current() {
         Scene::paper_cylinders(PreciseMethod::LinearFem, PreciseMethod::LinearFem),
         Scene::paper_organs(),
     ] {
-        let path = assets.join(format!("scenes/{}.ron", scene.name));
+        let path = assets.join(format!("scenes/{}.scene.ron", scene.name));
         let text = std::fs::read_to_string(&path).unwrap();
         let parsed = Scene::from_ron(&text, &path.display().to_string()).unwrap();
         assert_eq!(

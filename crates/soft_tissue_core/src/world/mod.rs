@@ -24,10 +24,10 @@
 mod scene;
 mod script;
 
-pub use scene::{body_settings, load_mesh, placed_mesh};
+pub use scene::{SceneBody, body_settings, load_mesh, placed_mesh, scene_bodies};
 pub use script::{Script, ScriptAction, ScriptError, ScriptEvent, Waypoint};
 
-use std::borrow::BorrowMut;
+use std::borrow::{Borrow, BorrowMut};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -442,9 +442,13 @@ pub struct ContactState {
 }
 
 /// Prepare: tool velocities over `dt`, surfaces gathered from the bodies.
-pub fn prepare<B: BorrowMut<SimBody>>(bodies: &mut [B], tools: &mut [Tool], dt: f64) {
+pub fn prepare<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
+    bodies: &mut [B],
+    tools: &mut [T],
+    dt: f64,
+) {
     for t in tools.iter_mut() {
-        t.begin_step(dt);
+        t.borrow_mut().begin_step(dt);
     }
     for b in bodies.iter_mut() {
         let b = b.borrow_mut();
@@ -460,9 +464,9 @@ pub fn prepare<B: BorrowMut<SimBody>>(bodies: &mut [B], tools: &mut [Tool], dt: 
 
 /// Detect contacts on the positions at the start of the step (margins included) and resolve
 /// pending grabs; marks touched bodies.
-pub fn detect_contacts<B: BorrowMut<SimBody>>(
+pub fn detect_contacts<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
     bodies: &mut [B],
-    tools: &mut [Tool],
+    tools: &mut [T],
     config: &ContactConfig,
     state: &mut ContactState,
 ) {
@@ -479,6 +483,7 @@ pub fn detect_contacts<B: BorrowMut<SimBody>>(
     state.body_contacts.clear();
     // Tools.
     for (it, tool) in tools.iter_mut().enumerate() {
+        let tool = tool.borrow_mut();
         let (lo, hi) = tool.bounds(config.tool_margin);
         for (ib, b) in bodies.iter_mut().enumerate() {
             let b = b.borrow_mut();
@@ -604,14 +609,15 @@ pub fn switch_precision<B: BorrowMut<SimBody>>(bodies: &mut [B]) -> Result<(), W
 }
 
 /// Cautery power into the heat fields, then every body's heat and level step.
-pub fn step_solvers<B: BorrowMut<SimBody>>(
+pub fn step_solvers<B: BorrowMut<SimBody>, T: Borrow<Tool>>(
     bodies: &mut [B],
-    tools: &[Tool],
+    tools: &[T],
     state: &ContactState,
 ) -> Result<(), WorldError> {
     // Cautery: each tool's power is shared over the triangle points it touches (within the
     // skin), by their weights.
     for (it, tool) in tools.iter().enumerate() {
+        let tool = tool.borrow();
         let watts = tool.cautery_watts();
         if watts <= 0.0 {
             continue;
@@ -666,9 +672,9 @@ fn inverse_mass(b: &SimBody, node: usize) -> f64 {
 }
 
 /// Contact response on the positions after the solvers, grips, reaction forces.
-pub fn collide<B: BorrowMut<SimBody>>(
+pub fn collide<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
     bodies: &mut [B],
-    tools: &mut [Tool],
+    tools: &mut [T],
     config: &ContactConfig,
     state: &mut ContactState,
     dt: f64,
@@ -720,6 +726,7 @@ pub fn collide<B: BorrowMut<SimBody>>(
     // Tools: every surface vertex inside a tool goes to its surface and every triangle
     // crossing it is pushed out as a whole, a few Jacobi rounds on fresh positions.
     for (it, tool) in tools.iter_mut().enumerate() {
+        let tool = tool.borrow_mut();
         let (lo, hi) = tool.bounds(0.0);
         for (ib, b) in bodies.iter_mut().enumerate() {
             let b = b.borrow_mut();

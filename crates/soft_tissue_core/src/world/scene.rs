@@ -101,34 +101,62 @@ pub fn body_settings(
     Ok(s)
 }
 
+/// A scene body ready to build: its placed mesh, level settings and heat field, if any.
+#[derive(Debug, Clone)]
+pub struct SceneBody {
+    /// Body name.
+    pub name: String,
+    /// Mesh in scene coordinates (placement applied).
+    pub mesh: TetMesh,
+    /// Level settings.
+    pub settings: BodySettings,
+    /// Heat parameters and boundary (`None`: no temperature field).
+    pub heat: Option<(crate::heat::HeatParams, HeatBoundary)>,
+}
+
+/// Reads or generates every body of the scene (mesh files relative to `assets`) and the world
+/// settings they share: the world step is the bodies' common precise step (an error names a
+/// body that differs, when it is added), contact settings scale with the smallest body
+/// dimension. What [`SoftTissueWorld::from_scene`] and the Bevy plugin build from.
+pub fn scene_bodies(
+    scene: &Scene,
+    assets: &Path,
+) -> Result<(WorldConfig, Vec<SceneBody>), WorldError> {
+    scene.validate()?;
+    let gravity = Vec3::from(scene.gravity);
+    let mut built = Vec::with_capacity(scene.bodies.len());
+    for spec in &scene.bodies {
+        let mesh = load_mesh(spec, assets)?;
+        let settings = body_settings(spec, &mesh, gravity)?;
+        built.push(SceneBody {
+            name: spec.name.clone(),
+            heat: spec.heat.map(|p| (p, HeatBoundary::insulated())),
+            mesh,
+            settings,
+        });
+    }
+    let Some(first) = built.first() else {
+        return Err(WorldError::TimeStep("the scene has no bodies".into()));
+    };
+    let dt = first.settings.dt;
+    let scale = built
+        .iter()
+        .map(|b| b.mesh.bbox().smallest_dimension())
+        .fold(f64::INFINITY, f64::min);
+    let config = WorldConfig {
+        dt,
+        contact: ContactConfig::for_scale(scale),
+    };
+    Ok((config, built))
+}
+
 impl SoftTissueWorld {
-    /// Builds the scene's bodies (mesh files relative to `assets`). The world step is the
-    /// bodies' common precise step (an error names a body that differs); contact settings
-    /// scale with the smallest body dimension.
+    /// Builds the scene's bodies (see [`scene_bodies`]).
     pub fn from_scene(scene: &Scene, assets: &Path) -> Result<Self, WorldError> {
-        scene.validate()?;
-        let gravity = Vec3::from(scene.gravity);
-        let mut built = Vec::with_capacity(scene.bodies.len());
-        for spec in &scene.bodies {
-            let mesh = load_mesh(spec, assets)?;
-            let settings = body_settings(spec, &mesh, gravity)?;
-            built.push((spec, mesh, settings));
-        }
-        let Some(first) = built.first() else {
-            return Err(WorldError::TimeStep("the scene has no bodies".into()));
-        };
-        let dt = first.2.dt;
-        let scale = built
-            .iter()
-            .map(|(_, m, _)| m.bbox().smallest_dimension())
-            .fold(f64::INFINITY, f64::min);
-        let mut world = SoftTissueWorld::new(WorldConfig {
-            dt,
-            contact: ContactConfig::for_scale(scale),
-        })?;
-        for (spec, mesh, settings) in built {
-            let heat = spec.heat.map(|p| (p, HeatBoundary::insulated()));
-            let body = SimBody::new(spec.name.clone(), Arc::new(mesh), settings, heat)?;
+        let (config, bodies) = scene_bodies(scene, assets)?;
+        let mut world = SoftTissueWorld::new(config)?;
+        for b in bodies {
+            let body = SimBody::new(b.name, Arc::new(b.mesh), b.settings, b.heat)?;
             world.add_body(body)?;
         }
         Ok(world)

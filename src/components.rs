@@ -1,0 +1,314 @@
+//! The components of the design card. A user spawns [`SoftBody`] (and, for a tool,
+//! [`SoftTool`] with a `Transform`); the plugin adds the rest when the body is built, and only
+//! what the body uses: [`FemState`] for a FEM body, [`MsdState`] for an MSD body,
+//! [`Temperature`] when the body has heat parameters.
+//!
+//! The physics state of a body is one core [`SimBody`] in [`SimulatedBody`]; the stage
+//! systems hand those to the core's stage functions. The other components are what the
+//! Writeback stage reads out of it for games, the inspector and the renderer.
+
+use bevy::prelude::*;
+use soft_tissue_core::contact::{Tool, ToolShape};
+use soft_tissue_core::fem::FemModel;
+use soft_tissue_core::heat::HeatParams;
+use soft_tissue_core::msd::MsdIntegrator;
+use soft_tissue_core::precision::{BodySettings, Level, PreciseMethod};
+use soft_tissue_core::world::SimBody;
+
+use crate::assets::TetMeshAsset;
+
+/// A soft body: its tetrahedral mesh and its settings. What a user spawns; the plugin builds
+/// the simulation once the mesh asset is loaded.
+///
+/// The entity's `Transform` at that moment places the mesh (its scale, rotation and
+/// translation are baked into the simulation mesh) and is then set to identity: from then on
+/// the simulation owns the shape, and the rendered mesh is written in world coordinates.
+#[derive(Component, Reflect, Clone, Debug)]
+#[reflect(Component, from_reflect = false)]
+#[require(Transform)]
+pub struct SoftBody {
+    /// The tetrahedral mesh.
+    pub mesh: Handle<TetMeshAsset>,
+    /// The precise method the body rises to when touched. Change it at run time: the body
+    /// switches solver without a jump.
+    pub method: PreciseMethodKind,
+    /// Material, cage, boundary, gravity and step (`method` overrides `settings.precise`).
+    /// The step must equal the plugin's [`crate::SoftTissueConfig::dt`].
+    #[reflect(ignore)]
+    pub settings: BodySettings,
+    /// Heat parameters: `Some` gives the body a temperature field (and a [`Temperature`]).
+    #[reflect(ignore)]
+    pub heat: Option<HeatParams>,
+}
+
+impl SoftBody {
+    /// A body of `mesh` with `settings` (its precise method taken from them), no heat.
+    pub fn new(mesh: Handle<TetMeshAsset>, settings: BodySettings) -> Self {
+        SoftBody {
+            mesh,
+            method: settings.precise.into(),
+            settings,
+            heat: None,
+        }
+    }
+
+    /// The same body with a temperature field.
+    pub fn with_heat(mut self, heat: HeatParams) -> Self {
+        self.heat = Some(heat);
+        self
+    }
+}
+
+/// The precise methods, as a reflectable choice.
+#[derive(Reflect, Clone, Copy, Debug, PartialEq, Eq, Default, Hash)]
+pub enum PreciseMethodKind {
+    /// Linear tetrahedral FEM, implicit Euler (the paper).
+    LinearFem,
+    /// Corotational tetrahedral FEM, implicit Euler (the default).
+    #[default]
+    CorotationalFem,
+    /// Mass-spring-damper, RK4 (the paper).
+    MsdRk4,
+    /// Mass-spring-damper, symplectic Euler.
+    MsdSymplectic,
+    /// Mass-spring-damper, linearised implicit Euler.
+    MsdImplicit,
+}
+
+impl PreciseMethodKind {
+    /// Every method, in display order.
+    pub const ALL: [PreciseMethodKind; 5] = [
+        PreciseMethodKind::LinearFem,
+        PreciseMethodKind::CorotationalFem,
+        PreciseMethodKind::MsdRk4,
+        PreciseMethodKind::MsdSymplectic,
+        PreciseMethodKind::MsdImplicit,
+    ];
+
+    /// Short name (`fem-linear`, `fem-corotational`, `msd-rk4`, `msd-symplectic`,
+    /// `msd-implicit`).
+    pub fn name(self) -> &'static str {
+        PreciseMethod::from(self).name()
+    }
+}
+
+impl From<PreciseMethod> for PreciseMethodKind {
+    fn from(m: PreciseMethod) -> Self {
+        match m {
+            PreciseMethod::Fem(FemModel::Linear) => PreciseMethodKind::LinearFem,
+            PreciseMethod::Fem(FemModel::Corotational) => PreciseMethodKind::CorotationalFem,
+            PreciseMethod::Msd(MsdIntegrator::Rk4) => PreciseMethodKind::MsdRk4,
+            PreciseMethod::Msd(MsdIntegrator::SymplecticEuler) => PreciseMethodKind::MsdSymplectic,
+            PreciseMethod::Msd(MsdIntegrator::ImplicitEuler) => PreciseMethodKind::MsdImplicit,
+        }
+    }
+}
+
+impl From<PreciseMethodKind> for PreciseMethod {
+    fn from(m: PreciseMethodKind) -> Self {
+        match m {
+            PreciseMethodKind::LinearFem => PreciseMethod::Fem(FemModel::Linear),
+            PreciseMethodKind::CorotationalFem => PreciseMethod::Fem(FemModel::Corotational),
+            PreciseMethodKind::MsdRk4 => PreciseMethod::Msd(MsdIntegrator::Rk4),
+            PreciseMethodKind::MsdSymplectic => PreciseMethod::Msd(MsdIntegrator::SymplecticEuler),
+            PreciseMethodKind::MsdImplicit => PreciseMethod::Msd(MsdIntegrator::ImplicitEuler),
+        }
+    }
+}
+
+/// The level a body runs at.
+#[derive(Reflect, Clone, Copy, Debug, PartialEq, Eq, Default, Hash)]
+pub enum LevelKind {
+    /// Green coordinates of a cage driven by a small MSD.
+    #[default]
+    Cage,
+    /// The body's precise method.
+    Precise,
+}
+
+impl From<Level> for LevelKind {
+    fn from(l: Level) -> Self {
+        match l {
+            Level::Cage => LevelKind::Cage,
+            Level::Precise => LevelKind::Precise,
+        }
+    }
+}
+
+impl From<LevelKind> for Level {
+    fn from(l: LevelKind) -> Self {
+        match l {
+            LevelKind::Cage => Level::Cage,
+            LevelKind::Precise => Level::Precise,
+        }
+    }
+}
+
+/// The level a body runs at now and what its switches did (written by the switcher).
+#[derive(Component, Reflect, Clone, Copy, Debug, PartialEq, Default)]
+#[reflect(Component)]
+pub struct PrecisionLevel {
+    /// Current level.
+    pub level: LevelKind,
+    /// The precise method the body rises to.
+    pub method: PreciseMethodKind,
+    /// Switches so far.
+    pub switches: u64,
+    /// Largest surface-vertex jump of the last switch, as a fraction of the body's smallest
+    /// bounding-box dimension.
+    pub last_jump_ratio: Option<f64>,
+}
+
+/// Pins a body to a level while present (the switcher leaves it there); remove it to let the
+/// body switch again.
+#[derive(Component, Reflect, Clone, Copy, Debug, PartialEq, Eq)]
+#[reflect(Component)]
+pub struct PinnedLevel(pub LevelKind);
+
+/// The body's cage: its triangles and current vertex positions (world coordinates, updated
+/// while the body is at the cage level), for display.
+#[derive(Component, Reflect, Clone, Debug, Default)]
+#[reflect(Component)]
+pub struct GreenCage {
+    /// Cage vertex positions.
+    pub vertices: Vec<Vec3>,
+    /// Cage triangles (indices into `vertices`).
+    pub triangles: Vec<[u32; 3]>,
+    /// Whether the cage drives the body now.
+    pub active: bool,
+}
+
+/// Read-out of a FEM body's solver (only on bodies whose precise method is FEM).
+#[derive(Component, Reflect, Clone, Copy, Debug, Default, PartialEq)]
+#[reflect(Component)]
+pub struct FemState {
+    /// Whether the model is corotational (otherwise linear).
+    pub corotational: bool,
+    /// Kinetic energy at the precise level, J (scene units).
+    pub kinetic_energy: f64,
+    /// Elastic energy at the precise level.
+    pub elastic_energy: f64,
+    /// Conjugate-gradient iterations of the last precise step (0 for the direct solve).
+    pub cg_iterations: u32,
+}
+
+/// Read-out of an MSD body's solver (only on bodies whose precise method is MSD).
+#[derive(Component, Reflect, Clone, Copy, Debug, Default, PartialEq)]
+#[reflect(Component)]
+pub struct MsdState {
+    /// The integrator.
+    pub integrator: PreciseMethodKind,
+    /// Kinetic energy at the precise level.
+    pub kinetic_energy: f64,
+    /// Elastic (spring) energy at the precise level.
+    pub elastic_energy: f64,
+    /// Substeps of the last precise step (explicit integrators).
+    pub substeps: u32,
+}
+
+/// Temperatures and thermal damage of a body with a heat field (only on those).
+#[derive(Component, Reflect, Clone, Debug, Default)]
+#[reflect(Component)]
+pub struct Temperature {
+    /// Temperature of every surface vertex (in the order of the rendered mesh), C.
+    pub surface: Vec<f32>,
+    /// Damaged fraction (0..1, Arrhenius) of every surface vertex.
+    pub damage: Vec<f32>,
+    /// Lowest node temperature, C.
+    pub min: f64,
+    /// Highest node temperature, C.
+    pub max: f64,
+}
+
+/// Per-body timings and counts of the last fixed step.
+#[derive(Component, Reflect, Clone, Copy, Debug, Default, PartialEq)]
+#[reflect(Component)]
+pub struct SoftBodyDiagnostics {
+    /// Wall time of this body's solver step (level and heat), microseconds.
+    pub step_us: f64,
+    /// Contacts found this step.
+    pub contacts: u32,
+    /// Largest surface displacement from the settled shape, scene units.
+    pub max_displacement: f64,
+    /// Distance of the cage level from a shadow precise simulation, as a fraction of the
+    /// smallest dimension (only with [`ShadowSimulation`]).
+    pub shadow_error_ratio: Option<f64>,
+}
+
+/// Runs a shadow precise simulation beside the body's cage level while present, to measure
+/// the cage level's error ([`SoftBodyDiagnostics::shadow_error_ratio`]). Costs a precise step
+/// per step.
+#[derive(Component, Reflect, Clone, Copy, Debug, Default)]
+#[reflect(Component)]
+pub struct ShadowSimulation;
+
+/// The physics state of a built body: the core body the stage functions step.
+#[derive(Component)]
+pub struct SimulatedBody {
+    pub(crate) body: SimBody,
+    /// Build order: bodies are handed to the stage functions in this order every step.
+    pub(crate) order: u64,
+    /// The surface changed since the rendered mesh was last written.
+    pub(crate) dirty: bool,
+}
+
+impl SimulatedBody {
+    /// The core body.
+    pub fn body(&self) -> &SimBody {
+        &self.body
+    }
+}
+
+/// A kinematic tool driven by its entity's `Transform` (position: translation; axis: the
+/// local +Y axis, for capsules).
+#[derive(Component, Reflect, Clone, Copy, Debug)]
+#[reflect(Component, from_reflect = false)]
+#[require(Transform, ToolReaction)]
+pub struct SoftTool {
+    /// Tip shape.
+    #[reflect(ignore)]
+    pub shape: ToolShape,
+    /// Hold: grabs the surface points under the tip on the step it turns on, releases them
+    /// when it turns off.
+    pub grab: bool,
+    /// Electrocautery power delivered at the contact, W (0: off).
+    pub cautery_watts: f64,
+}
+
+impl SoftTool {
+    /// A sphere of `radius` (scene units).
+    pub fn sphere(radius: f64) -> Self {
+        SoftTool {
+            shape: ToolShape::Sphere { radius },
+            grab: false,
+            cautery_watts: 0.0,
+        }
+    }
+}
+
+/// What the tissue does back to a tool (written every step).
+#[derive(Component, Reflect, Clone, Copy, Debug, Default, PartialEq)]
+#[reflect(Component)]
+pub struct ToolReaction {
+    /// Reaction force on the tool, N (scene units).
+    pub force: Vec3,
+    /// Surface triangles in contact.
+    pub contacts: u32,
+    /// Grabbed surface points.
+    pub grips: u32,
+}
+
+/// The core tool of a [`SoftTool`].
+#[derive(Component)]
+pub struct ToolState {
+    pub(crate) tool: Tool,
+    pub(crate) order: u64,
+    pub(crate) grabbing: bool,
+}
+
+impl ToolState {
+    /// The core tool.
+    pub fn tool(&self) -> &Tool {
+        &self.tool
+    }
+}

@@ -1,0 +1,99 @@
+//! Debug gizmos (feature `debug-render`): the cage of every body at the cage level (the
+//! paper's Fig. 1), tools, their contact count and reaction force.
+
+use bevy::prelude::*;
+
+use crate::components::{GreenCage, SoftTool, ToolReaction};
+
+/// What the debug gizmos draw (a resource; toggle at run time).
+#[derive(Resource, Clone, Copy, Debug)]
+pub struct SoftTissueDebugSettings {
+    /// Cage edges of bodies at the cage level.
+    pub cages: bool,
+    /// Tool shapes (green when free, orange in contact) and reaction forces.
+    pub tools: bool,
+    /// Length of the drawn reaction force per newton, scene units.
+    pub force_scale: f32,
+}
+
+impl Default for SoftTissueDebugSettings {
+    fn default() -> Self {
+        SoftTissueDebugSettings {
+            cages: true,
+            tools: true,
+            force_scale: 0.05,
+        }
+    }
+}
+
+/// Adds the debug gizmos (needs Bevy's gizmo plugin, part of `DefaultPlugins`).
+#[derive(Default)]
+pub struct SoftTissueDebugPlugin;
+
+impl Plugin for SoftTissueDebugPlugin {
+    fn build(&self, app: &mut App) {
+        app.init_resource::<SoftTissueDebugSettings>()
+            .add_systems(Update, (draw_cages, draw_tools));
+    }
+}
+
+fn draw_cages(
+    settings: Res<SoftTissueDebugSettings>,
+    cages: Query<&GreenCage>,
+    mut gizmos: Gizmos,
+) {
+    if !settings.cages {
+        return;
+    }
+    let colour = Color::srgb(0.3, 0.7, 1.0);
+    for cage in &cages {
+        if !cage.active {
+            continue;
+        }
+        for t in &cage.triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                // Each edge once (the other triangle has it the other way round).
+                if a < b {
+                    gizmos.line(cage.vertices[a as usize], cage.vertices[b as usize], colour);
+                }
+            }
+        }
+    }
+}
+
+fn draw_tools(
+    settings: Res<SoftTissueDebugSettings>,
+    tools: Query<(&SoftTool, &GlobalTransform, &ToolReaction)>,
+    mut gizmos: Gizmos,
+) {
+    if !settings.tools {
+        return;
+    }
+    for (tool, pose, reaction) in &tools {
+        let colour = if reaction.contacts > 0 {
+            Color::srgb(1.0, 0.55, 0.1)
+        } else {
+            Color::srgb(0.2, 0.9, 0.3)
+        };
+        let p = pose.translation();
+        match tool.shape {
+            crate::core::contact::ToolShape::Sphere { radius } => {
+                gizmos.sphere(Isometry3d::from_translation(p), radius as f32, colour);
+            }
+            crate::core::contact::ToolShape::Capsule { radius, length } => {
+                let q = p + pose.up() * length as f32;
+                gizmos.sphere(Isometry3d::from_translation(p), radius as f32, colour);
+                gizmos.sphere(Isometry3d::from_translation(q), radius as f32, colour);
+                gizmos.line(p, q, colour);
+            }
+        }
+        if reaction.force.length_squared() > 0.0 {
+            gizmos.arrow(
+                p,
+                p + reaction.force * settings.force_scale,
+                Color::srgb(1.0, 0.2, 0.2),
+            );
+        }
+    }
+}

@@ -1,0 +1,177 @@
+//! The inspector (feature `inspector`, bevy_egui): every body's level, precise method
+//! (switchable), step time, switches, last jump, temperature range and shadow error; the
+//! simulation's rate, stage times, pause / single step / reset; and a live plot of each body's
+//! step time over the last seconds, like the paper's figures.
+
+use std::collections::VecDeque;
+
+use bevy::prelude::*;
+use bevy_egui::{EguiContexts, EguiPlugin, EguiPrimaryContextPass, egui};
+use egui_plot::{Legend, Line, Plot, PlotPoints};
+
+use crate::components::*;
+use crate::physics::{ResetSimulation, SoftTissueConfig, SoftTissueStatus};
+
+/// Adds the panel (and `EguiPlugin` when the app has none).
+pub struct SoftTissueInspectorPlugin;
+
+impl Plugin for SoftTissueInspectorPlugin {
+    fn build(&self, app: &mut App) {
+        if !app.is_plugin_added::<EguiPlugin>() {
+            app.add_plugins(EguiPlugin::default());
+        }
+        app.init_resource::<StepHistory>()
+            .add_systems(Update, record_history)
+            .add_systems(EguiPrimaryContextPass, inspector_panel);
+    }
+}
+
+/// Per-body step times of the last steps, for the plot.
+#[derive(Resource, Default)]
+pub struct StepHistory {
+    last_step: u64,
+    /// (entity, name, [(step, microseconds)]).
+    series: Vec<(Entity, String, VecDeque<[f64; 2]>)>,
+}
+
+/// Steps kept in the plot.
+const HISTORY: usize = 500;
+
+fn record_history(
+    status: Res<SoftTissueStatus>,
+    bodies: Query<(Entity, Option<&Name>, &SoftBodyDiagnostics)>,
+    mut history: ResMut<StepHistory>,
+) {
+    if status.steps == history.last_step {
+        return;
+    }
+    if status.steps < history.last_step {
+        history.series.clear();
+    }
+    history.last_step = status.steps;
+    let step = status.steps as f64;
+    for (e, name, d) in &bodies {
+        let i = match history.series.iter().position(|s| s.0 == e) {
+            Some(i) => i,
+            None => {
+                let n = name.map_or_else(|| format!("{e}"), |n| n.as_str().to_owned());
+                history
+                    .series
+                    .push((e, n, VecDeque::with_capacity(HISTORY)));
+                history.series.len() - 1
+            }
+        };
+        let s = &mut history.series[i].2;
+        if s.len() == HISTORY {
+            s.pop_front();
+        }
+        s.push_back([step, d.step_us]);
+    }
+}
+
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn inspector_panel(
+    mut contexts: EguiContexts,
+    mut status: ResMut<SoftTissueStatus>,
+    config: Res<SoftTissueConfig>,
+    history: Res<StepHistory>,
+    mut bodies: Query<(
+        Entity,
+        Option<&Name>,
+        &mut SoftBody,
+        &PrecisionLevel,
+        &SoftBodyDiagnostics,
+        Option<&Temperature>,
+    )>,
+    mut reset: MessageWriter<ResetSimulation>,
+) -> Result {
+    let ctx = contexts.ctx_mut()?;
+    egui::Window::new("Soft tissue")
+        .default_pos([10.0, 10.0])
+        .default_width(560.0)
+        .show(ctx, |ui| {
+            let t = status.times;
+            ui.label(format!(
+                "physics {:.0} Hz (dt {} s), step {}: {:.0} us (detect {:.0}, switch {:.0}, solve {:.0}, collide {:.0}, writeback {:.0})",
+                1.0 / config.dt,
+                config.dt,
+                status.steps,
+                t.total_us(),
+                t.detect_us,
+                t.switch_us,
+                t.solve_us,
+                t.collide_us,
+                t.writeback_us
+            ));
+            ui.horizontal(|ui| {
+                let label = if status.paused { "Resume" } else { "Pause" };
+                if ui.button(label).clicked() {
+                    status.paused = !status.paused;
+                }
+                if ui.button("Step").clicked() {
+                    status.paused = true;
+                    status.step_once = true;
+                }
+                if ui.button("Reset").clicked() {
+                    reset.write(ResetSimulation);
+                }
+            });
+            if let Some(e) = &status.error {
+                ui.colored_label(egui::Color32::LIGHT_RED, e);
+            }
+            egui::Grid::new("bodies").striped(true).show(ui, |ui| {
+                for h in [
+                    "body", "level", "method", "step us", "switches", "last jump %", "C",
+                    "cage err %",
+                ] {
+                    ui.strong(h);
+                }
+                ui.end_row();
+                let mut rows: Vec<_> = bodies.iter_mut().collect();
+                rows.sort_by_key(|r| r.0);
+                for (e, name, mut body, level, diag, temp) in rows {
+                    ui.label(name.map_or_else(|| format!("{e}"), |n| n.as_str().to_owned()));
+                    let (text, colour) = match level.level {
+                        LevelKind::Cage => ("cage", egui::Color32::from_rgb(90, 170, 255)),
+                        LevelKind::Precise => ("precise", egui::Color32::from_rgb(255, 150, 60)),
+                    };
+                    ui.colored_label(colour, text);
+                    let mut method = body.method;
+                    egui::ComboBox::from_id_salt(("method", e))
+                        .selected_text(method.name())
+                        .show_ui(ui, |ui| {
+                            for m in PreciseMethodKind::ALL {
+                                ui.selectable_value(&mut method, m, m.name());
+                            }
+                        });
+                    if method != body.method {
+                        body.method = method;
+                    }
+                    ui.label(format!("{:.0}", diag.step_us));
+                    ui.label(format!("{}", level.switches));
+                    ui.label(
+                        level
+                            .last_jump_ratio
+                            .map_or("-".into(), |r| format!("{:.3}", 100.0 * r)),
+                    );
+                    ui.label(temp.map_or("-".into(), |t| format!("{:.1}..{:.1}", t.min, t.max)));
+                    ui.label(
+                        diag.shadow_error_ratio
+                            .map_or("-".into(), |r| format!("{:.2}", 100.0 * r)),
+                    );
+                    ui.end_row();
+                }
+            });
+            Plot::new("step-times")
+                .height(180.0)
+                .legend(Legend::default())
+                .show(ui, |plot| {
+                    for (_, name, s) in &history.series {
+                        let points: PlotPoints = s.iter().copied().collect();
+                        plot.line(Line::new(name.clone(), points));
+                    }
+                });
+            ui.label("step time per body, us, over the last steps");
+        });
+    Ok(())
+}

@@ -1,0 +1,653 @@
+//! The simulation plugin: resources, the chained system sets of a step and the thin systems
+//! that hand the bodies' core state to the core's stage functions
+//! ([`soft_tissue_core::world`]): the plugin keeps no second world.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use bevy::ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
+use bevy::prelude::*;
+use bevy::transform::helper::TransformHelper;
+use soft_tissue_core::contact::{ContactConfig, Tool};
+use soft_tissue_core::heat::HeatBoundary;
+use soft_tissue_core::mesh::TetMesh;
+use soft_tissue_core::precision::{Level, PreciseMethod};
+use soft_tissue_core::state::NodalBody;
+use soft_tissue_core::world::{
+    ContactState, SimBody, StageTimes, WorldError, collide, detect_contacts, prepare, step_solvers,
+    switch_precision, writeback,
+};
+
+use crate::assets::TetMeshAsset;
+use crate::components::*;
+use crate::convert::{to_bevy, to_core};
+use crate::messages::{BodyTouched, LevelChanged};
+
+/// The stages of a step, chained in this order in the plugin's schedule. `First` and `Last`
+/// are empty hooks; order your systems against these sets.
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SoftTissueSystems {
+    /// Before anything of the step.
+    First,
+    /// New bodies and tools are built, run-time changes applied, tool poses read, surfaces
+    /// gathered.
+    Prepare,
+    /// Broad and narrow phase; touched bodies marked.
+    DetectContact,
+    /// Touched bodies rise to their precise method.
+    SwitchPrecision,
+    /// Heat and every body's level step.
+    StepSolvers,
+    /// Contact response, grips, tool reaction forces.
+    Collide,
+    /// Surface positions, read-out components and messages.
+    Writeback,
+    /// After everything of the step.
+    Last,
+}
+
+/// Settings of the simulation.
+#[derive(Resource, Clone, Copy, Debug)]
+pub struct SoftTissueConfig {
+    /// Fixed step, s (default 0.02, the paper's cylinders). Every body's step must equal it.
+    /// When the plugin runs in `FixedUpdate` (the default), the plugin sets
+    /// `Time<Fixed>` to it.
+    pub dt: f64,
+    /// Contact settings (thickness, search radius, margins, scene units; default for bodies
+    /// about 1 unit across).
+    pub contact: ContactConfig,
+}
+
+impl Default for SoftTissueConfig {
+    fn default() -> Self {
+        SoftTissueConfig {
+            dt: 0.02,
+            contact: ContactConfig::for_scale(1.0),
+        }
+    }
+}
+
+/// State of the simulation as a whole: pause, single step, counters, stage times and the
+/// last error.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct SoftTissueStatus {
+    /// No steps run while set (bodies and tools keep their state).
+    pub paused: bool,
+    /// Runs exactly one step while paused, then clears itself.
+    pub step_once: bool,
+    /// Steps run so far.
+    pub steps: u64,
+    /// Wall time of each stage of the last step (this machine).
+    pub times: StageTimes,
+    /// The last error of a step (a solver that failed, a NaN caught); the simulation pauses
+    /// when one happens.
+    pub error: Option<String>,
+}
+
+impl SoftTissueStatus {
+    fn running(&self) -> bool {
+        !self.paused || self.step_once
+    }
+}
+
+/// Contacts of the last step (the core's contact state, indices in body build order).
+#[derive(Resource, Default)]
+pub struct SoftTissueContacts(pub ContactState);
+
+/// Asks for every body and tool to go back to its initial state at the next step.
+#[derive(Message, Clone, Copy, Debug, Default)]
+pub struct ResetSimulation;
+
+/// A body that could not be built, and why (the entity keeps its [`SoftBody`]).
+#[derive(Component, Clone, Debug)]
+pub struct SoftBodyError(pub String);
+
+/// The simulation: resources, messages, the step's system sets and systems, in `schedule`.
+pub struct SoftTissuePhysicsPlugin {
+    schedule: InternedScheduleLabel,
+}
+
+impl SoftTissuePhysicsPlugin {
+    /// The plugin running its step in `schedule` (`FixedUpdate` by default).
+    pub fn new(schedule: impl ScheduleLabel) -> Self {
+        SoftTissuePhysicsPlugin {
+            schedule: schedule.intern(),
+        }
+    }
+}
+
+impl Default for SoftTissuePhysicsPlugin {
+    fn default() -> Self {
+        Self::new(FixedUpdate)
+    }
+}
+
+impl Plugin for SoftTissuePhysicsPlugin {
+    fn build(&self, app: &mut App) {
+        use SoftTissueSystems as S;
+        app.init_resource::<SoftTissueConfig>()
+            .init_resource::<SoftTissueStatus>()
+            .init_resource::<SoftTissueContacts>()
+            .add_message::<LevelChanged>()
+            .add_message::<BodyTouched>()
+            .add_message::<ResetSimulation>()
+            .register_type::<SoftBody>()
+            .register_type::<PrecisionLevel>()
+            .register_type::<PinnedLevel>()
+            .register_type::<GreenCage>()
+            .register_type::<FemState>()
+            .register_type::<MsdState>()
+            .register_type::<Temperature>()
+            .register_type::<SoftBodyDiagnostics>()
+            .register_type::<ShadowSimulation>()
+            .register_type::<SoftTool>()
+            .register_type::<ToolReaction>();
+        let sched = self.schedule;
+        app.configure_sets(
+            sched,
+            (
+                S::First,
+                S::Prepare,
+                S::DetectContact,
+                S::SwitchPrecision,
+                S::StepSolvers,
+                S::Collide,
+                S::Writeback,
+                S::Last,
+            )
+                .chain(),
+        );
+        let running = |s: Res<SoftTissueStatus>| s.running();
+        app.add_systems(
+            sched,
+            (
+                (
+                    reset_simulation,
+                    build_bodies,
+                    build_tools,
+                    apply_changes,
+                    prepare_stage,
+                )
+                    .chain()
+                    .in_set(S::Prepare),
+                detect_stage.in_set(S::DetectContact),
+                switch_stage.in_set(S::SwitchPrecision),
+                solve_stage.in_set(S::StepSolvers),
+                collide_stage.in_set(S::Collide),
+                writeback_stage.in_set(S::Writeback),
+            )
+                .run_if(running),
+        );
+        if sched == FixedUpdate.intern() {
+            app.add_systems(PreUpdate, sync_fixed_timestep);
+        }
+    }
+}
+
+/// Keeps `Time<Fixed>` at the configured step.
+fn sync_fixed_timestep(config: Res<SoftTissueConfig>, mut time: ResMut<Time<Fixed>>) {
+    let want = std::time::Duration::from_secs_f64(config.dt);
+    if config.is_changed() && time.timestep() != want && config.dt > 0.0 && config.dt.is_finite() {
+        time.set_timestep(want);
+    }
+}
+
+fn reset_simulation(
+    mut requests: MessageReader<ResetSimulation>,
+    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut tools: Query<&mut ToolState>,
+    mut contacts: ResMut<SoftTissueContacts>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    if requests.read().count() == 0 {
+        return;
+    }
+    for (e, mut b) in &mut bodies {
+        if let Err(err) = b.body.reset() {
+            fail(&mut status, format!("resetting {e}: {err}"));
+        }
+        b.dirty = true;
+    }
+    for mut t in &mut tools {
+        t.tool.reset();
+        t.grabbing = false;
+    }
+    contacts.0 = ContactState::default();
+    status.steps = 0;
+    status.error = None;
+}
+
+fn fail(status: &mut SoftTissueStatus, message: String) {
+    error!("soft tissue: {message}; the simulation is paused");
+    status.error = Some(message);
+    status.paused = true;
+    status.step_once = false;
+}
+
+/// The body's mesh with `transform` applied (the same `Arc` when it is the identity).
+fn placed(mesh: &Arc<TetMesh>, transform: &Transform) -> Result<Arc<TetMesh>, String> {
+    if *transform == Transform::IDENTITY {
+        return Ok(mesh.clone());
+    }
+    let m = transform.to_matrix().as_dmat4();
+    let positions = mesh
+        .positions()
+        .iter()
+        .map(|p| {
+            let q = m.transform_point3(bevy::math::DVec3::new(p.x, p.y, p.z));
+            soft_tissue_core::Vec3::new(q.x, q.y, q.z)
+        })
+        .collect();
+    let tets = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
+    TetMesh::new(positions, tets)
+        .map(Arc::new)
+        .map_err(|e| format!("placing the mesh: {e}"))
+}
+
+/// Builds the simulation of every [`SoftBody`] whose mesh has loaded.
+#[allow(clippy::type_complexity)]
+fn build_bodies(
+    mut commands: Commands,
+    config: Res<SoftTissueConfig>,
+    meshes: Res<Assets<TetMeshAsset>>,
+    mut new: Query<
+        (
+            Entity,
+            &SoftBody,
+            &mut Transform,
+            Option<&Name>,
+            Has<ShadowSimulation>,
+            Option<&PinnedLevel>,
+        ),
+        (Without<SimulatedBody>, Without<SoftBodyError>),
+    >,
+    mut next: Local<u64>,
+) {
+    for (entity, spec, mut transform, name, shadow, pin) in &mut new {
+        let Some(asset) = meshes.get(&spec.mesh) else {
+            continue;
+        };
+        let name = name.map_or_else(|| format!("{entity}"), |n| n.as_str().to_owned());
+        let result = (|| -> Result<SimBody, String> {
+            let mut settings = spec.settings.clone();
+            settings.precise = spec.method.into();
+            if (settings.dt - config.dt).abs() > 1e-12 * config.dt {
+                return Err(format!(
+                    "its step {} s differs from the simulation's {} s (SoftTissueConfig::dt)",
+                    settings.dt, config.dt
+                ));
+            }
+            let mesh = placed(&asset.0, &transform)?;
+            let heat = spec.heat.map(|h| (h, HeatBoundary::insulated()));
+            let mut body =
+                SimBody::new(name.clone(), mesh, settings, heat).map_err(|e| e.to_string())?;
+            if shadow {
+                body.set_shadow(true).map_err(|e| e.to_string())?;
+            }
+            if let Some(p) = pin {
+                body.body_mut()
+                    .pin(Some(p.0.into()))
+                    .map_err(|e| e.to_string())?;
+            }
+            Ok(body)
+        })();
+        match result {
+            Ok(body) => {
+                *transform = Transform::IDENTITY;
+                let method: PreciseMethodKind = body.body().settings().precise.into();
+                let mut e = commands.entity(entity);
+                e.insert((
+                    PrecisionLevel {
+                        level: body.body().level().into(),
+                        method,
+                        switches: 0,
+                        last_jump_ratio: None,
+                    },
+                    GreenCage::default(),
+                    SoftBodyDiagnostics::default(),
+                ));
+                match body.body().settings().precise {
+                    PreciseMethod::Fem(_) => {
+                        e.insert(FemState::default());
+                    }
+                    PreciseMethod::Msd(_) => {
+                        e.insert(MsdState::default());
+                    }
+                }
+                if body.heat().is_some() {
+                    e.insert(Temperature::default());
+                }
+                e.insert(SimulatedBody {
+                    body,
+                    order: *next,
+                    dirty: true,
+                });
+                *next += 1;
+            }
+            Err(message) => {
+                error!("soft body `{name}` was not built: {message}");
+                commands.entity(entity).insert(SoftBodyError(message));
+            }
+        }
+    }
+}
+
+/// The pose of a tool entity now: position and axis (local +Y) in core vectors.
+fn tool_pose(
+    poses: &TransformHelper,
+    entity: Entity,
+) -> Option<(soft_tissue_core::Vec3, soft_tissue_core::Vec3)> {
+    // Computed now, not the one propagated at the end of the last frame.
+    let pose = poses.compute_global_transform(entity).ok()?;
+    let (_, rotation, translation) = pose.to_scale_rotation_translation();
+    Some((to_core(translation), to_core(rotation * Vec3::Y)))
+}
+
+fn build_tools(
+    mut commands: Commands,
+    new: Query<(Entity, &SoftTool, Option<&Name>), Without<ToolState>>,
+    poses: TransformHelper,
+    mut next: Local<u64>,
+) {
+    for (entity, spec, name) in &new {
+        let name = name.map_or_else(|| format!("{entity}"), |n| n.as_str().to_owned());
+        // The tool starts where its entity is (not at the origin).
+        let built = Tool::new(name.clone(), spec.shape).and_then(|mut t| {
+            if let Some((p, a)) = tool_pose(&poses, entity) {
+                t.set_pose(p, a)?;
+            }
+            Ok(t)
+        });
+        match built {
+            Ok(tool) => {
+                commands.entity(entity).insert(ToolState {
+                    tool,
+                    order: *next,
+                    grabbing: false,
+                });
+                *next += 1;
+            }
+            Err(e) => {
+                error!("tool `{name}` was not built: {e}");
+                commands.entity(entity).despawn();
+            }
+        }
+    }
+}
+
+/// Run-time changes: precise method, pins, shadows, tool poses and actions.
+#[allow(clippy::type_complexity)]
+fn apply_changes(
+    mut bodies: Query<(
+        Entity,
+        Ref<SoftBody>,
+        &mut SimulatedBody,
+        Option<Ref<PinnedLevel>>,
+        Has<ShadowSimulation>,
+    )>,
+    mut tools: Query<(Entity, &SoftTool, &mut ToolState)>,
+    poses: TransformHelper,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    for (entity, spec, mut sim, pin, shadow) in &mut bodies {
+        let b = &mut sim.body;
+        let want: PreciseMethod = spec.method.into();
+        if spec.is_changed() && b.body().settings().precise != want {
+            let mesh = b.mesh().clone();
+            if let Err(e) = b.body_mut().set_precise_method(&mesh, want) {
+                fail(&mut status, format!("{}: changing method: {e}", b.name()));
+            }
+        }
+        let pinned: Option<Level> = pin.as_ref().map(|p| p.0.into());
+        if b.body().pinned() != pinned
+            && let Err(e) = b.body_mut().pin(pinned)
+        {
+            fail(&mut status, format!("{}: pinning: {e}", b.name()));
+        }
+        if b.body().has_shadow() != shadow
+            && let Err(e) = b.set_shadow(shadow)
+        {
+            fail(&mut status, format!("{entity}: shadow: {e}"));
+        }
+    }
+    for (entity, spec, mut state) in &mut tools {
+        let Some((position, axis)) = tool_pose(&poses, entity) else {
+            continue;
+        };
+        let t = &mut state.tool;
+        if let Err(e) = t.set_pose(position, axis) {
+            fail(&mut status, format!("tool {}: {e}", t.name()));
+            continue;
+        }
+        if let Err(e) = t.set_cautery(spec.cautery_watts) {
+            fail(&mut status, format!("tool {}: {e}", t.name()));
+        }
+        if spec.grab != state.grabbing {
+            if spec.grab {
+                state.tool.grab();
+            } else {
+                state.tool.release();
+            }
+            state.grabbing = spec.grab;
+        }
+    }
+}
+
+/// The built bodies in build order, as the core's stage functions take them.
+fn ordered<'a>(q: impl Iterator<Item = Mut<'a, SimulatedBody>>) -> Vec<Mut<'a, SimulatedBody>> {
+    let mut v: Vec<_> = q.collect();
+    v.sort_unstable_by_key(|b| b.order);
+    v
+}
+
+fn ordered_tools<'a>(q: impl Iterator<Item = Mut<'a, ToolState>>) -> Vec<Mut<'a, ToolState>> {
+    let mut v: Vec<_> = q.collect();
+    v.sort_unstable_by_key(|t| t.order);
+    v
+}
+
+fn lap(t: &mut Instant) -> f64 {
+    let e = t.elapsed().as_secs_f64() * 1e6;
+    *t = Instant::now();
+    e
+}
+
+fn prepare_stage(
+    mut bodies: Query<&mut SimulatedBody>,
+    mut tools: Query<&mut ToolState>,
+    config: Res<SoftTissueConfig>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    let mut t = Instant::now();
+    let mut b = ordered(bodies.iter_mut());
+    let mut b: Vec<&mut SimBody> = b.iter_mut().map(|b| &mut b.body).collect();
+    let mut tl = ordered_tools(tools.iter_mut());
+    let mut tl: Vec<&mut Tool> = tl.iter_mut().map(|t| &mut t.tool).collect();
+    prepare(&mut b, &mut tl, config.dt);
+    status.times.prepare_us = lap(&mut t);
+}
+
+fn detect_stage(
+    mut bodies: Query<&mut SimulatedBody>,
+    mut tools: Query<&mut ToolState>,
+    config: Res<SoftTissueConfig>,
+    mut contacts: ResMut<SoftTissueContacts>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    let mut t = Instant::now();
+    let mut b = ordered(bodies.iter_mut());
+    let mut b: Vec<&mut SimBody> = b.iter_mut().map(|b| &mut b.body).collect();
+    let mut tl = ordered_tools(tools.iter_mut());
+    let mut tl: Vec<&mut Tool> = tl.iter_mut().map(|t| &mut t.tool).collect();
+    detect_contacts(&mut b, &mut tl, &config.contact, &mut contacts.0);
+    status.times.detect_us = lap(&mut t);
+}
+
+fn report(status: &mut SoftTissueStatus, stage: &str, r: Result<(), WorldError>) {
+    if let Err(e) = r {
+        fail(status, format!("{stage}: {e}"));
+    }
+}
+
+fn switch_stage(mut bodies: Query<&mut SimulatedBody>, mut status: ResMut<SoftTissueStatus>) {
+    let mut t = Instant::now();
+    let mut b = ordered(bodies.iter_mut());
+    let mut b: Vec<&mut SimBody> = b.iter_mut().map(|b| &mut b.body).collect();
+    let r = switch_precision(&mut b);
+    report(&mut status, "switching precision", r);
+    status.times.switch_us = lap(&mut t);
+}
+
+fn solve_stage(
+    mut bodies: Query<&mut SimulatedBody>,
+    tools: Query<&ToolState>,
+    contacts: Res<SoftTissueContacts>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    let mut t = Instant::now();
+    let mut b = ordered(bodies.iter_mut());
+    let mut b: Vec<&mut SimBody> = b.iter_mut().map(|b| &mut b.body).collect();
+    let mut tl: Vec<&ToolState> = tools.iter().collect();
+    tl.sort_unstable_by_key(|t| t.order);
+    let tl: Vec<&Tool> = tl.iter().map(|t| &t.tool).collect();
+    let r = step_solvers(&mut b, &tl, &contacts.0);
+    report(&mut status, "stepping the solvers", r);
+    status.times.solve_us = lap(&mut t);
+}
+
+fn collide_stage(
+    mut bodies: Query<&mut SimulatedBody>,
+    mut tools: Query<&mut ToolState>,
+    config: Res<SoftTissueConfig>,
+    mut contacts: ResMut<SoftTissueContacts>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    let mut t = Instant::now();
+    let mut b = ordered(bodies.iter_mut());
+    let mut b: Vec<&mut SimBody> = b.iter_mut().map(|b| &mut b.body).collect();
+    let mut tl = ordered_tools(tools.iter_mut());
+    let mut tl: Vec<&mut Tool> = tl.iter_mut().map(|t| &mut t.tool).collect();
+    let r = collide(&mut b, &mut tl, &config.contact, &mut contacts.0, config.dt);
+    report(&mut status, "collisions", r);
+    status.times.collide_us = lap(&mut t);
+}
+
+#[allow(clippy::type_complexity)]
+fn writeback_stage(
+    mut bodies: Query<(
+        Entity,
+        &mut SimulatedBody,
+        &mut PrecisionLevel,
+        &mut GreenCage,
+        &mut SoftBodyDiagnostics,
+        Option<&mut FemState>,
+        Option<&mut MsdState>,
+        Option<&mut Temperature>,
+    )>,
+    mut tools: Query<(&ToolState, &mut ToolReaction)>,
+    mut level_changes: MessageWriter<LevelChanged>,
+    mut touches: MessageWriter<BodyTouched>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    let mut t = Instant::now();
+    {
+        let mut sims: Vec<_> = bodies.iter_mut().map(|(_, s, ..)| s).collect();
+        sims.sort_unstable_by_key(|s| s.order);
+        let mut b: Vec<&mut SimBody> = sims.iter_mut().map(|s| &mut s.body).collect();
+        writeback(&mut b);
+    }
+    for (entity, mut sim, mut level, mut cage, mut diag, fem, msd, temp) in &mut bodies {
+        let b = &sim.body;
+        let d = *b.diagnostics();
+        let lb = b.body();
+        if !d.max_displacement.is_finite() {
+            fail(
+                &mut status,
+                format!("{}: a surface position is not finite", b.name()),
+            );
+        }
+        let new_level = PrecisionLevel {
+            level: d.level.into(),
+            method: lb.settings().precise.into(),
+            switches: d.switch_count,
+            last_jump_ratio: d.last_switch.map(|s| s.jump_ratio),
+        };
+        if *level != new_level {
+            *level = new_level;
+        }
+        if let Some(s) = d.switched {
+            level_changes.write(LevelChanged {
+                entity,
+                from: s.from.into(),
+                to: s.to.into(),
+                jump_ratio: s.jump_ratio,
+            });
+        }
+        if d.touched {
+            touches.write(BodyTouched {
+                entity,
+                contacts: d.contacts,
+            });
+        }
+        let awake = !lb.is_asleep();
+        if awake || cage.vertices.is_empty() {
+            let c = lb.cage();
+            cage.vertices.clear();
+            cage.vertices.extend(c.cage_positions().iter().map(to_bevy));
+            if cage.triangles.is_empty() {
+                cage.triangles = c.cage().triangles().to_vec();
+            }
+            cage.active = d.level == Level::Cage;
+        }
+        *diag = SoftBodyDiagnostics {
+            step_us: d.step_us,
+            contacts: d.contacts,
+            max_displacement: d.max_displacement,
+            shadow_error_ratio: d.shadow.map(|e| e.max_ratio),
+        };
+        if let (Some(mut f), Some(fb)) = (fem, lb.fem()) {
+            let precise = d.level == Level::Precise;
+            *f = FemState {
+                corotational: fb.model() == soft_tissue_core::fem::FemModel::Corotational,
+                kinetic_energy: if precise { fb.kinetic_energy() } else { 0.0 },
+                elastic_energy: if precise { fb.elastic_energy() } else { 0.0 },
+                cg_iterations: fb.last_step().cg.iterations,
+            };
+        }
+        if let (Some(mut m), Some(mb)) = (msd, lb.msd()) {
+            let precise = d.level == Level::Precise;
+            *m = MsdState {
+                integrator: lb.settings().precise.into(),
+                kinetic_energy: if precise { mb.kinetic_energy() } else { 0.0 },
+                elastic_energy: if precise { mb.elastic_energy() } else { 0.0 },
+                substeps: mb.last_step().substeps,
+            };
+        }
+        if let (Some(mut tc), Some(h)) = (temp, b.heat()) {
+            let nodes = b.surface_nodes();
+            let temps = h.temperatures();
+            tc.surface.clear();
+            tc.surface
+                .extend(nodes.iter().map(|&i| temps[i as usize] as f32));
+            tc.damage.clear();
+            tc.damage
+                .extend(nodes.iter().map(|&i| h.damaged_fraction(i as usize) as f32));
+            tc.min = temps.iter().copied().fold(f64::INFINITY, f64::min);
+            tc.max = temps.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        }
+        if awake || d.switched.is_some() || b.heat().is_some() {
+            sim.dirty = true;
+        }
+    }
+    for (state, mut reaction) in &mut tools {
+        let t = &state.tool;
+        *reaction = ToolReaction {
+            force: to_bevy(&t.reaction_force()),
+            contacts: t.contact_count(),
+            grips: t.grips().len() as u32,
+        };
+    }
+    status.times.writeback_us = lap(&mut t);
+    status.steps += 1;
+    status.step_once = false;
+}

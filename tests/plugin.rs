@@ -1,0 +1,446 @@
+//! The plugin in a headless app (`MinimalPlugins`): bodies built from meshes with only the
+//! components they use, a scripted tool raising and releasing a body, the render mesh
+//! written, parity with the engine-free `SoftTissueWorld`, determinism, no system-order
+//! ambiguity, and errors surfaced.
+
+use std::path::Path;
+use std::time::Duration;
+
+use bevy::asset::LoadState;
+use bevy::ecs::schedule::{LogLevel, ScheduleBuildSettings, ScheduleLabel};
+use bevy::mesh::{Mesh, Mesh3d, VertexAttributeValues};
+use bevy::prelude::*;
+use bevy::time::TimeUpdateStrategy;
+use bevy_soft_tissue::core::scenario::{PreciseMethod, Scene};
+use bevy_soft_tissue::core::world::{Script, ScriptAction, SoftTissueWorld};
+use bevy_soft_tissue::prelude::*;
+use bevy_soft_tissue::{
+    SimulatedBody, SoftBodyError, SoftTissueAssetPlugin, SoftTissueMeshPlugin,
+    SoftTissuePhysicsPlugin,
+};
+
+fn assets() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/assets"))
+}
+
+/// A headless app in which every `update` advances exactly one fixed step of `dt`.
+fn app(dt: f64) -> App {
+    let mut app = App::new();
+    app.add_plugins((
+        MinimalPlugins,
+        TransformPlugin,
+        AssetPlugin {
+            file_path: assets().display().to_string(),
+            ..default()
+        },
+        SoftTissueAssetPlugin,
+        SoftTissuePhysicsPlugin::default(),
+        SoftTissueMeshPlugin,
+    ));
+    app.insert_resource(Time::<Fixed>::from_seconds(dt));
+    app.insert_resource(TimeUpdateStrategy::ManualDuration(Duration::from_secs_f64(
+        dt,
+    )));
+    // The first frame has no elapsed time (no fixed step): spend it before any body exists.
+    app.update();
+    app
+}
+
+fn cylinders_scene() -> Scene {
+    Scene::paper_cylinders(PreciseMethod::LinearFem, PreciseMethod::LinearFem)
+}
+
+/// An app with a scene spawned, and the core world of the same scene.
+fn scene_app(scene: &Scene) -> (App, Vec<Entity>, SoftTissueWorld) {
+    let world = SoftTissueWorld::from_scene(scene, assets()).unwrap();
+    let mut app = app(world.config().dt);
+    let entities = bevy_soft_tissue::spawn_scene(app.world_mut(), scene, assets()).unwrap();
+    (app, entities, world)
+}
+
+/// The tool pose of a script at time `t` as a `Transform` (what a game would set).
+fn tool_transform(script: &Script, t: f64) -> Transform {
+    let (p, a) = script.pose_at(t);
+    let axis = Vec3::new(a.x as f32, a.y as f32, a.z as f32).normalize();
+    Transform::from_xyz(p.x as f32, p.y as f32, p.z as f32)
+        .with_rotation(Quat::from_rotation_arc(Vec3::Y, axis))
+}
+
+/// Sets the tool entity from the script for step `k` (1-based) and returns the pose the
+/// plugin sees, in core vectors, so the core world can be fed the very same input.
+fn drive_tool(
+    app: &mut App,
+    tool: Entity,
+    script: &Script,
+    k: usize,
+    dt: f64,
+) -> (
+    bevy_soft_tissue::core::Vec3,
+    bevy_soft_tissue::core::Vec3,
+    Vec<ScriptAction>,
+) {
+    let t = k as f64 * dt;
+    let tf = tool_transform(script, t);
+    let actions: Vec<ScriptAction> = script.events_in(t - dt, t).map(|e| e.action).collect();
+    let mut e = app.world_mut().entity_mut(tool);
+    *e.get_mut::<Transform>().unwrap() = tf;
+    let mut spec = e.get_mut::<SoftTool>().unwrap();
+    for a in &actions {
+        match a {
+            ScriptAction::Grab => spec.grab = true,
+            ScriptAction::Release => spec.grab = false,
+            ScriptAction::Cautery(w) => spec.cautery_watts = *w,
+        }
+    }
+    let axis = tf.rotation * Vec3::Y;
+    (
+        bevy_soft_tissue::convert::to_core(tf.translation),
+        bevy_soft_tissue::convert::to_core(axis),
+        actions,
+    )
+}
+
+fn level(app: &App, e: Entity) -> LevelKind {
+    app.world().get::<PrecisionLevel>(e).unwrap().level
+}
+
+#[test]
+fn bodies_get_only_the_components_they_use() {
+    let mut app = app(0.02);
+    let mesh = {
+        let m =
+            bevy_soft_tissue::core::mesh::io::read_tet_mesh(assets().join("meshes/cylinder.vtk"))
+                .unwrap()
+                .mesh;
+        app.world_mut()
+            .resource_mut::<Assets<TetMeshAsset>>()
+            .add(TetMeshAsset::from(m))
+    };
+    let scene = cylinders_scene();
+    let (_, bodies) = bevy_soft_tissue::core::world::scene_bodies(&scene, assets()).unwrap();
+    let settings = bodies[0].settings.clone();
+    let fem = app
+        .world_mut()
+        .spawn(SoftBody::new(mesh.clone(), settings.clone()))
+        .id();
+    let mut msd_body = SoftBody::new(mesh.clone(), settings.clone());
+    msd_body.method = PreciseMethodKind::MsdImplicit;
+    let msd = app
+        .world_mut()
+        .spawn((msd_body, Transform::from_xyz(3.0, 0.0, 0.0)))
+        .id();
+    let hot = app
+        .world_mut()
+        .spawn((
+            SoftBody::new(mesh.clone(), settings.clone())
+                .with_heat(bevy_soft_tissue::core::heat::HeatParams::liver()),
+            Transform::from_xyz(-3.0, 0.0, 0.0),
+        ))
+        .id();
+    let mut wrong = settings.clone();
+    wrong.dt = 0.01;
+    let bad = app.world_mut().spawn(SoftBody::new(mesh, wrong)).id();
+    app.update();
+    app.update();
+    let w = app.world();
+    for e in [fem, msd, hot] {
+        assert!(w.get::<SimulatedBody>(e).is_some());
+        assert!(w.get::<PrecisionLevel>(e).is_some());
+        assert!(w.get::<GreenCage>(e).is_some());
+        assert!(w.get::<Mesh3d>(e).is_some(), "the render mesh is created");
+        assert_eq!(
+            level(&app, e),
+            LevelKind::Cage,
+            "every body starts at its cage"
+        );
+        assert_eq!(*w.get::<Transform>(e).unwrap(), Transform::IDENTITY);
+    }
+    assert!(w.get::<FemState>(fem).is_some() && w.get::<MsdState>(fem).is_none());
+    assert!(w.get::<MsdState>(msd).is_some() && w.get::<FemState>(msd).is_none());
+    assert!(w.get::<Temperature>(fem).is_none() && w.get::<Temperature>(msd).is_none());
+    let t = w.get::<Temperature>(hot).unwrap();
+    assert!((t.max - 37.0).abs() < 1e-9 && !t.surface.is_empty());
+    // The transform placed the mesh: the MSD body sits 3 units along x.
+    let sim = w.get::<SimulatedBody>(msd).unwrap().body();
+    let cx = sim.mesh().bbox().min.x + 0.5 * sim.mesh().bbox().extent().x;
+    assert!((cx - 3.0).abs() < 0.1, "centre x {cx}");
+    // A body whose step differs from the simulation's is refused, with the reason.
+    let err = w.get::<SoftBodyError>(bad).expect("refused");
+    assert!(err.0.contains("0.01"), "{}", err.0);
+    assert!(w.get::<SimulatedBody>(bad).is_none());
+}
+
+#[test]
+fn meshes_load_through_the_asset_server_and_errors_name_the_file() {
+    let mut app = app(0.02);
+    let server = app.world().resource::<AssetServer>().clone();
+    let good: Handle<TetMeshAsset> = server.load("meshes/liver.vtk");
+    let missing: Handle<TetMeshAsset> = server.load("meshes/no-such-organ.vtk");
+    let scene: Handle<bevy_soft_tissue::SceneAsset> = server.load("scenes/organs.scene.ron");
+    for _ in 0..200 {
+        app.update();
+        let done = |id| {
+            matches!(
+                server.load_state(id),
+                LoadState::Loaded | LoadState::Failed(_)
+            )
+        };
+        if done(good.id().untyped()) && done(missing.id().untyped()) && done(scene.id().untyped()) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let meshes = app.world().resource::<Assets<TetMeshAsset>>();
+    let liver = meshes.get(&good).expect("liver loaded");
+    assert!(liver.0.tet_count() > 1000);
+    match server.load_state(missing.id()) {
+        LoadState::Failed(e) => assert!(e.to_string().contains("no-such-organ"), "{e}"),
+        s => panic!("expected a failure, got {s:?}"),
+    }
+    let scenes = app
+        .world()
+        .resource::<Assets<bevy_soft_tissue::SceneAsset>>();
+    let s = scenes.get(&scene).expect("scene loaded");
+    assert_eq!(s.0.bodies.len(), 4);
+}
+
+#[test]
+fn a_tool_raises_a_body_its_release_returns_it_and_the_mesh_follows() {
+    let scene = cylinders_scene();
+    let (mut app, bodies, world) = scene_app(&scene);
+    let script = Script::builtin("poke-a", &world).unwrap();
+    let dt = world.config().dt;
+    let tool = app
+        .world_mut()
+        .spawn((
+            SoftTool {
+                shape: script.tool,
+                grab: false,
+                cautery_watts: 0.0,
+            },
+            tool_transform(&script, 0.0),
+        ))
+        .id();
+    let (a, b) = (bodies[0], bodies[1]);
+    app.update();
+    let handle = app.world().get::<Mesh3d>(a).unwrap().0.clone();
+    let initial = positions(&app, &handle);
+    let mut raised = false;
+    let mut changes = Vec::new();
+    let mut moved: f32 = 0.0;
+    for k in 1..=900 {
+        drive_tool(&mut app, tool, &script, k, dt);
+        app.update();
+        raised |= level(&app, a) == LevelKind::Precise;
+        assert_eq!(level(&app, b), LevelKind::Cage, "B is never touched");
+        let now = positions(&app, &handle);
+        moved = moved.max(
+            now.iter()
+                .zip(&initial)
+                .map(|(p, q)| Vec3::from_array(*p).distance(Vec3::from_array(*q)))
+                .fold(0.0, f32::max),
+        );
+        let msgs = app.world().resource::<Messages<LevelChanged>>();
+        changes.extend(msgs.iter_current_update_messages().copied());
+    }
+    assert!(raised, "the poke raised A");
+    assert_eq!(level(&app, a), LevelKind::Cage, "A returned to its cage");
+    assert!(
+        moved > 0.01,
+        "the rendered mesh followed the poke ({moved})"
+    );
+    assert_eq!(changes.len(), 2, "{changes:?}");
+    assert_eq!((changes[0].entity, changes[0].to), (a, LevelKind::Precise));
+    assert_eq!((changes[1].entity, changes[1].to), (a, LevelKind::Cage));
+    assert!(changes.iter().all(|c| c.jump_ratio < 0.005));
+    let reaction = app.world().get::<ToolReaction>(tool).unwrap();
+    assert!(reaction.force.is_finite());
+}
+
+fn positions(app: &App, handle: &Handle<Mesh>) -> Vec<[f32; 3]> {
+    let mesh = app.world().resource::<Assets<Mesh>>().get(handle).unwrap();
+    match mesh.attribute(Mesh::ATTRIBUTE_POSITION).unwrap() {
+        VertexAttributeValues::Float32x3(v) => v.clone(),
+        _ => panic!("positions are Float32x3"),
+    }
+}
+
+/// Every body's surface positions, in scene order.
+fn surfaces(app: &App, bodies: &[Entity]) -> Vec<Vec<[f32; 3]>> {
+    bodies
+        .iter()
+        .map(|&e| {
+            app.world()
+                .get::<SimulatedBody>(e)
+                .unwrap()
+                .body()
+                .surface_positions()
+                .to_vec()
+        })
+        .collect()
+}
+
+fn run_plugin(scene: &Scene, script_name: &str, steps: usize) -> Vec<Vec<Vec<[f32; 3]>>> {
+    let (mut app, bodies, world) = scene_app(scene);
+    let script = Script::builtin(script_name, &world).unwrap();
+    let dt = world.config().dt;
+    let tool = app
+        .world_mut()
+        .spawn((
+            SoftTool {
+                shape: script.tool,
+                grab: false,
+                cautery_watts: 0.0,
+            },
+            tool_transform(&script, 0.0),
+        ))
+        .id();
+    let mut out = Vec::new();
+    app.update();
+    for k in 1..=steps {
+        drive_tool(&mut app, tool, &script, k, dt);
+        app.update();
+        out.push(surfaces(&app, &bodies));
+    }
+    out
+}
+
+#[test]
+fn the_plugin_and_the_core_world_give_the_same_states() {
+    let scene = cylinders_scene();
+    let (mut app, bodies, mut world) = scene_app(&scene);
+    let script = Script::builtin("push-a-into-b", &world).unwrap();
+    let dt = world.config().dt;
+    let tool = app
+        .world_mut()
+        .spawn((
+            SoftTool {
+                shape: script.tool,
+                grab: false,
+                cautery_watts: 0.0,
+            },
+            tool_transform(&script, 0.0),
+        ))
+        .id();
+    let ti =
+        world.add_tool(bevy_soft_tissue::core::contact::Tool::new("tool", script.tool).unwrap());
+    let start = tool_transform(&script, 0.0);
+    world.tools_mut()[ti]
+        .set_pose(
+            bevy_soft_tissue::convert::to_core(start.translation),
+            bevy_soft_tissue::convert::to_core(start.rotation * Vec3::Y),
+        )
+        .unwrap();
+    // The first update builds the bodies (and steps once with the tool at its start).
+    app.update();
+    world.step_fixed().unwrap();
+    let mut precise_steps = 0;
+    for k in 1..=600 {
+        let (p, a, actions) = drive_tool(&mut app, tool, &script, k, dt);
+        app.update();
+        let t = &mut world.tools_mut()[ti];
+        t.set_pose(p, a).unwrap();
+        for act in actions {
+            match act {
+                ScriptAction::Grab => t.grab(),
+                ScriptAction::Release => t.release(),
+                ScriptAction::Cautery(w) => t.set_cautery(w).unwrap(),
+            }
+        }
+        world.step_fixed().unwrap();
+        for (e, b) in bodies.iter().zip(world.bodies()) {
+            let plugin = app.world().get::<SimulatedBody>(*e).unwrap().body();
+            assert_eq!(
+                plugin.surface_positions(),
+                b.surface_positions(),
+                "{} differs at step {k}",
+                b.name()
+            );
+            assert_eq!(plugin.body().level(), b.body().level());
+            if b.body().level() == bevy_soft_tissue::core::precision::Level::Precise {
+                precise_steps += 1;
+            }
+        }
+    }
+    assert!(precise_steps > 100, "the push must raise the bodies");
+    assert_eq!(
+        app.world().resource::<SoftTissueStatus>().steps,
+        world.step_count()
+    );
+}
+
+#[test]
+fn two_runs_are_bit_identical() {
+    let scene = cylinders_scene();
+    let a = run_plugin(&scene, "poke-a", 300);
+    let b = run_plugin(&scene, "poke-a", 300);
+    assert_eq!(a, b);
+}
+
+#[test]
+fn the_step_has_no_system_order_ambiguity() {
+    let scene = cylinders_scene();
+    let (mut app, _, _) = scene_app(&scene);
+    app.edit_schedule(FixedUpdate, |s| {
+        s.set_build_settings(ScheduleBuildSettings {
+            ambiguity_detection: LogLevel::Error,
+            ..default()
+        });
+    });
+    app.edit_schedule(PostUpdate, |s| {
+        s.set_build_settings(ScheduleBuildSettings {
+            ambiguity_detection: LogLevel::Error,
+            ..default()
+        });
+    });
+    let world = app.world_mut();
+    for label in [FixedUpdate.intern(), PostUpdate.intern()] {
+        world.schedule_scope(label, |world, schedule| {
+            schedule
+                .initialize(world)
+                .unwrap_or_else(|e| panic!("{label:?}: {e}"));
+        });
+    }
+}
+
+#[test]
+fn pause_single_step_method_change_and_reset() {
+    let scene = cylinders_scene();
+    let (mut app, bodies, _) = scene_app(&scene);
+    app.update();
+    let steps = |app: &App| app.world().resource::<SoftTissueStatus>().steps;
+    assert_eq!(steps(&app), 1);
+    app.world_mut().resource_mut::<SoftTissueStatus>().paused = true;
+    app.update();
+    app.update();
+    assert_eq!(steps(&app), 1, "paused");
+    app.world_mut().resource_mut::<SoftTissueStatus>().step_once = true;
+    app.update();
+    app.update();
+    assert_eq!(steps(&app), 2, "exactly one step");
+    app.world_mut().resource_mut::<SoftTissueStatus>().paused = false;
+    // Method changed at run time.
+    app.world_mut()
+        .get_mut::<SoftBody>(bodies[0])
+        .unwrap()
+        .method = PreciseMethodKind::CorotationalFem;
+    app.update();
+    let pl = *app.world().get::<PrecisionLevel>(bodies[0]).unwrap();
+    assert_eq!(pl.method, PreciseMethodKind::CorotationalFem);
+    // Pinned up, then reset.
+    app.world_mut()
+        .entity_mut(bodies[1])
+        .insert(PinnedLevel(LevelKind::Precise));
+    app.update();
+    assert_eq!(level(&app, bodies[1]), LevelKind::Precise);
+    // Unpinned it stays up until it rests; a reset brings everything back to the start.
+    app.world_mut()
+        .entity_mut(bodies[1])
+        .remove::<PinnedLevel>();
+    app.update();
+    app.world_mut().write_message(ResetSimulation);
+    app.update();
+    assert_eq!(steps(&app), 1, "reset, then one step");
+    assert_eq!(level(&app, bodies[1]), LevelKind::Cage);
+    assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
+}
