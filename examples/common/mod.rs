@@ -1,0 +1,442 @@
+//! What the example apps share: window, scene spawning, orbit camera, the mouse tool, keys,
+//! the controls panel and the scripted screenshot mode.
+//!
+//! Controls (also listed in the app):
+//! - right mouse drag: orbit the camera; shift + wheel: zoom;
+//! - the tool follows the mouse in the screen plane; the wheel moves it nearer or farther;
+//!   moving it into a body pokes it;
+//! - left button held: pick (grab what the tool touches and drag it); release lets go;
+//! - C: toggle the electrocautery (heats what the tool touches);
+//! - P: pause / resume, N: single step, R: reset.
+//!
+//! `--screenshot FILE --frames N` drives the tool with a built-in script instead of the mouse,
+//! renders N frames and saves a PNG of the window, then exits.
+
+use std::path::{Path, PathBuf};
+
+use bevy::input::mouse::{AccumulatedMouseMotion, AccumulatedMouseScroll};
+use bevy::prelude::*;
+use bevy::render::view::screenshot::{Screenshot, save_to_disk};
+use bevy_egui::input::egui_wants_any_pointer_input;
+use bevy_egui::{EguiContexts, EguiPrimaryContextPass, egui};
+use bevy_soft_tissue::core::scenario::Scene;
+use bevy_soft_tissue::core::world::{Script, ScriptAction, SoftTissueWorld};
+use bevy_soft_tissue::prelude::*;
+
+/// Command-line options of the examples.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct ExampleOptions {
+    /// Save a PNG here after `frames` frames, then exit.
+    pub screenshot: Option<PathBuf>,
+    /// Frames to render before the screenshot.
+    pub frames: u32,
+}
+
+impl ExampleOptions {
+    /// Parses `--screenshot FILE --frames N`.
+    pub fn from_args() -> Result<Self, String> {
+        let mut o = ExampleOptions {
+            screenshot: None,
+            frames: 240,
+        };
+        let mut args = std::env::args().skip(1);
+        while let Some(a) = args.next() {
+            match a.as_str() {
+                "--screenshot" => {
+                    o.screenshot = Some(args.next().ok_or("--screenshot needs a file")?.into())
+                }
+                "--frames" => {
+                    o.frames = args
+                        .next()
+                        .ok_or("--frames needs a number")?
+                        .parse()
+                        .map_err(|e| format!("--frames: {e}"))?
+                }
+                other => {
+                    return Err(format!(
+                        "unknown option {other} (--screenshot FILE --frames N)"
+                    ));
+                }
+            }
+        }
+        Ok(o)
+    }
+}
+
+/// The scene to show and how.
+pub struct ExampleScene {
+    /// Window title.
+    pub title: &'static str,
+    /// The scene.
+    pub scene: Scene,
+    /// Body colours, in scene order (cycled).
+    pub colours: Vec<Color>,
+    /// Built-in script for the screenshot mode.
+    pub script: &'static str,
+    /// Cautery power of the C key, W.
+    pub cautery_watts: f64,
+    /// Extra lines for the controls panel.
+    pub extra_controls: Vec<&'static str>,
+}
+
+/// Where the tool is driven from.
+#[derive(Resource)]
+struct ToolDriver {
+    tool: Entity,
+    /// Distance of the tool from the camera along the mouse ray.
+    depth: f32,
+    cautery_on: bool,
+    cautery_watts: f64,
+    script: Option<Script>,
+    dt: f64,
+    frames: u32,
+    shot_requested: bool,
+}
+
+/// The orbit camera's state.
+#[derive(Component)]
+struct Orbit {
+    focus: Vec3,
+    yaw: f32,
+    pitch: f32,
+    distance: f32,
+}
+
+#[derive(Resource)]
+struct Controls(Vec<&'static str>);
+
+fn assets_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets")
+}
+
+/// Builds and runs an example app.
+pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
+    let options = match ExampleOptions::from_args() {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("{e}");
+            return AppExit::error();
+        }
+    };
+    // The core world of the same scene places the built-in script around the bodies.
+    let world = match SoftTissueWorld::from_scene(&example.scene, &assets_dir()) {
+        Ok(w) => w,
+        Err(e) => {
+            eprintln!("building the scene: {e}");
+            return AppExit::error();
+        }
+    };
+    let script = if options.screenshot.is_some() {
+        match Script::builtin(example.script, &world) {
+            Ok(s) => Some(s),
+            Err(e) => {
+                eprintln!("script {}: {e}", example.script);
+                return AppExit::error();
+            }
+        }
+    } else {
+        None
+    };
+    let (lo, hi) = world.bodies().iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(lo, hi), b| {
+            let bb = b.mesh().bbox();
+            let (a, c) = (
+                bevy_soft_tissue::convert::to_bevy(&bb.min),
+                bevy_soft_tissue::convert::to_bevy(&bb.max),
+            );
+            (lo.min(a), hi.max(c))
+        },
+    );
+    let scale = (hi - lo).length().max(1e-3);
+    let radius = world
+        .bodies()
+        .iter()
+        .map(|b| b.mesh().bbox().smallest_dimension())
+        .fold(f64::INFINITY, f64::min)
+        * 0.09;
+    let dt = world.config().dt;
+    drop(world);
+
+    let mut app = App::new();
+    app.add_plugins(
+        DefaultPlugins
+            .set(WindowPlugin {
+                primary_window: Some(Window {
+                    title: example.title.into(),
+                    resolution: (1280u32, 720u32).into(),
+                    ..default()
+                }),
+                ..default()
+            })
+            .set(AssetPlugin {
+                file_path: assets_dir().display().to_string(),
+                ..default()
+            }),
+    )
+    .add_plugins(SoftTissuePlugins::default())
+    .insert_resource(options.clone())
+    .insert_resource(Controls(example.extra_controls.clone()))
+    .insert_resource(ClearColor(Color::srgb(0.08, 0.09, 0.11)));
+
+    if options.screenshot.is_some() {
+        // Scripted mode: every frame advances 1/60 s of simulated time however slowly it
+        // renders (software Vulkan), so frame N shows the script at N/60 s.
+        app.insert_resource(bevy::time::TimeUpdateStrategy::ManualDuration(
+            std::time::Duration::from_secs_f64(1.0 / 60.0),
+        ));
+    }
+    let tool_shape = script.as_ref().map(|s| s.tool);
+    let scene = example.scene.clone();
+    let colours = example.colours.clone();
+    let cautery_watts = example.cautery_watts;
+    app.add_systems(Startup, move |world: &mut World| {
+        let bodies = match bevy_soft_tissue::spawn_scene(world, &scene, &assets_dir()) {
+            Ok(b) => b,
+            Err(e) => {
+                error!("spawning the scene: {e}");
+                world.write_message(AppExit::error());
+                return;
+            }
+        };
+        for (i, e) in bodies.iter().enumerate() {
+            let colour = colours[i % colours.len()];
+            let material = world
+                .resource_mut::<Assets<StandardMaterial>>()
+                .add(StandardMaterial {
+                    base_color: colour,
+                    perceptual_roughness: 0.55,
+                    ..default()
+                });
+            world.entity_mut(*e).insert(MeshMaterial3d(material));
+        }
+        // The orbit centre sits left of the scene's centre so the bodies clear the inspector.
+        let focus = 0.5 * (lo + hi) - Vec3::X * 0.22 * scale;
+        let distance = 1.6 * scale;
+        let mut tool = SoftTool::sphere(radius);
+        if let Some(shape) = tool_shape {
+            tool.shape = shape;
+        }
+        let tool = world
+            .spawn((
+                Name::new("tool"),
+                tool,
+                Transform::from_translation(focus + Vec3::new(0.0, 0.0, 0.9 * scale)),
+            ))
+            .id();
+        world.spawn((
+            Camera3d::default(),
+            Orbit {
+                focus,
+                yaw: 0.0,
+                pitch: -0.35,
+                distance,
+            },
+            Transform::default(),
+        ));
+        world.spawn((
+            DirectionalLight {
+                illuminance: 9000.0,
+                shadow_maps_enabled: true,
+                ..default()
+            },
+            Transform::from_xyz(2.0, 4.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y),
+        ));
+        world.insert_resource(GlobalAmbientLight {
+            brightness: 350.0,
+            ..default()
+        });
+        world.insert_resource(ToolDriver {
+            tool,
+            depth: distance * 0.75,
+            cautery_on: false,
+            cautery_watts,
+            script: script.clone(),
+            dt,
+            frames: 0,
+            shot_requested: false,
+        });
+    });
+    app.add_systems(
+        Update,
+        (
+            orbit_camera.run_if(not(egui_wants_any_pointer_input)),
+            mouse_tool.run_if(not(egui_wants_any_pointer_input)),
+            scripted_tool,
+            keys,
+            screenshot,
+        )
+            .chain(),
+    )
+    .add_systems(EguiPrimaryContextPass, controls_panel);
+    configure(&mut app);
+    app.run()
+}
+
+fn orbit_camera(
+    buttons: Res<ButtonInput<MouseButton>>,
+    keys: Res<ButtonInput<KeyCode>>,
+    motion: Res<AccumulatedMouseMotion>,
+    scroll: Res<AccumulatedMouseScroll>,
+    mut cams: Query<(&mut Orbit, &mut Transform)>,
+) {
+    for (mut o, mut t) in &mut cams {
+        if buttons.pressed(MouseButton::Right) {
+            o.yaw -= motion.delta.x * 0.005;
+            o.pitch = (o.pitch - motion.delta.y * 0.005).clamp(-1.5, 1.5);
+        }
+        if keys.pressed(KeyCode::ShiftLeft) || keys.pressed(KeyCode::ShiftRight) {
+            o.distance *= (1.0 - 0.1 * scroll.delta.y).clamp(0.5, 2.0);
+        }
+        let rot = Quat::from_rotation_y(o.yaw) * Quat::from_rotation_x(o.pitch);
+        *t = Transform::from_translation(o.focus + rot * Vec3::new(0.0, 0.0, o.distance))
+            .looking_at(o.focus, Vec3::Y);
+    }
+}
+
+fn mouse_tool(
+    windows: Query<&Window>,
+    cams: Query<(&Camera, &GlobalTransform)>,
+    buttons: Res<ButtonInput<MouseButton>>,
+    keys: Res<ButtonInput<KeyCode>>,
+    scroll: Res<AccumulatedMouseScroll>,
+    driver: Option<ResMut<ToolDriver>>,
+    mut tools: Query<(&mut Transform, &mut SoftTool)>,
+) {
+    let Some(mut driver) = driver else { return };
+    if driver.script.is_some() {
+        return;
+    }
+    let shift = keys.pressed(KeyCode::ShiftLeft) || keys.pressed(KeyCode::ShiftRight);
+    if !shift {
+        driver.depth = (driver.depth * (1.0 - 0.05 * scroll.delta.y)).max(0.01);
+    }
+    let (Ok(window), Ok((camera, cam_pose))) = (windows.single(), cams.single()) else {
+        return;
+    };
+    let Ok((mut pose, mut tool)) = tools.get_mut(driver.tool) else {
+        return;
+    };
+    if let Some(cursor) = window.cursor_position()
+        && let Ok(ray) = camera.viewport_to_world(cam_pose, cursor)
+    {
+        pose.translation = ray.origin + *ray.direction * driver.depth;
+    }
+    tool.grab = buttons.pressed(MouseButton::Left);
+}
+
+fn scripted_tool(
+    driver: Option<Res<ToolDriver>>,
+    status: Res<SoftTissueStatus>,
+    mut tools: Query<(&mut Transform, &mut SoftTool)>,
+) {
+    let Some(driver) = driver else { return };
+    let Some(script) = &driver.script else { return };
+    let Ok((mut pose, mut tool)) = tools.get_mut(driver.tool) else {
+        return;
+    };
+    // The pose for the next step (physics time), and every event up to it.
+    let t = (status.steps + 1) as f64 * driver.dt;
+    let (p, a) = script.pose_at(t);
+    pose.translation = Vec3::new(p.x as f32, p.y as f32, p.z as f32);
+    let axis = Vec3::new(a.x as f32, a.y as f32, a.z as f32).normalize_or(Vec3::Y);
+    pose.rotation = Quat::from_rotation_arc(Vec3::Y, axis);
+    for e in script.events_in(f64::NEG_INFINITY, t) {
+        match e.action {
+            ScriptAction::Grab => tool.grab = true,
+            ScriptAction::Release => tool.grab = false,
+            ScriptAction::Cautery(w) => tool.cautery_watts = w,
+        }
+    }
+}
+
+fn keys(
+    keys: Res<ButtonInput<KeyCode>>,
+    driver: Option<ResMut<ToolDriver>>,
+    mut status: ResMut<SoftTissueStatus>,
+    mut tools: Query<&mut SoftTool>,
+    mut reset: MessageWriter<ResetSimulation>,
+) {
+    let Some(mut driver) = driver else { return };
+    if keys.just_pressed(KeyCode::KeyC) && driver.script.is_none() {
+        driver.cautery_on = !driver.cautery_on;
+        if let Ok(mut t) = tools.get_mut(driver.tool) {
+            t.cautery_watts = if driver.cautery_on {
+                driver.cautery_watts
+            } else {
+                0.0
+            };
+        }
+    }
+    if keys.just_pressed(KeyCode::KeyP) {
+        status.paused = !status.paused;
+    }
+    if keys.just_pressed(KeyCode::KeyN) {
+        status.paused = true;
+        status.step_once = true;
+    }
+    if keys.just_pressed(KeyCode::KeyR) {
+        reset.write(ResetSimulation);
+    }
+}
+
+fn screenshot(
+    mut commands: Commands,
+    options: Res<ExampleOptions>,
+    driver: Option<ResMut<ToolDriver>>,
+    mut exit: MessageWriter<AppExit>,
+) {
+    let (Some(path), Some(mut driver)) = (&options.screenshot, driver) else {
+        return;
+    };
+    driver.frames += 1;
+    if driver.frames == options.frames && !driver.shot_requested {
+        driver.shot_requested = true;
+        let _ = std::fs::remove_file(path);
+        commands
+            .spawn(Screenshot::primary_window())
+            .observe(save_to_disk(path.clone()));
+    }
+    // Exit once the file is written (a few frames later).
+    if driver.shot_requested && path.exists() && driver.frames > options.frames + 2 {
+        info!("saved {}", path.display());
+        exit.write(AppExit::Success);
+    }
+    if driver.frames > options.frames + 600 {
+        error!("the screenshot was not written");
+        exit.write(AppExit::error());
+    }
+}
+
+fn controls_panel(
+    mut contexts: EguiContexts,
+    controls: Res<Controls>,
+    driver: Option<Res<ToolDriver>>,
+) -> Result {
+    let ctx = contexts.ctx_mut()?;
+    egui::Window::new("Controls")
+        .anchor(egui::Align2::RIGHT_TOP, [-10.0, 10.0])
+        .resizable(false)
+        .show(ctx, |ui| {
+            for line in [
+                "right drag: orbit, shift + wheel: zoom",
+                "mouse: move the tool, wheel: nearer / farther",
+                "left button held: pick and drag",
+                "C: electrocautery on / off",
+                "P: pause, N: step, R: reset",
+            ]
+            .into_iter()
+            .chain(controls.0.iter().copied())
+            {
+                ui.label(line);
+            }
+            if let Some(d) = driver {
+                if d.script.is_some() {
+                    ui.strong("scripted interaction (screenshot mode)");
+                } else if d.cautery_on {
+                    ui.colored_label(egui::Color32::LIGHT_RED, "cautery ON");
+                }
+            }
+        });
+    Ok(())
+}
