@@ -433,23 +433,32 @@ fn apply_changes(
     }
 }
 
-/// The built bodies in build order, as the core's stage functions take them.
-fn ordered<'a>(q: impl Iterator<Item = Mut<'a, SimulatedBody>>) -> Vec<Mut<'a, SimulatedBody>> {
-    let mut v: Vec<_> = q.collect();
-    v.sort_unstable_by_key(|b| b.order);
-    v
-}
-
-fn ordered_tools<'a>(q: impl Iterator<Item = Mut<'a, ToolState>>) -> Vec<Mut<'a, ToolState>> {
-    let mut v: Vec<_> = q.collect();
-    v.sort_unstable_by_key(|t| t.order);
-    v
+/// Runs `f` on the built bodies and the tools, each in build order, as the core's stage
+/// functions take them (slices of `&mut`, so indices in the contact state stay valid).
+fn in_order<R>(
+    bodies: &mut Query<&mut SimulatedBody>,
+    tools: &mut Query<&mut ToolState>,
+    f: impl FnOnce(&mut [&mut SimBody], &mut [&mut Tool]) -> R,
+) -> R {
+    let mut b: Vec<_> = bodies.iter_mut().collect();
+    b.sort_unstable_by_key(|b| b.order);
+    let mut b: Vec<&mut SimBody> = b.iter_mut().map(|b| &mut b.body).collect();
+    let mut t: Vec<_> = tools.iter_mut().collect();
+    t.sort_unstable_by_key(|t| t.order);
+    let mut t: Vec<&mut Tool> = t.iter_mut().map(|t| &mut t.tool).collect();
+    f(&mut b, &mut t)
 }
 
 fn lap(t: &mut Instant) -> f64 {
     let e = t.elapsed().as_secs_f64() * 1e6;
     *t = Instant::now();
     e
+}
+
+fn report(status: &mut SoftTissueStatus, stage: &str, r: Result<(), WorldError>) {
+    if let Err(e) = r {
+        fail(status, format!("{stage}: {e}"));
+    }
 }
 
 fn prepare_stage(
@@ -459,11 +468,7 @@ fn prepare_stage(
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let mut t = Instant::now();
-    let mut b = ordered(bodies.iter_mut());
-    let mut b: Vec<&mut SimBody> = b.iter_mut().map(|b| &mut b.body).collect();
-    let mut tl = ordered_tools(tools.iter_mut());
-    let mut tl: Vec<&mut Tool> = tl.iter_mut().map(|t| &mut t.tool).collect();
-    prepare(&mut b, &mut tl, config.dt);
+    in_order(&mut bodies, &mut tools, |b, tl| prepare(b, tl, config.dt));
     status.times.prepare_us = lap(&mut t);
 }
 
@@ -475,42 +480,33 @@ fn detect_stage(
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let mut t = Instant::now();
-    let mut b = ordered(bodies.iter_mut());
-    let mut b: Vec<&mut SimBody> = b.iter_mut().map(|b| &mut b.body).collect();
-    let mut tl = ordered_tools(tools.iter_mut());
-    let mut tl: Vec<&mut Tool> = tl.iter_mut().map(|t| &mut t.tool).collect();
-    detect_contacts(&mut b, &mut tl, &config.contact, &mut contacts.0);
+    in_order(&mut bodies, &mut tools, |b, tl| {
+        detect_contacts(b, tl, &config.contact, &mut contacts.0)
+    });
     status.times.detect_us = lap(&mut t);
 }
 
-fn report(status: &mut SoftTissueStatus, stage: &str, r: Result<(), WorldError>) {
-    if let Err(e) = r {
-        fail(status, format!("{stage}: {e}"));
-    }
-}
-
-fn switch_stage(mut bodies: Query<&mut SimulatedBody>, mut status: ResMut<SoftTissueStatus>) {
+fn switch_stage(
+    mut bodies: Query<&mut SimulatedBody>,
+    mut tools: Query<&mut ToolState>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
     let mut t = Instant::now();
-    let mut b = ordered(bodies.iter_mut());
-    let mut b: Vec<&mut SimBody> = b.iter_mut().map(|b| &mut b.body).collect();
-    let r = switch_precision(&mut b);
+    let r = in_order(&mut bodies, &mut tools, |b, _| switch_precision(b));
     report(&mut status, "switching precision", r);
     status.times.switch_us = lap(&mut t);
 }
 
 fn solve_stage(
     mut bodies: Query<&mut SimulatedBody>,
-    tools: Query<&ToolState>,
+    mut tools: Query<&mut ToolState>,
     contacts: Res<SoftTissueContacts>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let mut t = Instant::now();
-    let mut b = ordered(bodies.iter_mut());
-    let mut b: Vec<&mut SimBody> = b.iter_mut().map(|b| &mut b.body).collect();
-    let mut tl: Vec<&ToolState> = tools.iter().collect();
-    tl.sort_unstable_by_key(|t| t.order);
-    let tl: Vec<&Tool> = tl.iter().map(|t| &t.tool).collect();
-    let r = step_solvers(&mut b, &tl, &contacts.0);
+    let r = in_order(&mut bodies, &mut tools, |b, tl| {
+        step_solvers(b, tl, &contacts.0)
+    });
     report(&mut status, "stepping the solvers", r);
     status.times.solve_us = lap(&mut t);
 }
@@ -523,11 +519,9 @@ fn collide_stage(
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let mut t = Instant::now();
-    let mut b = ordered(bodies.iter_mut());
-    let mut b: Vec<&mut SimBody> = b.iter_mut().map(|b| &mut b.body).collect();
-    let mut tl = ordered_tools(tools.iter_mut());
-    let mut tl: Vec<&mut Tool> = tl.iter_mut().map(|t| &mut t.tool).collect();
-    let r = collide(&mut b, &mut tl, &config.contact, &mut contacts.0, config.dt);
+    let r = in_order(&mut bodies, &mut tools, |b, tl| {
+        collide(b, tl, &config.contact, &mut contacts.0, config.dt)
+    });
     report(&mut status, "collisions", r);
     status.times.collide_us = lap(&mut t);
 }

@@ -100,6 +100,18 @@ fn drive_tool(
     )
 }
 
+/// A tool entity with the script's shape, at the script's start.
+fn spawn_tool(app: &mut App, script: &Script) -> Entity {
+    let tool = SoftTool {
+        shape: script.tool,
+        grab: false,
+        cautery_watts: 0.0,
+    };
+    app.world_mut()
+        .spawn((tool, tool_transform(script, 0.0)))
+        .id()
+}
+
 fn level(app: &App, e: Entity) -> LevelKind {
     app.world().get::<PrecisionLevel>(e).unwrap().level
 }
@@ -210,17 +222,7 @@ fn a_tool_raises_a_body_its_release_returns_it_and_the_mesh_follows() {
     let (mut app, bodies, world) = scene_app(&scene);
     let script = Script::builtin("poke-a", &world).unwrap();
     let dt = world.config().dt;
-    let tool = app
-        .world_mut()
-        .spawn((
-            SoftTool {
-                shape: script.tool,
-                grab: false,
-                cautery_watts: 0.0,
-            },
-            tool_transform(&script, 0.0),
-        ))
-        .id();
+    let tool = spawn_tool(&mut app, &script);
     let (a, b) = (bodies[0], bodies[1]);
     app.update();
     let handle = app.world().get::<Mesh3d>(a).unwrap().0.clone();
@@ -284,17 +286,7 @@ fn run_plugin(scene: &Scene, script_name: &str, steps: usize) -> Vec<Vec<Vec<[f3
     let (mut app, bodies, world) = scene_app(scene);
     let script = Script::builtin(script_name, &world).unwrap();
     let dt = world.config().dt;
-    let tool = app
-        .world_mut()
-        .spawn((
-            SoftTool {
-                shape: script.tool,
-                grab: false,
-                cautery_watts: 0.0,
-            },
-            tool_transform(&script, 0.0),
-        ))
-        .id();
+    let tool = spawn_tool(&mut app, &script);
     let mut out = Vec::new();
     app.update();
     for k in 1..=steps {
@@ -311,17 +303,7 @@ fn the_plugin_and_the_core_world_give_the_same_states() {
     let (mut app, bodies, mut world) = scene_app(&scene);
     let script = Script::builtin("push-a-into-b", &world).unwrap();
     let dt = world.config().dt;
-    let tool = app
-        .world_mut()
-        .spawn((
-            SoftTool {
-                shape: script.tool,
-                grab: false,
-                cautery_watts: 0.0,
-            },
-            tool_transform(&script, 0.0),
-        ))
-        .id();
+    let tool = spawn_tool(&mut app, &script);
     let ti =
         world.add_tool(bevy_soft_tissue::core::contact::Tool::new("tool", script.tool).unwrap());
     let start = tool_transform(&script, 0.0);
