@@ -4,7 +4,9 @@
 //! warm tissue turns red toward 60 C, thermally damaged tissue turns a coagulated grey-brown.
 
 use bevy::asset::RenderAssetUsages;
-use bevy::mesh::{Indices, Mesh, Mesh3d, PrimitiveTopology};
+use bevy::mesh::{
+    Indices, Mesh, Mesh3d, MeshVertexAttribute, PrimitiveTopology, VertexAttributeValues,
+};
 use bevy::prelude::*;
 
 use crate::components::{SimulatedBody, Temperature};
@@ -114,20 +116,30 @@ fn upload_meshes(
         };
         let b = sim.body();
         normals(b.surface_positions(), b.surface_triangles(), &mut scratch);
-        mesh.insert_attribute(Mesh::ATTRIBUTE_POSITION, b.surface_positions().to_vec());
-        mesh.insert_attribute(Mesh::ATTRIBUTE_NORMAL, scratch.clone());
-        if let Some(t) = temp {
-            let colours: Vec<[f32; 4]> = t
-                .surface
-                .iter()
-                .zip(&t.damage)
-                .map(|(&c, &d)| tissue_colour(c, d))
-                .collect();
-            if colours.len() == b.surface_positions().len() {
-                mesh.insert_attribute(Mesh::ATTRIBUTE_COLOR, colours);
+        // Written in place: the attribute buffers keep their allocation.
+        write3(&mut mesh, Mesh::ATTRIBUTE_POSITION, b.surface_positions());
+        write3(&mut mesh, Mesh::ATTRIBUTE_NORMAL, &scratch);
+        if let Some(t) = temp
+            && let Some(VertexAttributeValues::Float32x4(colours)) =
+                mesh.attribute_mut(Mesh::ATTRIBUTE_COLOR)
+            && colours.len() == t.surface.len()
+        {
+            for ((c, &celsius), &damage) in colours.iter_mut().zip(&t.surface).zip(&t.damage) {
+                *c = tissue_colour(celsius, damage);
             }
         }
     }
+}
+
+/// Copies `values` into a three-component attribute (replacing it if its size differs).
+fn write3(mesh: &mut Mesh, attribute: MeshVertexAttribute, values: &[[f32; 3]]) {
+    if let Some(VertexAttributeValues::Float32x3(v)) = mesh.attribute_mut(attribute)
+        && v.len() == values.len()
+    {
+        v.copy_from_slice(values);
+        return;
+    }
+    mesh.insert_attribute(attribute, values.to_vec());
 }
 
 #[cfg(test)]
