@@ -3,7 +3,9 @@
 
 use bevy::prelude::*;
 
-use crate::components::{GreenCage, SoftTool, ToolReaction};
+use crate::components::{GreenCage, SimulatedBody, SoftTool, ToolReaction};
+use crate::convert::to_bevy;
+use crate::physics::SoftTissueContacts;
 
 /// What the debug gizmos draw (a resource; toggle at run time).
 #[derive(Resource, Clone, Copy, Debug)]
@@ -12,8 +14,13 @@ pub struct SoftTissueDebugSettings {
     pub cages: bool,
     /// Tool shapes (green when free, orange in contact) and reaction forces.
     pub tools: bool,
+    /// Contact points of the last step with their normals (tool contacts yellow, body
+    /// contacts magenta).
+    pub contacts: bool,
     /// Length of the drawn reaction force per newton, scene units.
     pub force_scale: f32,
+    /// Length of a drawn contact normal, scene units.
+    pub contact_size: f32,
 }
 
 impl Default for SoftTissueDebugSettings {
@@ -21,7 +28,9 @@ impl Default for SoftTissueDebugSettings {
         SoftTissueDebugSettings {
             cages: true,
             tools: true,
+            contacts: true,
             force_scale: 0.05,
+            contact_size: 0.03,
         }
     }
 }
@@ -33,7 +42,7 @@ pub struct SoftTissueDebugPlugin;
 impl Plugin for SoftTissueDebugPlugin {
     fn build(&self, app: &mut App) {
         app.init_resource::<SoftTissueDebugSettings>()
-            .add_systems(Update, (draw_cages, draw_tools));
+            .add_systems(Update, (draw_cages, draw_tools, draw_contacts));
     }
 }
 
@@ -94,6 +103,44 @@ fn draw_tools(
                 p + reaction.force * settings.force_scale,
                 Color::srgb(1.0, 0.2, 0.2),
             );
+        }
+    }
+}
+
+fn draw_contacts(
+    settings: Res<SoftTissueDebugSettings>,
+    contacts: Res<SoftTissueContacts>,
+    bodies: Query<&SimulatedBody>,
+    mut gizmos: Gizmos,
+) {
+    if !settings.contacts {
+        return;
+    }
+    // Contacts name bodies by build order.
+    let mut sims: Vec<&SimulatedBody> = bodies.iter().collect();
+    sims.sort_unstable_by_key(|s| s.order);
+    let size = settings.contact_size;
+    let point = |body: u32, vertices: [u32; 3], weights: [f64; 3]| -> Option<Vec3> {
+        let p = sims.get(body as usize)?.body().collider().positions();
+        let mut x = Vec3::ZERO;
+        for (v, w) in vertices.iter().zip(weights) {
+            x += to_bevy(p.get(*v as usize)?) * w as f32;
+        }
+        Some(x)
+    };
+    let c = &contacts.0;
+    for t in c.tool_contacts.iter().filter(|t| t.depth > 0.0) {
+        if let Some(x) = point(t.body, t.vertices, t.weights) {
+            let colour = Color::srgb(1.0, 0.9, 0.2);
+            gizmos.sphere(Isometry3d::from_translation(x), 0.25 * size, colour);
+            gizmos.line(x, x + to_bevy(&t.normal) * size, colour);
+        }
+    }
+    for b in c.body_contacts.iter().filter(|b| b.depth > 0.0) {
+        if let Some(x) = point(b.b, b.vertices, b.weights) {
+            let colour = Color::srgb(1.0, 0.3, 0.9);
+            gizmos.sphere(Isometry3d::from_translation(x), 0.25 * size, colour);
+            gizmos.line(x, x + to_bevy(&b.normal) * size, colour);
         }
     }
 }
