@@ -6,7 +6,8 @@
 #   scripts/screenshots.sh [OUT_DIR]      (default docs/screenshots)
 #
 # Installs what it needs (Debian: xvfb, xauth, mesa-vulkan-drivers, libvulkan1) when missing.
-# Builds the examples with the test profile, so after `cargo test` nothing is rebuilt.
+# Builds what `cargo test --workspace` builds (the examples included, with the same features),
+# so after the tests nothing is rebuilt.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-docs/screenshots}
@@ -26,7 +27,7 @@ if [ ${#need[@]} -gt 0 ]; then
 fi
 
 target=${CARGO_TARGET_DIR:-target}
-cargo build --profile test --locked --example organs --example cylinders
+cargo test -q --workspace --no-run --locked
 
 # Frames at 1/60 s of simulated time each: organs 150 (2.5 s, the cautery pressing on the
 # liver), cylinders 130 (2.2 s, model A pushed into model B).
