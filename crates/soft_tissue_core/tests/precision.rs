@@ -24,6 +24,14 @@ fn cylinder_settings(method: PreciseMethod, cage: CageKind, mesh: &TetMesh) -> B
     s
 }
 
+/// Nodes in the top 5 % of the mesh's height.
+fn top_nodes(mesh: &TetMesh) -> Vec<usize> {
+    let hi = mesh.bbox().max.y;
+    (0..mesh.node_count())
+        .filter(|&i| mesh.positions()[i].y > hi - 0.05 * mesh.bbox().extent().y)
+        .collect()
+}
+
 const METHODS: [PreciseMethod; 3] = [
     PreciseMethod::Fem(FemModel::Corotational),
     PreciseMethod::Fem(FemModel::Linear),
@@ -63,12 +71,7 @@ fn switching_at_rest_is_seamless() {
 #[test]
 fn a_poked_body_rises_then_returns_to_its_cage_with_a_small_jump() {
     let mesh = asset("cylinder");
-    let top: Vec<usize> = {
-        let hi = mesh.bbox().max.y;
-        (0..mesh.node_count())
-            .filter(|&i| mesh.positions()[i].y > hi - 0.05 * mesh.bbox().extent().y)
-            .collect()
-    };
+    let top = top_nodes(&mesh);
     for method in METHODS {
         for cage in [CageKind::BoundingBox, CageKind::Fitted { vertices: 40 }] {
             let mut body = LeveledBody::new(&mesh, cylinder_settings(method, cage, &mesh)).unwrap();
@@ -298,12 +301,7 @@ fn surface_gap(body: &LeveledBody, other: &[Vec3]) -> (f64, f64) {
 #[test]
 fn a_shadow_is_the_precise_method_under_the_same_loads_and_leaves_the_cage_alone() {
     let mesh = asset("cylinder");
-    let top: Vec<usize> = {
-        let hi = mesh.bbox().max.y;
-        (0..mesh.node_count())
-            .filter(|&i| mesh.positions()[i].y > hi - 0.05 * mesh.bbox().extent().y)
-            .collect()
-    };
+    let top = top_nodes(&mesh);
     for method in METHODS {
         let settings = cylinder_settings(method, CageKind::BoundingBox, &mesh);
         let mut plain = LeveledBody::new(&mesh, settings.clone()).unwrap();
