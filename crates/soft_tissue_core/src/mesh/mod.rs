@@ -11,6 +11,7 @@ pub mod embed;
 pub mod generate;
 pub mod io;
 mod quality;
+pub mod subdivide;
 mod topology;
 
 pub use quality::{QualityReport, tet_dihedral_angles, tet_radius_ratio};
