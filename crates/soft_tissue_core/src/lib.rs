@@ -14,6 +14,7 @@
 //! - [`precision`]: levels of precision, the switching policy and the state transfer.
 //! - [`contact`]: surface colliders, broad and narrow phase, tools.
 //! - [`heat`]: heat conduction and thermal damage.
+//! - [`haptics`]: devices, the 1 kHz haptic thread, virtual coupling, recordings.
 //! - [`world`]: `SoftTissueWorld`, the stage functions, scenes and tool scripts.
 //! - [`boundary`]: fixed nodes and soft anchors shared by the solvers.
 //! - [`state`]: the per-node state of every precise body and the [`NodalBody`] accessors.
@@ -30,6 +31,7 @@ pub mod cage;
 pub mod contact;
 pub mod fem;
 mod geometry;
+pub mod haptics;
 pub mod heat;
 pub mod linalg;
 pub mod material;

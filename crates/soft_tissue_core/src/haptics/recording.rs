@@ -1,0 +1,234 @@
+//! Recorded sessions: every device sample (time, position, buttons) of a haptic loop, saved as
+//! RON, replayed exactly by [`super::ReplayDevice`], convertible to and from world scripts.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use crate::contact::ToolShape;
+use crate::world::{Script, ScriptAction, ScriptEvent, Waypoint};
+
+/// Button bit of the main button (grab).
+pub const GRAB_BUTTON: u32 = 1;
+/// Button bit of the second button (cautery).
+pub const CAUTERY_BUTTON: u32 = 2;
+
+/// One device sample.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RecordedSample {
+    /// Time since the session started, s.
+    pub t: f64,
+    /// Device position, scene units.
+    pub position: [f64; 3],
+    /// Button bits ([`GRAB_BUTTON`], [`CAUTERY_BUTTON`]).
+    pub buttons: u32,
+}
+
+/// A recorded session.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Recording {
+    /// Rate it was recorded at, Hz.
+    pub rate_hz: f64,
+    /// Samples in increasing time.
+    pub samples: Vec<RecordedSample>,
+    /// Whether recording stopped early because its buffer was full.
+    pub truncated: bool,
+}
+
+/// A recording that cannot be read, written or used.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum RecordingError {
+    /// Reading or writing the file failed.
+    #[error("{path}: {message}")]
+    Io {
+        /// File.
+        path: String,
+        /// What failed.
+        message: String,
+    },
+    /// The file is not a recording.
+    #[error("{path}: not a recording: {message}")]
+    Parse {
+        /// File.
+        path: String,
+        /// Parser message with position.
+        message: String,
+    },
+    /// No samples.
+    #[error("the recording has no samples")]
+    Empty,
+    /// A sample is unusable.
+    #[error("recording sample {sample}: {message}")]
+    BadSample {
+        /// Sample index.
+        sample: usize,
+        /// What is wrong.
+        message: &'static str,
+    },
+}
+
+impl Recording {
+    /// An empty recording at `rate_hz` with room for `seconds` of samples (allocated now, so
+    /// recording in the haptic loop never allocates).
+    pub fn with_capacity(rate_hz: f64, seconds: f64) -> Self {
+        let n = (rate_hz * seconds).clamp(0.0, 1e8).ceil() as usize;
+        Recording {
+            rate_hz,
+            samples: Vec::with_capacity(n),
+            truncated: false,
+        }
+    }
+
+    /// Appends a sample if there is room (never reallocates); marks the recording truncated
+    /// otherwise.
+    pub fn push(&mut self, sample: RecordedSample) {
+        if self.samples.len() < self.samples.capacity() {
+            self.samples.push(sample);
+        } else {
+            self.truncated = true;
+        }
+    }
+
+    /// Checks that there are samples, in increasing time, with finite numbers.
+    pub fn validate(&self) -> Result<(), RecordingError> {
+        if self.samples.is_empty() {
+            return Err(RecordingError::Empty);
+        }
+        for (i, s) in self.samples.iter().enumerate() {
+            if !s.t.is_finite() || !s.position.iter().all(|c| c.is_finite()) {
+                return Err(RecordingError::BadSample {
+                    sample: i,
+                    message: "non-finite time or position",
+                });
+            }
+            if i > 0 && s.t <= self.samples[i - 1].t {
+                return Err(RecordingError::BadSample {
+                    sample: i,
+                    message: "time does not increase",
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes the recording as RON.
+    pub fn save(&self, path: &Path) -> Result<(), RecordingError> {
+        let text =
+            ron::ser::to_string_pretty(self, ron::ser::PrettyConfig::default()).map_err(|e| {
+                RecordingError::Io {
+                    path: path.display().to_string(),
+                    message: e.to_string(),
+                }
+            })?;
+        std::fs::write(path, text).map_err(|e| RecordingError::Io {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        })
+    }
+
+    /// Reads and validates a RON recording.
+    pub fn load(path: &Path) -> Result<Self, RecordingError> {
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| RecordingError::Io {
+            path: name.clone(),
+            message: e.to_string(),
+        })?;
+        let r: Recording = ron::from_str(&text).map_err(|e| RecordingError::Parse {
+            path: name,
+            message: e.to_string(),
+        })?;
+        r.validate()?;
+        Ok(r)
+    }
+
+    /// Samples `script` at `rate_hz` over its duration plus `tail` seconds: positions from its
+    /// path, buttons from its actions (grab sets [`GRAB_BUTTON`], release clears it, a
+    /// cautery power above zero sets [`CAUTERY_BUTTON`]).
+    pub fn from_script(script: &Script, rate_hz: f64, tail: f64) -> Self {
+        let end = script.end_time() + tail.max(0.0);
+        let n = (end * rate_hz).floor() as usize + 1;
+        let mut r = Recording {
+            rate_hz,
+            samples: Vec::with_capacity(n),
+            truncated: false,
+        };
+        let mut buttons = 0u32;
+        let mut next_event = 0;
+        for k in 0..n {
+            let t = k as f64 / rate_hz;
+            while next_event < script.events.len() && script.events[next_event].t <= t {
+                match script.events[next_event].action {
+                    ScriptAction::Grab => buttons |= GRAB_BUTTON,
+                    ScriptAction::Release => buttons &= !GRAB_BUTTON,
+                    ScriptAction::Cautery(w) if w > 0.0 => buttons |= CAUTERY_BUTTON,
+                    ScriptAction::Cautery(_) => buttons &= !CAUTERY_BUTTON,
+                }
+                next_event += 1;
+            }
+            let (p, _) = script.pose_at(t);
+            r.samples.push(RecordedSample {
+                t,
+                position: [p.x, p.y, p.z],
+                buttons,
+            });
+        }
+        r
+    }
+
+    /// A world script of this session: a waypoint every `every` samples (and the last),
+    /// with a fixed tool `axis`, and an action at every button change (cautery at
+    /// `cautery_watts`), for `soft-tissue simulate --script`.
+    pub fn to_script(
+        &self,
+        name: &str,
+        tool: ToolShape,
+        axis: [f64; 3],
+        cautery_watts: f64,
+        every: usize,
+    ) -> Script {
+        let every = every.max(1);
+        let n = self.samples.len();
+        let mut waypoints = Vec::with_capacity(n / every + 2);
+        let mut events = Vec::new();
+        let mut last_buttons = 0u32;
+        for (i, s) in self.samples.iter().enumerate() {
+            if i % every == 0 || i + 1 == n {
+                waypoints.push(Waypoint {
+                    t: s.t,
+                    position: s.position,
+                    axis,
+                });
+            }
+            let changed = s.buttons ^ last_buttons;
+            if changed & GRAB_BUTTON != 0 {
+                events.push(ScriptEvent {
+                    t: s.t,
+                    action: if s.buttons & GRAB_BUTTON != 0 {
+                        ScriptAction::Grab
+                    } else {
+                        ScriptAction::Release
+                    },
+                });
+            }
+            if changed & CAUTERY_BUTTON != 0 {
+                let w = if s.buttons & CAUTERY_BUTTON != 0 {
+                    cautery_watts
+                } else {
+                    0.0
+                };
+                events.push(ScriptEvent {
+                    t: s.t,
+                    action: ScriptAction::Cautery(w),
+                });
+            }
+            last_buttons = s.buttons;
+        }
+        Script {
+            name: name.to_owned(),
+            tool,
+            waypoints,
+            events,
+        }
+    }
+}
