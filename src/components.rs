@@ -235,6 +235,47 @@ pub struct SoftBodyDiagnostics {
     pub shadow_error_ratio: Option<f64>,
 }
 
+/// What the body is drawn with, when not its simulation surface: a finer visual mesh whose
+/// vertices are embedded in the simulation's tetrahedra (each follows the tetrahedron that
+/// contains it, or the nearest one for vertices slightly outside) and written every frame.
+/// Without this component the body is drawn with its simulation surface.
+#[derive(Component, Reflect, Clone, Debug)]
+#[reflect(Component)]
+pub enum VisualMesh {
+    /// A mesh of your own (any `TriangleList` mesh, indexed or not; its other attributes,
+    /// such as UVs, are kept), in the coordinates of the body's tetrahedral mesh file (the
+    /// body's placement `Transform` is applied to it too).
+    Mesh {
+        /// The mesh to deform; the asset itself is left untouched (a copy is deformed).
+        mesh: Handle<Mesh>,
+        /// Largest distance of a vertex from the tetrahedra, scene units; farther vertices
+        /// are refused ([`VisualMeshError`]). `None`: 25 % of the body's smallest dimension.
+        max_distance: Option<f32>,
+    },
+    /// The simulation surface smoothed and refined by `levels` rounds of Loop subdivision
+    /// (four times the triangles per level; 1 to 3 is typical).
+    Subdivided {
+        /// Rounds of subdivision.
+        levels: u8,
+    },
+}
+
+impl VisualMesh {
+    /// A mesh of your own, with the default distance limit.
+    pub fn mesh(mesh: Handle<Mesh>) -> Self {
+        VisualMesh::Mesh {
+            mesh,
+            max_distance: None,
+        }
+    }
+}
+
+/// Why a body's [`VisualMesh`] could not be used (the body is drawn with its simulation
+/// surface instead; the reason is also logged).
+#[derive(Component, Reflect, Clone, Debug, PartialEq)]
+#[reflect(Component)]
+pub struct VisualMeshError(pub String);
+
 /// Runs a shadow precise simulation beside the body's cage level while present, to measure
 /// the cage level's error ([`SoftBodyDiagnostics::shadow_error_ratio`]). Costs a precise step
 /// per step.
@@ -250,12 +291,20 @@ pub struct SimulatedBody {
     pub(crate) order: u64,
     /// The surface changed since the rendered mesh was last written.
     pub(crate) dirty: bool,
+    /// The entity's `Transform` baked into the simulation mesh when the body was built.
+    pub(crate) placement: Transform,
 }
 
 impl SimulatedBody {
     /// The core body.
     pub fn body(&self) -> &SimBody {
         &self.body
+    }
+
+    /// The entity's `Transform` when the body was built, baked into the simulation mesh
+    /// (it maps the mesh file's coordinates to the simulation's).
+    pub fn placement(&self) -> Transform {
+        self.placement
     }
 }
 

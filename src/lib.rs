@@ -69,7 +69,7 @@ pub use physics::{
     ResetSimulation, SoftBodyError, SoftTissueConfig, SoftTissueContacts, SoftTissuePhysicsPlugin,
     SoftTissueStatus, SoftTissueSystems,
 };
-pub use render::{SoftBodyMesh, SoftTissueMeshPlugin, SoftTissueMeshSystems};
+pub use render::{EmbeddedVisual, SoftBodyMesh, SoftTissueMeshPlugin, SoftTissueMeshSystems};
 
 /// What a game needs in one `use`.
 pub mod prelude {

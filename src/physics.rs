@@ -293,6 +293,7 @@ fn build_bodies(
         })();
         match result {
             Ok(body) => {
+                let placement = *transform;
                 *transform = Transform::IDENTITY;
                 let method: PreciseMethodKind = body.body().settings().precise.into();
                 let mut e = commands.entity(entity);
@@ -321,6 +322,7 @@ fn build_bodies(
                     body,
                     order: *next,
                     dirty: true,
+                    placement,
                 });
                 *next += 1;
             }

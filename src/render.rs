@@ -2,6 +2,11 @@
 //! once per rendered frame (in `PostUpdate`, after the fixed-step loop), not once per fixed
 //! step, and only when the body changed. Bodies with a temperature field get vertex colours:
 //! warm tissue turns red toward 60 C, thermally damaged tissue turns a coagulated grey-brown.
+//!
+//! A body with a [`VisualMesh`] is drawn with a finer mesh embedded in its tetrahedra
+//! ([`soft_tissue_core::mesh::embed`]): every visual vertex is the barycentric combination of
+//! its tetrahedron's four nodes, whatever level the body is at (the cage level evaluates every
+//! node), and its temperature and damage are interpolated the same way.
 
 use bevy::asset::RenderAssetUsages;
 use bevy::mesh::{
@@ -9,7 +14,10 @@ use bevy::mesh::{
 };
 use bevy::prelude::*;
 
-use crate::components::{SimulatedBody, Temperature};
+use soft_tissue_core::mesh::embed::Embedding;
+use soft_tissue_core::mesh::subdivide::loop_subdivide;
+
+use crate::components::{SimulatedBody, Temperature, VisualMesh, VisualMeshError};
 
 /// Creates and updates the bodies' render meshes.
 #[derive(Default)]
@@ -20,6 +28,8 @@ impl Plugin for SoftTissueMeshPlugin {
         if !app.world().contains_resource::<Assets<Mesh>>() {
             app.init_asset::<Mesh>();
         }
+        app.register_type::<VisualMesh>()
+            .register_type::<VisualMeshError>();
         app.add_systems(
             PostUpdate,
             (create_meshes, upload_meshes)
@@ -70,43 +80,205 @@ fn normals(positions: &[[f32; 3]], triangles: &[[u32; 3]], out: &mut Vec<[f32; 3
     }
 }
 
-fn create_meshes(
-    mut commands: Commands,
-    mut meshes: ResMut<Assets<Mesh>>,
-    new: Query<(Entity, &SimulatedBody, Option<&Temperature>), Without<SoftBodyMesh>>,
-) {
-    for (entity, sim, temp) in &new {
-        let b = sim.body();
-        let positions = b.surface_positions().to_vec();
-        let mut n = Vec::new();
-        normals(&positions, b.surface_triangles(), &mut n);
-        let mut mesh = Mesh::new(
-            PrimitiveTopology::TriangleList,
-            RenderAssetUsages::default(),
-        );
-        mesh.insert_attribute(Mesh::ATTRIBUTE_POSITION, positions);
-        mesh.insert_attribute(Mesh::ATTRIBUTE_NORMAL, n);
-        if temp.is_some() {
-            mesh.insert_attribute(
-                Mesh::ATTRIBUTE_COLOR,
-                vec![tissue_colour(37.0, 0.0); b.surface_positions().len()],
-            );
-        }
-        mesh.insert_indices(Indices::U32(
-            b.surface_triangles().iter().flatten().copied().collect(),
-        ));
-        commands
-            .entity(entity)
-            .insert((Mesh3d(meshes.add(mesh)), SoftBodyMesh));
+/// A body drawn with an embedded visual mesh: the embedding and the mesh's triangles.
+#[derive(Component)]
+pub struct EmbeddedVisual {
+    embedding: Embedding,
+    triangles: Vec<[u32; 3]>,
+}
+
+impl EmbeddedVisual {
+    /// The embedding of the visual vertices in the simulation's tetrahedra.
+    pub fn embedding(&self) -> &Embedding {
+        &self.embedding
     }
 }
 
+/// The triangles of a `TriangleList` mesh (consecutive vertices when it has no indices).
+fn mesh_triangles(mesh: &Mesh) -> Result<Vec<[u32; 3]>, String> {
+    if mesh.primitive_topology() != PrimitiveTopology::TriangleList {
+        return Err(format!(
+            "it is a {:?} mesh, a TriangleList is needed",
+            mesh.primitive_topology()
+        ));
+    }
+    let n = mesh.count_vertices();
+    let flat: Vec<u32> = match mesh.indices() {
+        Some(i) => i.iter().map(|v| v as u32).collect(),
+        None => (0..n as u32).collect(),
+    };
+    if !flat.len().is_multiple_of(3) {
+        return Err(format!(
+            "its {} indices are not whole triangles",
+            flat.len()
+        ));
+    }
+    if let Some(&bad) = flat.iter().find(|&&v| v as usize >= n) {
+        return Err(format!("an index {bad} is past its {n} vertices"));
+    }
+    Ok(flat.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect())
+}
+
+/// The render mesh and embedding of a body's [`VisualMesh`]; `Ok(None)` while its asset
+/// is still loading.
+fn visual_mesh(
+    visual: &VisualMesh,
+    sim: &SimulatedBody,
+    meshes: &Assets<Mesh>,
+) -> Result<Option<(Mesh, EmbeddedVisual)>, String> {
+    let body = sim.body();
+    let tets = body.mesh();
+    let (mut mesh, points, limit) = match visual {
+        VisualMesh::Mesh { mesh, max_distance } => {
+            let Some(source) = meshes.get(mesh) else {
+                return Ok(None);
+            };
+            let Some(VertexAttributeValues::Float32x3(p)) =
+                source.attribute(Mesh::ATTRIBUTE_POSITION)
+            else {
+                return Err("the mesh has no Float32x3 positions".into());
+            };
+            let place = sim.placement().to_matrix().as_dmat4();
+            let points: Vec<_> = p
+                .iter()
+                .map(|q| {
+                    let q = place.transform_point3(Vec3::from_array(*q).as_dvec3());
+                    soft_tissue_core::Vec3::new(q.x, q.y, q.z)
+                })
+                .collect();
+            let limit = max_distance.map_or(0.25 * tets.bbox().smallest_dimension(), f64::from);
+            (source.clone(), points, limit)
+        }
+        VisualMesh::Subdivided { levels } => {
+            let (points, triangles) = loop_subdivide(
+                tets.positions(),
+                tets.surface().triangles(),
+                u32::from(*levels),
+            )
+            .map_err(|e| e.to_string())?;
+            let mut mesh = Mesh::new(
+                PrimitiveTopology::TriangleList,
+                RenderAssetUsages::default(),
+            );
+            let p: Vec<[f32; 3]> = points
+                .iter()
+                .map(|q| [q.x as f32, q.y as f32, q.z as f32])
+                .collect();
+            mesh.insert_attribute(Mesh::ATTRIBUTE_POSITION, p);
+            mesh.insert_indices(Indices::U32(triangles.into_iter().flatten().collect()));
+            let limit = 0.1 * tets.bbox().smallest_dimension();
+            (mesh, points, limit)
+        }
+    };
+    let triangles = mesh_triangles(&mesh)?;
+    let embedding = Embedding::new(tets, &points, limit).map_err(|e| e.to_string())?;
+    let n = embedding.len();
+    let mut scratch = vec![[0.0; 3]; n];
+    embedding
+        .apply(body.body().node_positions(), &mut scratch)
+        .map_err(|e| e.to_string())?;
+    let mut normal = Vec::new();
+    normals(&scratch, &triangles, &mut normal);
+    mesh.insert_attribute(Mesh::ATTRIBUTE_POSITION, scratch);
+    mesh.insert_attribute(Mesh::ATTRIBUTE_NORMAL, normal);
+    if body.heat().is_some() {
+        mesh.insert_attribute(Mesh::ATTRIBUTE_COLOR, vec![tissue_colour(37.0, 0.0); n]);
+    }
+    Ok(Some((
+        mesh,
+        EmbeddedVisual {
+            embedding,
+            triangles,
+        },
+    )))
+}
+
+/// The simulation surface as a render mesh.
+fn surface_mesh(sim: &SimulatedBody) -> Mesh {
+    let b = sim.body();
+    let positions = b.surface_positions().to_vec();
+    let mut n = Vec::new();
+    normals(&positions, b.surface_triangles(), &mut n);
+    let mut mesh = Mesh::new(
+        PrimitiveTopology::TriangleList,
+        RenderAssetUsages::default(),
+    );
+    mesh.insert_attribute(Mesh::ATTRIBUTE_POSITION, positions);
+    mesh.insert_attribute(Mesh::ATTRIBUTE_NORMAL, n);
+    if b.heat().is_some() {
+        mesh.insert_attribute(
+            Mesh::ATTRIBUTE_COLOR,
+            vec![tissue_colour(37.0, 0.0); b.surface_positions().len()],
+        );
+    }
+    mesh.insert_indices(Indices::U32(
+        b.surface_triangles().iter().flatten().copied().collect(),
+    ));
+    mesh
+}
+
+#[allow(clippy::type_complexity)]
+fn create_meshes(
+    mut commands: Commands,
+    mut meshes: ResMut<Assets<Mesh>>,
+    new: Query<
+        (
+            Entity,
+            &SimulatedBody,
+            Option<&VisualMesh>,
+            Option<&Name>,
+            Has<VisualMeshError>,
+        ),
+        Without<SoftBodyMesh>,
+    >,
+) {
+    for (entity, sim, visual, name, failed) in &new {
+        let mut e = commands.entity(entity);
+        if let Some(visual) = visual
+            && !failed
+        {
+            match visual_mesh(visual, sim, &meshes) {
+                Ok(None) => continue,
+                Ok(Some((mesh, embedded))) => {
+                    e.insert((Mesh3d(meshes.add(mesh)), embedded, SoftBodyMesh));
+                    continue;
+                }
+                Err(why) => {
+                    let name = name.map_or_else(|| format!("{entity}"), |n| n.to_string());
+                    let why = format!("visual mesh of soft body `{name}` not used: {why}");
+                    error!("{why}; drawing its simulation surface");
+                    e.insert(VisualMeshError(why));
+                }
+            }
+        }
+        e.insert((Mesh3d(meshes.add(surface_mesh(sim))), SoftBodyMesh));
+    }
+}
+
+/// Per-frame scratch buffers of [`upload_meshes`].
+#[derive(Default)]
+struct Scratch {
+    positions: Vec<[f32; 3]>,
+    normals: Vec<[f32; 3]>,
+    celsius: Vec<f32>,
+    damage: Vec<f32>,
+}
+
+#[allow(clippy::type_complexity)]
 fn upload_meshes(
     mut meshes: ResMut<Assets<Mesh>>,
-    mut bodies: Query<(&mut SimulatedBody, &Mesh3d, Option<&Temperature>), With<SoftBodyMesh>>,
-    mut scratch: Local<Vec<[f32; 3]>>,
+    mut bodies: Query<
+        (
+            &mut SimulatedBody,
+            &Mesh3d,
+            Option<&Temperature>,
+            Option<&EmbeddedVisual>,
+        ),
+        With<SoftBodyMesh>,
+    >,
+    mut s: Local<Scratch>,
 ) {
-    for (mut sim, handle, temp) in &mut bodies {
+    for (mut sim, handle, temp, visual) in &mut bodies {
         if !sim.dirty {
             continue;
         }
@@ -115,18 +287,60 @@ fn upload_meshes(
             continue;
         };
         let b = sim.body();
-        normals(b.surface_positions(), b.surface_triangles(), &mut scratch);
+        let Scratch {
+            positions,
+            normals: normal,
+            celsius,
+            damage,
+        } = &mut *s;
+        if let Some(v) = visual {
+            let n = v.embedding.len();
+            positions.resize(n, [0.0; 3]);
+            // Sizes match by construction (the embedding was built from this body's mesh).
+            if v.embedding
+                .apply(b.body().node_positions(), positions)
+                .is_err()
+            {
+                continue;
+            }
+            normals(positions, &v.triangles, normal);
+            write3(&mut mesh, Mesh::ATTRIBUTE_POSITION, positions);
+            write3(&mut mesh, Mesh::ATTRIBUTE_NORMAL, normal);
+            if let Some(heat) = b.heat() {
+                celsius.resize(n, 0.0);
+                damage.resize(n, 0.0);
+                if v.embedding
+                    .interpolate(heat.temperatures(), celsius)
+                    .is_ok()
+                    && v.embedding.interpolate(heat.damage(), damage).is_ok()
+                {
+                    // Interpolated Arrhenius integral to damaged fraction.
+                    for d in damage.iter_mut() {
+                        *d = 1.0 - (-d.max(0.0)).exp();
+                    }
+                    write_colours(&mut mesh, celsius, damage);
+                }
+            }
+            continue;
+        }
+        normals(b.surface_positions(), b.surface_triangles(), normal);
         // Written in place: the attribute buffers keep their allocation.
         write3(&mut mesh, Mesh::ATTRIBUTE_POSITION, b.surface_positions());
-        write3(&mut mesh, Mesh::ATTRIBUTE_NORMAL, &scratch);
-        if let Some(t) = temp
-            && let Some(VertexAttributeValues::Float32x4(colours)) =
-                mesh.attribute_mut(Mesh::ATTRIBUTE_COLOR)
-            && colours.len() == t.surface.len()
-        {
-            for ((c, &celsius), &damage) in colours.iter_mut().zip(&t.surface).zip(&t.damage) {
-                *c = tissue_colour(celsius, damage);
-            }
+        write3(&mut mesh, Mesh::ATTRIBUTE_NORMAL, normal);
+        if let Some(t) = temp {
+            write_colours(&mut mesh, &t.surface, &t.damage);
+        }
+    }
+}
+
+/// Writes the tissue colours of `celsius` and `damage` into the mesh's colour attribute.
+fn write_colours(mesh: &mut Mesh, celsius: &[f32], damage: &[f32]) {
+    if let Some(VertexAttributeValues::Float32x4(colours)) =
+        mesh.attribute_mut(Mesh::ATTRIBUTE_COLOR)
+        && colours.len() == celsius.len()
+    {
+        for ((c, &t), &d) in colours.iter_mut().zip(celsius).zip(damage) {
+            *c = tissue_colour(t, d.clamp(0.0, 1.0));
         }
     }
 }

@@ -426,3 +426,180 @@ fn pause_single_step_method_change_and_reset() {
     assert_eq!(level(&app, bodies[1]), LevelKind::Cage);
     assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
 }
+
+/// A finer cylinder than the simulation's (Bevy's primitive mesh, 48 around, axis y) of the
+/// paper's size times `scale`, turned by `rotation` and moved by `shift`.
+fn fine_cylinder(scale: f32, rotation: Quat, shift: Vec3) -> Mesh {
+    Cylinder::new(0.62 * scale, 1.72 * scale)
+        .mesh()
+        .resolution(48)
+        .segments(8)
+        .build()
+        .rotated_by(rotation)
+        .translated_by(shift)
+}
+
+/// In the coordinates of the cylinder mesh file (axis z).
+fn y_to_z() -> Quat {
+    Quat::from_rotation_arc(Vec3::Y, Vec3::Z)
+}
+
+fn mesh_positions(mesh: &Mesh) -> Vec<[f32; 3]> {
+    match mesh.attribute(Mesh::ATTRIBUTE_POSITION).unwrap() {
+        VertexAttributeValues::Float32x3(v) => v.clone(),
+        _ => panic!("positions are Float32x3"),
+    }
+}
+
+fn max_distance(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| Vec3::from_array(*p).distance(Vec3::from_array(*q)))
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn finer_visual_meshes_follow_the_simulation() {
+    let scene = cylinders_scene();
+    let (mut app, bodies, world) = scene_app(&scene);
+    let (a, b) = (bodies[0], bodies[1]);
+    let centre = world.bodies()[0].mesh().bbox().center();
+    // The scene stands the cylinders along y.
+    let source = fine_cylinder(
+        1.0,
+        Quat::IDENTITY,
+        bevy_soft_tissue::convert::to_bevy(&centre),
+    );
+    let source_positions = mesh_positions(&source);
+    let handle = app.world_mut().resource_mut::<Assets<Mesh>>().add(source);
+    app.world_mut()
+        .entity_mut(a)
+        .insert(VisualMesh::mesh(handle.clone()));
+    app.world_mut()
+        .entity_mut(b)
+        .insert(VisualMesh::Subdivided { levels: 2 });
+    let script = Script::builtin("poke-a", &world).unwrap();
+    let dt = world.config().dt;
+    let tool = spawn_tool(&mut app, &script);
+    app.update();
+    // Settled under gravity, the visual mesh is where it was given, up to the sag of the
+    // simulated surface; the asset itself is not touched.
+    assert_eq!(app.world().get::<VisualMeshError>(a), None);
+    assert_eq!(app.world().get::<VisualMeshError>(b), None);
+    let drawn = app.world().get::<Mesh3d>(a).unwrap().0.clone();
+    assert_ne!(drawn, handle);
+    let initial = positions(&app, &drawn);
+    assert_eq!(initial.len(), source_positions.len());
+    let sim = app.world().get::<SimulatedBody>(a).unwrap().body();
+    let file: Vec<[f32; 3]> = sim
+        .surface_nodes()
+        .iter()
+        .map(|&i| bevy_soft_tissue::convert::to_bevy(&sim.mesh().positions()[i as usize]).into())
+        .collect();
+    let sag = max_distance(sim.surface_positions(), &file);
+    let off = max_distance(&initial, &source_positions);
+    assert!(off <= 1.2 * sag + 1e-5, "{off} vs sag {sag}");
+    // The subdivided surface has 16 times the simulation's triangles.
+    let sub = app.world().get::<Mesh3d>(b).unwrap().0.clone();
+    let sub_mesh = app.world().resource::<Assets<Mesh>>().get(&sub).unwrap();
+    let sim_triangles = world.bodies()[1].surface_triangles().len();
+    assert_eq!(sub_mesh.indices().unwrap().len(), 3 * 16 * sim_triangles);
+    let surface0 = surfaces(&app, &[a])[0].clone();
+    let (mut visual_moved, mut surface_moved) = (0.0f32, 0.0f32);
+    for k in 1..=900 {
+        drive_tool(&mut app, tool, &script, k, dt);
+        app.update();
+        visual_moved = visual_moved.max(max_distance(&positions(&app, &drawn), &initial));
+        surface_moved = surface_moved.max(max_distance(&surfaces(&app, &[a])[0], &surface0));
+    }
+    // The fine mesh deforms with the simulated surface: by as much, within what linear
+    // interpolation inside the tetrahedra loses at a poke between nodes.
+    assert!(surface_moved > 0.01, "{surface_moved}");
+    assert!(
+        visual_moved > 0.5 * surface_moved && visual_moved < 1.2 * surface_moved,
+        "visual {visual_moved} vs surface {surface_moved}"
+    );
+    // Back at rest, the visual mesh is back where it started.
+    assert_eq!(level(&app, a), LevelKind::Cage);
+    let back = max_distance(&positions(&app, &drawn), &initial);
+    let surface_back = max_distance(&surfaces(&app, &[a])[0], &surface0);
+    assert!(
+        back <= 1.5 * surface_back + 1e-5,
+        "{back} vs {surface_back}"
+    );
+    assert_eq!(
+        app.world()
+            .resource::<Assets<Mesh>>()
+            .get(&handle)
+            .map(mesh_positions),
+        Some(source_positions)
+    );
+}
+
+#[test]
+fn visual_meshes_are_placed_with_the_body_and_mismatched_ones_refused() {
+    let mut app = app(0.02);
+    let mesh = {
+        let m =
+            bevy_soft_tissue::core::mesh::io::read_tet_mesh(assets().join("meshes/cylinder.vtk"))
+                .unwrap()
+                .mesh;
+        app.world_mut()
+            .resource_mut::<Assets<TetMeshAsset>>()
+            .add(TetMeshAsset::from(m))
+    };
+    let (_, bodies) =
+        bevy_soft_tissue::core::world::scene_bodies(&cylinders_scene(), assets()).unwrap();
+    let mut settings = bodies[0].settings.clone();
+    // No gravity: the body stays in its file shape, so the drawn mesh must be exactly the
+    // placed visual mesh.
+    settings.gravity = bevy_soft_tissue::core::Vec3::zeros();
+    let place = Transform::from_xyz(3.0, -1.0, 0.5)
+        .with_rotation(Quat::from_rotation_x(1.0))
+        .with_scale(Vec3::splat(0.5));
+    let fine = fine_cylinder(1.0, y_to_z(), Vec3::ZERO);
+    let want: Vec<[f32; 3]> = mesh_positions(&fine)
+        .iter()
+        .map(|p| place.transform_point(Vec3::from_array(*p)).to_array())
+        .collect();
+    let fine = app.world_mut().resource_mut::<Assets<Mesh>>().add(fine);
+    let placed = app
+        .world_mut()
+        .spawn((
+            SoftBody::new(mesh.clone(), settings.clone()),
+            place,
+            VisualMesh::mesh(fine),
+        ))
+        .id();
+    // Ten times too large: most vertices are far outside the body.
+    let huge = app
+        .world_mut()
+        .resource_mut::<Assets<Mesh>>()
+        .add(fine_cylinder(10.0, y_to_z(), Vec3::ZERO));
+    let wrong = app
+        .world_mut()
+        .spawn((
+            Name::new("wrong"),
+            SoftBody::new(mesh, settings),
+            VisualMesh::mesh(huge),
+        ))
+        .id();
+    app.update();
+    let drawn = app.world().get::<Mesh3d>(placed).unwrap().0.clone();
+    let off = max_distance(&positions(&app, &drawn), &want);
+    assert!(off < 1e-5, "{off}");
+    assert!(app.world().get::<VisualMeshError>(placed).is_none());
+    let error = app.world().get::<VisualMeshError>(wrong).expect("refused");
+    assert!(
+        error.0.contains("`wrong`") && error.0.contains("farther than the limit"),
+        "{}",
+        error.0
+    );
+    // The refused body is drawn with its simulation surface.
+    let drawn = app.world().get::<Mesh3d>(wrong).unwrap().0.clone();
+    let sim = app.world().get::<SimulatedBody>(wrong).unwrap();
+    assert_eq!(
+        positions(&app, &drawn).len(),
+        sim.body().surface_positions().len()
+    );
+}
