@@ -30,7 +30,7 @@ impl Default for SoftTissueDebugSettings {
             tools: true,
             contacts: true,
             force_scale: 0.05,
-            contact_size: 0.03,
+            contact_size: 0.08,
         }
     }
 }
@@ -42,8 +42,21 @@ pub struct SoftTissueDebugPlugin;
 impl Plugin for SoftTissueDebugPlugin {
     fn build(&self, app: &mut App) {
         app.init_resource::<SoftTissueDebugSettings>()
+            .init_gizmo_group::<SoftTissueContactGizmos>()
+            .add_systems(Startup, configure_contact_gizmos)
             .add_systems(Update, (draw_cages, draw_tools, draw_contacts));
     }
+}
+
+/// The gizmo group of contact points: drawn over the meshes (a contact lies on the simulation
+/// surface, which a smoothed visual mesh may cover) with thicker lines.
+#[derive(Default, Reflect, GizmoConfigGroup)]
+pub struct SoftTissueContactGizmos;
+
+fn configure_contact_gizmos(mut store: ResMut<GizmoConfigStore>) {
+    let (config, _) = store.config_mut::<SoftTissueContactGizmos>();
+    config.depth_bias = -1.0;
+    config.line.width = 3.0;
 }
 
 fn draw_cages(
@@ -111,7 +124,7 @@ fn draw_contacts(
     settings: Res<SoftTissueDebugSettings>,
     contacts: Res<SoftTissueContacts>,
     bodies: Query<&SimulatedBody>,
-    mut gizmos: Gizmos,
+    mut gizmos: Gizmos<SoftTissueContactGizmos>,
 ) {
     if !settings.contacts {
         return;
@@ -132,14 +145,14 @@ fn draw_contacts(
     for t in c.tool_contacts.iter().filter(|t| t.depth > 0.0) {
         if let Some(x) = point(t.body, t.vertices, t.weights) {
             let colour = Color::srgb(1.0, 0.9, 0.2);
-            gizmos.sphere(Isometry3d::from_translation(x), 0.25 * size, colour);
+            gizmos.sphere(Isometry3d::from_translation(x), 0.2 * size, colour);
             gizmos.line(x, x + to_bevy(&t.normal) * size, colour);
         }
     }
     for b in c.body_contacts.iter().filter(|b| b.depth > 0.0) {
         if let Some(x) = point(b.b, b.vertices, b.weights) {
             let colour = Color::srgb(1.0, 0.3, 0.9);
-            gizmos.sphere(Isometry3d::from_translation(x), 0.25 * size, colour);
+            gizmos.sphere(Isometry3d::from_translation(x), 0.2 * size, colour);
             gizmos.line(x, x + to_bevy(&b.normal) * size, colour);
         }
     }

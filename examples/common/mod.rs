@@ -10,7 +10,9 @@
 //! - P: pause / resume, N: single step, R: reset.
 //!
 //! `--screenshot FILE --frames N` drives the tool with a built-in script instead of the mouse,
-//! renders N frames and saves a PNG of the window, then exits.
+//! renders N frames and saves a PNG of the window, then exits. `--smooth L` draws each body
+//! with its simulation surface refined by L rounds of Loop subdivision and embedded in its
+//! tetrahedra (default 2; 0 draws the simulation surface itself).
 
 use std::path::{Path, PathBuf};
 
@@ -30,14 +32,17 @@ pub struct ExampleOptions {
     pub screenshot: Option<PathBuf>,
     /// Frames to render before the screenshot.
     pub frames: u32,
+    /// Rounds of subdivision of the drawn surface (0: the simulation surface).
+    pub smooth: u8,
 }
 
 impl ExampleOptions {
-    /// Parses `--screenshot FILE --frames N`.
+    /// Parses `--screenshot FILE --frames N --smooth L`.
     pub fn from_args() -> Result<Self, String> {
         let mut o = ExampleOptions {
             screenshot: None,
             frames: 240,
+            smooth: 2,
         };
         let mut args = std::env::args().skip(1);
         while let Some(a) = args.next() {
@@ -52,9 +57,19 @@ impl ExampleOptions {
                         .parse()
                         .map_err(|e| format!("--frames: {e}"))?
                 }
+                "--smooth" => {
+                    o.smooth = args
+                        .next()
+                        .ok_or("--smooth needs a number")?
+                        .parse()
+                        .map_err(|e| format!("--smooth: {e}"))?;
+                    if o.smooth > 4 {
+                        return Err(format!("--smooth {} is more than 4", o.smooth));
+                    }
+                }
                 other => {
                     return Err(format!(
-                        "unknown option {other} (--screenshot FILE --frames N)"
+                        "unknown option {other} (--screenshot FILE --frames N --smooth L)"
                     ));
                 }
             }
@@ -190,6 +205,7 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
     let scene = example.scene.clone();
     let colours = example.colours.clone();
     let cautery_watts = example.cautery_watts;
+    let smooth = options.smooth;
     app.add_systems(Startup, move |world: &mut World| {
         let bodies = match bevy_soft_tissue::spawn_scene(world, &scene, &assets_dir()) {
             Ok(b) => b,
@@ -208,7 +224,11 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
                     perceptual_roughness: 0.55,
                     ..default()
                 });
-            world.entity_mut(*e).insert(MeshMaterial3d(material));
+            let mut body = world.entity_mut(*e);
+            body.insert(MeshMaterial3d(material));
+            if smooth > 0 {
+                body.insert(VisualMesh::Subdivided { levels: smooth });
+            }
         }
         // The orbit centre sits left of the scene's centre so the bodies clear the inspector.
         let focus = 0.5 * (lo + hi) - Vec3::X * 0.22 * scale;
