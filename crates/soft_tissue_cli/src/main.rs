@@ -1,6 +1,7 @@
 //! `soft-tissue`: command-line tool of bevy_soft_tissue (mesh inspection, conversion,
 //! generation, scene files, cages, benchmarks, headless simulation).
 
+mod haptics_bench;
 mod simulate;
 
 use clap::{Args, Parser, Subcommand};
@@ -39,6 +40,9 @@ enum Command {
     /// Run a scene headless under a scripted tool (levels switching, contact, heat), with a
     /// JSON line per step on request.
     Simulate(simulate::SimulateArgs),
+    /// Run a scene in real time while the 1 kHz haptic thread replays a session; print the
+    /// haptic loop's period distribution, missed deadlines and force continuity.
+    HapticsBench(haptics_bench::HapticsBenchArgs),
 }
 
 #[derive(Subcommand)]
@@ -192,6 +196,7 @@ fn main() -> ExitCode {
         Command::Scene(SceneCommand::Export { out }) => export_scenes(&out),
         Command::Bench(args) => bench(&args),
         Command::Simulate(args) => simulate::simulate(&args),
+        Command::HapticsBench(args) => haptics_bench::haptics_bench(&args),
         Command::Cage(CageCommand::Deform {
             cage_rest,
             cage_deformed,

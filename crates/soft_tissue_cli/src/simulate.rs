@@ -45,7 +45,7 @@ pub struct SimulateArgs {
 /// `cylinders` and `organs` are read from `<assets>/scenes/<name>.scene.ron` (the scenario files),
 /// falling back to the built-in definitions when that file is absent; anything else is a RON
 /// file path.
-fn load_scene(name: &str, assets: &Path) -> Result<Scene, String> {
+pub(crate) fn load_scene(name: &str, assets: &Path) -> Result<Scene, String> {
     let (path, builtin) = match name {
         "cylinders" => (
             assets.join("scenes/cylinders.scene.ron"),

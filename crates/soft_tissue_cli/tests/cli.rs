@@ -249,3 +249,69 @@ fn simulate_reports_the_cage_error_against_a_shadow() {
         assert!(mean <= worst, "{b}");
     }
 }
+
+#[test]
+fn haptics_bench_reports_records_and_its_session_replays_as_a_script() {
+    let dir = tmp("haptics");
+    let rec = dir.join("session.ron");
+    let script = dir.join("session.script.ron");
+    let assets = root().join("assets");
+    let stdout = run_ok(&[
+        "haptics-bench".as_ref(),
+        "--scene".as_ref(),
+        "cylinders".as_ref(),
+        "--script".as_ref(),
+        "poke-a".as_ref(),
+        "--seconds".as_ref(),
+        "1.5".as_ref(),
+        "--spin-us".as_ref(),
+        "300".as_ref(),
+        "--json".as_ref(),
+        "--assets".as_ref(),
+        assets.as_os_str(),
+        "--record".as_ref(),
+        rec.as_os_str(),
+        "--save-script".as_ref(),
+        script.as_os_str(),
+    ]);
+    let v: serde_json::Value = serde_json::from_slice(&stdout).unwrap();
+    for key in [
+        "period_p50_us",
+        "period_p99_us",
+        "period_p999_us",
+        "period_max_us",
+        "missed_deadlines",
+        "max_force_step",
+        "machine",
+    ] {
+        assert!(v.get(key).is_some(), "missing {key} in {v}");
+    }
+    let ticks = v["ticks"].as_u64().unwrap();
+    assert!(ticks > 0);
+    // The force never exceeds the coupling's clamp (8 scene units).
+    assert!(v["max_force"].as_f64().unwrap() <= 8.0 + 1e-9);
+    // The recording holds one sample per tick, in increasing time at the haptic rate.
+    let r = soft_tissue_core::haptics::Recording::load(&rec).unwrap();
+    assert_eq!(r.samples.len() as u64, ticks);
+    assert!((r.samples[1].t - r.samples[0].t - 1e-3).abs() < 1e-12);
+    // The session, as a script, drives `simulate`.
+    let out = run_ok(&[
+        "simulate".as_ref(),
+        "--scene".as_ref(),
+        "cylinders".as_ref(),
+        "--assets".as_ref(),
+        assets.as_os_str(),
+        "--script".as_ref(),
+        script.as_os_str(),
+        "--steps".as_ref(),
+        "20".as_ref(),
+    ]);
+    assert!(!out.is_empty());
+    // A bad duration is refused with a message.
+    let out = bin()
+        .args(["haptics-bench", "--seconds=0"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--seconds"));
+}

@@ -120,7 +120,9 @@ pub struct CouplingParams {
     /// Largest force sent to the device (scene units; the device's limit, mapped).
     pub max_force: f64,
     /// Haptic ticks over which a new contact model fades in (smooths the force across
-    /// physics steps; 0: switch at once).
+    /// physics steps; 0: switch at once). Keep it at most the physics step in ticks (10 for
+    /// a 100 Hz physics at 1 kHz): a model arriving before the last one has fully faded in
+    /// replaces what remains of the one before.
     pub blend_ticks: u32,
 }
 
@@ -130,7 +132,7 @@ impl Default for CouplingParams {
             stiffness: 400.0,
             proxy_mass: 0.05,
             max_force: 8.0,
-            blend_ticks: 20,
+            blend_ticks: 8,
         }
     }
 }
@@ -191,6 +193,11 @@ impl Coupling {
         self.v
     }
 
+    /// The newest contact model.
+    pub fn model(&self) -> &ContactModel {
+        &self.new
+    }
+
     /// Hands over a new contact model; it fades in over `blend_ticks` ticks.
     pub fn set_model(&mut self, model: ContactModel) {
         if !model.is_valid() {
@@ -248,6 +255,11 @@ impl Coupling {
                 continue;
             }
             let n = model.normal;
+            // Damping grows with the penetration (Hunt and Crossley) over the first quarter of
+            // the depth at which the force reaches the device limit, so touching the surface
+            // does not step the force.
+            let ramp = 0.25 * p.max_force / k.max(f64::MIN_POSITIVE);
+            let b = b * (d / ramp).min(1.0);
             a += n * n.transpose() * (wi * (h * h * k + h * b));
             rhs += n * (wi * h * k * d);
         }

@@ -65,7 +65,7 @@ impl Default for HapticConfig {
             spin_us: 300.0,
             record_seconds: 600.0,
             stats_seconds: 600.0,
-            velocity_cutoff_hz: 100.0,
+            velocity_cutoff_hz: 40.0,
         }
     }
 }
@@ -197,6 +197,10 @@ pub struct HapticRun {
     pub missed: u64,
     /// Largest change of the device force between two ticks, N.
     pub max_force_step: f64,
+    /// Largest change of the device force on a tick that adopted a new contact model, N.
+    pub max_force_step_on_model: f64,
+    /// Change of the device force at every tick (up to `stats_seconds`), N.
+    pub force_steps: Vec<f32>,
     /// Largest device force, N.
     pub max_force: f64,
     /// The device samples (scene units).
@@ -208,14 +212,23 @@ pub struct HapticRun {
 impl HapticRun {
     /// The `q` quantile (0..1) of the tick periods, microseconds (`None` without periods).
     pub fn period_quantile(&self, q: f64) -> Option<f64> {
-        if self.periods_us.is_empty() {
-            return None;
-        }
-        let mut p = self.periods_us.clone();
-        p.sort_unstable_by(f32::total_cmp);
-        let i = ((p.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
-        Some(f64::from(p[i]))
+        quantile(&self.periods_us, q)
     }
+
+    /// The `q` quantile (0..1) of the per-tick force changes, N.
+    pub fn force_step_quantile(&self, q: f64) -> Option<f64> {
+        quantile(&self.force_steps, q)
+    }
+}
+
+fn quantile(values: &[f32], q: f64) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    let mut p = values.to_vec();
+    p.sort_unstable_by(f32::total_cmp);
+    let i = ((p.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
+    Some(f64::from(p[i]))
 }
 
 /// A running haptic loop; stopping it (or dropping it) ends the thread cleanly and leaves the
@@ -317,6 +330,8 @@ fn run(
         periods_us: Vec::with_capacity((config.stats_seconds * config.rate_hz).ceil() as usize),
         missed: 0,
         max_force_step: 0.0,
+        max_force_step_on_model: 0.0,
+        force_steps: Vec::with_capacity((config.stats_seconds * config.rate_hz).ceil() as usize),
         max_force: 0.0,
         recording: Recording::with_capacity(config.rate_hz, config.record_seconds),
         device_error: None,
@@ -362,13 +377,21 @@ fn run(
         }
         previous_device = x_device;
         let (words, writes) = shared.model.read();
-        if writes != model_writes {
+        let new_model = writes != model_writes;
+        if new_model {
             model_writes = writes;
             coupling.set_model(ContactModel::decode(&words));
         }
         let f_scene = coupling.step(&x_device, &device_velocity, h);
         let force = clamp(f_scene * mapping.force_scale, limit);
-        out.max_force_step = out.max_force_step.max((force - last_force).norm());
+        let change = (force - last_force).norm();
+        out.max_force_step = out.max_force_step.max(change);
+        if new_model {
+            out.max_force_step_on_model = out.max_force_step_on_model.max(change);
+        }
+        if out.force_steps.len() < out.force_steps.capacity() {
+            out.force_steps.push(change as f32);
+        }
         out.max_force = out.max_force.max(force.norm());
         last_force = force;
         if let Err(e) = device.write_force(force) {
@@ -412,7 +435,8 @@ fn run(
 /// the plane of the touched surface (normal from the tissue's reaction, or from the nearest
 /// contacts within the margin when not touching), the penetration that gives the measured
 /// force at the stiffness estimate, and that estimate: a secant between successive physics
-/// steps, smoothed and kept within a factor ten of `nominal_stiffness`. `grab`: the tool
+/// steps, smoothed (one tenth of each new secant) and kept within a factor four of
+/// `nominal_stiffness`. `grab`: the tool
 /// holds tissue.
 pub fn contact_model(
     tool: &Tool,
@@ -440,11 +464,11 @@ pub fn contact_model(
             if deeper.abs() > 1e-9 && previous.depth > 0.0 {
                 let secant = (f - f_prev) / deeper;
                 if secant.is_finite() && secant > 0.0 {
-                    stiffness = 0.7 * stiffness + 0.3 * secant;
+                    stiffness = 0.9 * stiffness + 0.1 * secant;
                 }
             }
         }
-        stiffness = stiffness.clamp(0.1 * nominal_stiffness, 10.0 * nominal_stiffness);
+        stiffness = stiffness.clamp(0.25 * nominal_stiffness, 4.0 * nominal_stiffness);
         return ContactModel {
             active: true,
             normal: n,
@@ -469,7 +493,7 @@ pub fn contact_model(
                 normal: -c.normal.normalize(),
                 origin: x,
                 depth: c.depth.min(0.0),
-                stiffness: stiffness.clamp(0.1 * nominal_stiffness, 10.0 * nominal_stiffness),
+                stiffness: stiffness.clamp(0.25 * nominal_stiffness, 4.0 * nominal_stiffness),
                 grab: false,
                 step,
             }

@@ -1,0 +1,228 @@
+//! `soft-tissue haptics-bench`: a scene stepped in real time on this thread while the haptic
+//! thread replays a recorded session at 1 kHz, coupling the replayed device to the tool and
+//! rendering the contact force from the model each physics step hands over. Prints the haptic
+//! loop's period distribution, missed deadlines and force continuity.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use clap::Args;
+use serde_json::json;
+use soft_tissue_core::contact::Tool;
+use soft_tissue_core::haptics::{
+    ContactModel, HapticConfig, HapticThread, Recording, ReplayDevice, contact_model,
+};
+use soft_tissue_core::world::{Script, SoftTissueWorld};
+
+use crate::simulate::load_scene;
+
+/// Button bits of the recordings (grab, cautery).
+const GRAB: u32 = 1;
+const CAUTERY: u32 = 2;
+
+#[derive(Args)]
+pub struct HapticsBenchArgs {
+    /// `cylinders`, `organs` or a scene RON file.
+    #[arg(long, default_value = "organs")]
+    scene: String,
+    /// Wall-clock seconds to run.
+    #[arg(long, default_value_t = 10.0)]
+    seconds: f64,
+    /// Session to replay: a recording RON file; without one, the built-in script
+    /// (`--script`) sampled at the haptic rate.
+    #[arg(long)]
+    replay: Option<PathBuf>,
+    /// Built-in script or script RON file used when no recording is given.
+    #[arg(long, default_value = "cauterize-liver")]
+    script: String,
+    /// Electrocautery power while the second button is held, W.
+    #[arg(long, default_value_t = 10.0)]
+    cautery_watts: f64,
+    /// Save the session the haptic thread recorded (RON) here.
+    #[arg(long)]
+    record: Option<PathBuf>,
+    /// Save the recorded session as a `simulate --script` RON file here (a waypoint every
+    /// 10 ms).
+    #[arg(long)]
+    save_script: Option<PathBuf>,
+    /// The haptic thread sleeps until this long before each deadline, then spins,
+    /// microseconds. The default spins the whole period (a dedicated core, as haptic loops
+    /// usually run); 300 sleeps most of it (gentler on a shared machine, more jitter).
+    #[arg(long, default_value_t = 1000.0)]
+    spin_us: f64,
+    /// One JSON object instead of text.
+    #[arg(long)]
+    json: bool,
+    /// Folder the scene's mesh files are relative to.
+    #[arg(long, default_value = "assets")]
+    assets: PathBuf,
+}
+
+pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::Error>> {
+    if !(args.seconds.is_finite() && args.seconds > 0.0 && args.seconds <= 3600.0) {
+        return Err(format!("--seconds {} must be in (0, 3600]", args.seconds).into());
+    }
+    let scene = load_scene(&args.scene, &args.assets)?;
+    let mut world = SoftTissueWorld::from_scene(&scene, &args.assets)?;
+    let script = if args.script.ends_with(".ron") {
+        let text =
+            std::fs::read_to_string(&args.script).map_err(|e| format!("{}: {e}", args.script))?;
+        Script::from_ron(&text, &args.script)?
+    } else {
+        Script::builtin(&args.script, &world)?
+    };
+    let recording = match &args.replay {
+        Some(path) => Recording::load(path)?,
+        None => Recording::from_script(&script, 1000.0, 1.0),
+    };
+    let (_, axis) = script.pose_at(0.0);
+    let tool = world.add_tool(Tool::new("haptic tool", script.tool)?);
+    let dt = world.config().dt;
+    // Scene-unit gains: the coupling is about as stiff as the organs' surface under the
+    // tool; the proxy mass keeps the coupling's natural frequency at ~90 Hz (well resolved
+    // at 1 kHz).
+    let config = HapticConfig {
+        record_seconds: args.seconds + 1.0,
+        stats_seconds: args.seconds + 1.0,
+        spin_us: args.spin_us,
+        ..HapticConfig::default()
+    };
+    let nominal = config.coupling.stiffness;
+    let max_force = config.coupling.max_force;
+    let thread = HapticThread::spawn(Box::new(ReplayDevice::new(recording, max_force)?), config)?;
+    let shared = thread.shared().clone();
+    let mut model = ContactModel::NONE;
+    let mut step_us = Vec::new();
+    let mut behind = 0u64;
+    let mut last_buttons = 0u32;
+    let start = Instant::now();
+    let mut k: u64 = 0;
+    let result = (|| -> Result<(), Box<dyn std::error::Error>> {
+        while start.elapsed().as_secs_f64() < args.seconds {
+            // Real time: step k runs when the wall clock reaches k dt.
+            let due = start + Duration::from_secs_f64(k as f64 * dt);
+            let now = Instant::now();
+            if due > now {
+                std::thread::sleep(due - now);
+            } else if now - due > Duration::from_secs_f64(dt) {
+                behind += 1;
+            }
+            let sample = shared.tool();
+            let t = world.tools_mut();
+            t[tool].set_pose(sample.position, axis)?;
+            let changed = sample.buttons ^ last_buttons;
+            if changed & GRAB != 0 {
+                if sample.buttons & GRAB != 0 {
+                    t[tool].grab();
+                } else {
+                    t[tool].release();
+                }
+            }
+            if changed & CAUTERY != 0 {
+                let w = if sample.buttons & CAUTERY != 0 {
+                    args.cautery_watts
+                } else {
+                    0.0
+                };
+                t[tool].set_cautery(w)?;
+            }
+            last_buttons = sample.buttons;
+            let t0 = Instant::now();
+            world.step_fixed()?;
+            step_us.push(t0.elapsed().as_secs_f64() * 1e6);
+            model = contact_model(
+                &world.tools()[tool],
+                tool as u32,
+                world.contacts(),
+                &model,
+                nominal,
+                world.step_count(),
+            );
+            shared.publish_model(&model);
+            k += 1;
+        }
+        Ok(())
+    })();
+    let run = thread.stop()?;
+    result?;
+    if let Some(path) = &args.record {
+        run.recording.save(path)?;
+    }
+    if let Some(path) = &args.save_script {
+        let s = run.recording.to_script(
+            "haptic session",
+            script.tool,
+            [axis.x, axis.y, axis.z],
+            args.cautery_watts,
+            10,
+        );
+        std::fs::write(path, s.to_ron()).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
+    if let Some(e) = &run.device_error {
+        return Err(e.to_string().into());
+    }
+    let q = |p: f64| run.period_quantile(p).unwrap_or(f64::NAN);
+    let (p50, p99, p999, max) = (q(0.5), q(0.99), q(0.999), q(1.0));
+    let mut sorted = step_us.clone();
+    sorted.sort_unstable_by(f64::total_cmp);
+    let physics_median = sorted.get(sorted.len() / 2).copied().unwrap_or(f64::NAN);
+    let physics_max = sorted.last().copied().unwrap_or(f64::NAN);
+    let machine = crate::machine();
+    let rate = run.ticks as f64 / args.seconds;
+    let target_met = p99 <= 1100.0;
+    if args.json {
+        let v = json!({
+            "scene": args.scene,
+            "seconds": args.seconds,
+            "ticks": run.ticks,
+            "rate_hz": rate,
+            "period_p50_us": p50,
+            "period_p99_us": p99,
+            "period_p999_us": p999,
+            "period_max_us": max,
+            "missed_deadlines": run.missed,
+            "max_force_step": run.max_force_step,
+            "max_force_step_on_new_model": run.max_force_step_on_model,
+            "force_step_p99": run.force_step_quantile(0.99),
+            "max_force": run.max_force,
+            "physics_steps": k,
+            "physics_dt": dt,
+            "physics_step_median_us": physics_median,
+            "physics_step_max_us": physics_max,
+            "physics_steps_late": behind,
+            "recorded_samples": run.recording.samples.len(),
+            "target_p99_le_1100_us": target_met,
+            "machine": machine,
+        });
+        println!("{v}");
+    } else {
+        println!(
+            "haptic loop: {} ticks in {:.1} s ({rate:.1} Hz); period p50 {p50:.1} us, p99 {p99:.1} us, \
+             p99.9 {p999:.1} us, max {max:.1} us; missed deadlines {} ({:.3} %)",
+            run.ticks,
+            args.seconds,
+            run.missed,
+            100.0 * run.missed as f64 / run.ticks.max(1) as f64
+        );
+        println!(
+            "force: max {:.4}; change per tick: p99 {:.5}, largest {:.5}, largest on a tick that \
+             took a new contact model {:.5} (scene units, clamp {max_force})",
+            run.max_force,
+            run.force_step_quantile(0.99).unwrap_or(f64::NAN),
+            run.max_force_step,
+            run.max_force_step_on_model
+        );
+        println!(
+            "physics: {k} steps of {dt} s in real time, median {physics_median:.0} us, max {physics_max:.0} us, \
+             {behind} late by more than a step"
+        );
+        println!(
+            "target p99 <= 1100 us: {}; machine: {}, {} cores, {} build",
+            if target_met { "met" } else { "MISSED" },
+            machine["cpu"].as_str().unwrap_or("?"),
+            machine["cores"],
+            machine["profile"].as_str().unwrap_or("?")
+        );
+    }
+    Ok(())
+}
