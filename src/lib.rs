@@ -39,6 +39,8 @@
 //! - `render` (default): windowed 3D rendering for the example apps.
 //! - `inspector` (default): the egui panel ([`inspector`]).
 //! - `debug-render` (default): gizmos for cages, contacts and tools ([`mod@debug`]).
+//! - `haptics` (default): [`haptics::HapticTool`], a tool driven by a force-feedback device
+//!   through the 1 kHz haptic thread (no thread runs unless a `HapticTool` is spawned).
 //! - `serialize`: Bevy's reflection serialisation.
 //!
 //! A headless build (`default-features = false`) needs only Bevy's ECS, assets and meshes.
@@ -56,6 +58,8 @@ pub mod components;
 pub mod convert;
 #[cfg(feature = "debug-render")]
 pub mod debug;
+#[cfg(feature = "haptics")]
+pub mod haptics;
 #[cfg(feature = "inspector")]
 pub mod inspector;
 pub mod messages;
@@ -114,6 +118,8 @@ impl PluginGroup for SoftTissuePlugins {
         let group = group.add(debug::SoftTissueDebugPlugin);
         #[cfg(feature = "inspector")]
         let group = group.add(inspector::SoftTissueInspectorPlugin);
+        #[cfg(feature = "haptics")]
+        let group = group.add(haptics::SoftTissueHapticsPlugin::new(self.schedule));
         group
     }
 }

@@ -603,3 +603,63 @@ fn visual_meshes_are_placed_with_the_body_and_mismatched_ones_refused() {
         sim.body().surface_positions().len()
     );
 }
+
+#[cfg(feature = "haptics")]
+#[test]
+fn a_haptic_device_pokes_through_the_haptic_thread_and_feels_the_tissue() {
+    use bevy_soft_tissue::core::haptics::{HapticConfig, VirtualDevice};
+    use bevy_soft_tissue::haptics::{HapticTool, SoftTissueHapticsPlugin};
+    let scene = cylinders_scene();
+    let (mut app, bodies, world) = scene_app(&scene);
+    app.add_plugins(SoftTissueHapticsPlugin::default());
+    let a = bodies[0];
+    let (lo, hi) = world.bodies()[0].collider().bounds();
+    let y = 0.5 * (lo[1] + hi[1]);
+    let outside = bevy_soft_tissue::core::Vec3::new(lo[0] - 0.2, y, 0.5 * (lo[2] + hi[2]));
+    let (device, handle) = VirtualDevice::new(outside, 8.0);
+    let config = HapticConfig {
+        record_seconds: 30.0,
+        stats_seconds: 30.0,
+        spin_us: 200.0,
+        ..HapticConfig::default()
+    };
+    let haptic = HapticTool::start(Box::new(device), config, 0.0).unwrap();
+    let tool = app
+        .world_mut()
+        .spawn((SoftTool::sphere(0.05), Transform::default(), haptic))
+        .id();
+    app.update();
+    // Push the device 0.1 into A from its -x side, in small steps (a hand, not a jump: a
+    // proxy that crosses the surface between two physics steps would pass through it).
+    let inside = bevy_soft_tissue::core::Vec3::new(lo[0] + 0.1, outside.y, outside.z);
+    let mut felt = false;
+    for k in 0..1500 {
+        let s = (k as f64 / 300.0).min(1.0);
+        handle.set(outside + (inside - outside) * s, 0);
+        app.update();
+        std::thread::sleep(Duration::from_millis(2));
+        if s == 1.0 && level(&app, a) == LevelKind::Precise && handle.force().x < -0.1 {
+            felt = true;
+            break;
+        }
+    }
+    assert!(
+        felt,
+        "force {:?}, level {:?}",
+        handle.force(),
+        level(&app, a)
+    );
+    // The tool is where the thread's proxy is: held back by the tissue, short of the device.
+    let tool_x = app.world().get::<Transform>(tool).unwrap().translation.x as f64;
+    assert!(tool_x < inside.x, "tool {tool_x} vs device {}", inside.x);
+    assert!(handle.force().norm() <= 8.0 + 1e-9);
+    let h = app.world().get::<HapticTool>(tool).unwrap();
+    assert!(
+        h.model().active && h.model().normal.x < 0.0,
+        "{:?}",
+        h.model()
+    );
+    // Removing the component stops the thread and leaves the device with no force.
+    app.world_mut().entity_mut(tool).remove::<HapticTool>();
+    assert_eq!(handle.force(), bevy_soft_tissue::core::Vec3::zeros());
+}

@@ -9,6 +9,10 @@
 //! - C: toggle the electrocautery (heats what the tool touches);
 //! - P: pause / resume, N: single step, R: reset.
 //!
+//! The mouse moves a virtual haptic device: the tool follows it through the 1 kHz haptic
+//! thread's virtual coupling (`HapticTool`), as a force-feedback device would drive it; the
+//! force it would render is shown in the controls panel.
+//!
 //! `--screenshot FILE --frames N` drives the tool with a built-in script instead of the mouse,
 //! renders N frames and saves a PNG of the window, then exits. `--smooth L` draws each body
 //! with its simulation surface refined by L rounds of Loop subdivision and embedded in its
@@ -21,8 +25,10 @@ use bevy::prelude::*;
 use bevy::render::view::screenshot::{Screenshot, save_to_disk};
 use bevy_egui::input::egui_wants_any_pointer_input;
 use bevy_egui::{EguiContexts, EguiPrimaryContextPass, egui};
+use bevy_soft_tissue::core::haptics::{HapticConfig, VirtualDevice, VirtualDeviceHandle};
 use bevy_soft_tissue::core::scenario::Scene;
 use bevy_soft_tissue::core::world::{Script, ScriptAction, SoftTissueWorld};
+use bevy_soft_tissue::haptics::{CAUTERY_BUTTON, GRAB_BUTTON, HapticTool};
 use bevy_soft_tissue::prelude::*;
 
 /// Command-line options of the examples.
@@ -119,6 +125,10 @@ struct Orbit {
 
 #[derive(Resource)]
 struct Controls(Vec<&'static str>);
+
+/// The virtual haptic device the mouse moves (not in the scripted screenshot mode).
+#[derive(Resource)]
+struct MouseDevice(VirtualDeviceHandle);
 
 fn assets_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets")
@@ -237,13 +247,28 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
         if let Some(shape) = tool_shape {
             tool.shape = shape;
         }
+        let start = focus + Vec3::new(0.0, 0.0, 0.9 * scale);
         let tool = world
-            .spawn((
-                Name::new("tool"),
-                tool,
-                Transform::from_translation(focus + Vec3::new(0.0, 0.0, 0.9 * scale)),
-            ))
+            .spawn((Name::new("tool"), tool, Transform::from_translation(start)))
             .id();
+        if tool_shape.is_none() {
+            // Mouse mode: the mouse moves a virtual device; the haptic thread (sleeping most
+            // of each period, to leave the CPU to the renderer) drives the tool.
+            let (device, handle) =
+                VirtualDevice::new(bevy_soft_tissue::convert::to_core(start), 8.0);
+            let config = HapticConfig {
+                spin_us: 300.0,
+                record_seconds: 0.0,
+                ..HapticConfig::default()
+            };
+            match HapticTool::start(Box::new(device), config, cautery_watts) {
+                Ok(h) => {
+                    world.entity_mut(tool).insert(h);
+                    world.insert_resource(MouseDevice(handle));
+                }
+                Err(e) => error!("haptic thread not started ({e}); the mouse moves the tool"),
+            }
+        }
         world.spawn((
             Camera3d::default(),
             Orbit {
@@ -314,6 +339,7 @@ fn orbit_camera(
     }
 }
 
+#[allow(clippy::too_many_arguments)]
 fn mouse_tool(
     windows: Query<&Window>,
     cams: Query<(&Camera, &GlobalTransform)>,
@@ -321,6 +347,7 @@ fn mouse_tool(
     keys: Res<ButtonInput<KeyCode>>,
     scroll: Res<AccumulatedMouseScroll>,
     driver: Option<ResMut<ToolDriver>>,
+    device: Option<Res<MouseDevice>>,
     mut tools: Query<(&mut Transform, &mut SoftTool)>,
 ) {
     let Some(mut driver) = driver else { return };
@@ -337,12 +364,30 @@ fn mouse_tool(
     let Ok((mut pose, mut tool)) = tools.get_mut(driver.tool) else {
         return;
     };
-    if let Some(cursor) = window.cursor_position()
-        && let Ok(ray) = camera.viewport_to_world(cam_pose, cursor)
-    {
-        pose.translation = ray.origin + *ray.direction * driver.depth;
+    let target = window
+        .cursor_position()
+        .and_then(|cursor| camera.viewport_to_world(cam_pose, cursor).ok())
+        .map(|ray| ray.origin + *ray.direction * driver.depth);
+    let grab = buttons.pressed(MouseButton::Left);
+    if let Some(device) = device {
+        // Through the haptic thread: the device goes where the mouse is.
+        let position = target.unwrap_or(pose.translation);
+        let mut bits = 0;
+        if grab {
+            bits |= GRAB_BUTTON;
+        }
+        if driver.cautery_on {
+            bits |= CAUTERY_BUTTON;
+        }
+        device
+            .0
+            .set(bevy_soft_tissue::convert::to_core(position), bits);
+        return;
     }
-    tool.grab = buttons.pressed(MouseButton::Left);
+    if let Some(p) = target {
+        pose.translation = p;
+    }
+    tool.grab = grab;
 }
 
 fn scripted_tool(
@@ -432,6 +477,7 @@ fn controls_panel(
     mut contexts: EguiContexts,
     controls: Res<Controls>,
     driver: Option<Res<ToolDriver>>,
+    device: Option<Res<MouseDevice>>,
 ) -> Result {
     let ctx = contexts.ctx_mut()?;
     egui::Window::new("Controls")
@@ -456,6 +502,16 @@ fn controls_panel(
                 } else if d.cautery_on {
                     ui.colored_label(egui::Color32::LIGHT_RED, "cautery ON");
                 }
+            }
+            if let Some(device) = device {
+                let f = device.0.force();
+                ui.label(format!(
+                    "haptic force (virtual device, 1 kHz): {:.2} (x {:.2}, y {:.2}, z {:.2})",
+                    f.norm(),
+                    f.x,
+                    f.y,
+                    f.z
+                ));
             }
         });
     Ok(())

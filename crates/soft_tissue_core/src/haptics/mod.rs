@@ -141,11 +141,16 @@ impl HapticDevice for NullDevice {
 }
 
 /// A software device whose handle is moved from another thread (the mouse in the example
-/// apps); the last rendered force can be read back (to draw it, or to test).
+/// apps); the last rendered force can be read back (to draw it, or to test). Positions set
+/// through the handle arrive in jumps (a mouse moves once per frame); the device follows them
+/// with a first-order lag (time constant [`VirtualDevice::SMOOTHING`]) as a hand would, so
+/// the coupling sees a finite device velocity.
 #[derive(Debug)]
 pub struct VirtualDevice {
     shared: Arc<VirtualShared>,
     limits: DeviceLimits,
+    smoothing: f64,
+    current: Option<(f64, Vec3)>,
 }
 
 #[derive(Debug)]
@@ -161,6 +166,19 @@ struct VirtualShared {
 pub struct VirtualDeviceHandle(Arc<VirtualShared>);
 
 impl VirtualDevice {
+    /// Default time constant of the lag behind the handle, s.
+    pub const SMOOTHING: f64 = 0.012;
+
+    /// The same device with another lag time constant (0: follow the handle at once).
+    pub fn with_smoothing(mut self, seconds: f64) -> Self {
+        self.smoothing = if seconds.is_finite() {
+            seconds.max(0.0)
+        } else {
+            0.0
+        };
+        self
+    }
+
     /// A virtual device at `position` with a force limit (N), and its handle.
     pub fn new(position: Vec3, max_force: f64) -> (Self, VirtualDeviceHandle) {
         let shared = Arc::new(VirtualShared {
@@ -175,6 +193,8 @@ impl VirtualDevice {
                     workspace_max: Vec3::repeat(f64::INFINITY),
                     max_force,
                 },
+                smoothing: Self::SMOOTHING,
+                current: None,
             },
             VirtualDeviceHandle(shared),
         )
@@ -206,10 +226,20 @@ impl HapticDevice for VirtualDevice {
     fn limits(&self) -> DeviceLimits {
         self.limits
     }
-    fn read(&mut self, _time: f64) -> Result<DeviceState, HapticError> {
+    fn read(&mut self, time: f64) -> Result<DeviceState, HapticError> {
         let (w, _) = self.shared.input.read();
+        let target = Vec3::new(w[0], w[1], w[2]);
+        let position = match self.current {
+            Some((t0, p)) if self.smoothing > 0.0 && time > t0 => {
+                let a = 1.0 - (-(time - t0) / self.smoothing).exp();
+                p + (target - p) * a
+            }
+            Some((t0, p)) if self.smoothing > 0.0 && time <= t0 => p,
+            _ => target,
+        };
+        self.current = Some((time, position));
         Ok(DeviceState {
-            position: Vec3::new(w[0], w[1], w[2]),
+            position,
             buttons: w[3] as u32,
         })
     }

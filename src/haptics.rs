@@ -1,0 +1,176 @@
+//! Haptic tools (feature `haptics`): a [`HapticTool`] on a [`SoftTool`] entity runs the core's
+//! 1 kHz haptic thread ([`soft_tissue_core::haptics`]) with a device of your choice. At the
+//! start of every physics step the tool is put where the thread's tool proxy is and its
+//! buttons set grab (first button) and cautery (second); after the step the tissue's local
+//! contact model is handed back to the thread, which renders the force between steps.
+//! Removing the component (or despawning the entity) stops the thread and leaves the device
+//! with zero force.
+//!
+//! ```no_run
+//! use bevy::prelude::*;
+//! use bevy_soft_tissue::haptics::HapticTool;
+//! use bevy_soft_tissue::core::haptics::{HapticConfig, VirtualDevice};
+//! use bevy_soft_tissue::prelude::*;
+//!
+//! fn setup(mut commands: Commands) {
+//!     let (device, handle) = VirtualDevice::new(Default::default(), 8.0);
+//!     let haptic = HapticTool::start(Box::new(device), HapticConfig::default(), 10.0).unwrap();
+//!     commands.spawn((SoftTool::sphere(0.05), haptic));
+//!     // Move `handle` (e.g. from the mouse) with `handle.set(position, buttons)`.
+//! }
+//! ```
+
+use std::sync::Arc;
+
+use bevy::ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
+use bevy::prelude::*;
+use soft_tissue_core::haptics::{
+    ContactModel, HapticConfig, HapticDevice, HapticError, HapticShared, HapticThread, ToolSample,
+    contact_model,
+};
+
+use crate::components::{SoftTool, ToolState};
+use crate::physics::{SoftTissueContacts, SoftTissueStatus, SoftTissueSystems};
+
+/// Button bit that grabs.
+pub const GRAB_BUTTON: u32 = 1;
+/// Button bit that turns the electrocautery on.
+pub const CAUTERY_BUTTON: u32 = 2;
+
+/// Drives [`HapticTool`] entities in the physics schedule.
+pub struct SoftTissueHapticsPlugin {
+    schedule: InternedScheduleLabel,
+}
+
+impl SoftTissueHapticsPlugin {
+    /// With the physics in `schedule` (the same as the physics plugin's).
+    pub fn new(schedule: impl ScheduleLabel) -> Self {
+        SoftTissueHapticsPlugin {
+            schedule: schedule.intern(),
+        }
+    }
+}
+
+impl Default for SoftTissueHapticsPlugin {
+    fn default() -> Self {
+        Self::new(FixedUpdate)
+    }
+}
+
+impl Plugin for SoftTissueHapticsPlugin {
+    fn build(&self, app: &mut App) {
+        app.add_systems(
+            self.schedule,
+            (
+                drive_tools.in_set(SoftTissueSystems::First),
+                publish_models.in_set(SoftTissueSystems::Last),
+            ),
+        );
+    }
+}
+
+/// A tool driven by a haptic device through the haptic thread (see the module docs).
+#[derive(Component)]
+pub struct HapticTool {
+    thread: HapticThread,
+    /// Electrocautery power while the second button is held, W.
+    pub cautery_watts: f64,
+    /// Tissue stiffness the contact model starts from (scene units; it adapts to the
+    /// measured force). Default: the coupling stiffness.
+    pub nominal_stiffness: f64,
+    model: ContactModel,
+    last: ToolSample,
+}
+
+impl HapticTool {
+    /// Starts the haptic thread with `device`.
+    pub fn start(
+        device: Box<dyn HapticDevice>,
+        config: HapticConfig,
+        cautery_watts: f64,
+    ) -> Result<Self, HapticError> {
+        let thread = HapticThread::spawn(device, config)?;
+        let last = thread.shared().tool();
+        Ok(HapticTool {
+            thread,
+            cautery_watts,
+            nominal_stiffness: config.coupling.stiffness,
+            model: ContactModel::NONE,
+            last,
+        })
+    }
+
+    /// The tool as of the last physics step (proxy pose, device pose, force, buttons).
+    pub fn sample(&self) -> &ToolSample {
+        &self.last
+    }
+
+    /// The contact model handed to the thread at the last step.
+    pub fn model(&self) -> &ContactModel {
+        &self.model
+    }
+
+    /// The state shared with the thread (live tool sample, tick count).
+    pub fn shared(&self) -> &Arc<HapticShared> {
+        self.thread.shared()
+    }
+}
+
+fn drive_tools(mut tools: Query<(&mut HapticTool, &mut Transform, &mut SoftTool)>) {
+    for (mut haptic, mut pose, mut tool) in &mut tools {
+        let s = haptic.thread.shared().tool();
+        haptic.last = s;
+        let p = Vec3::new(
+            s.position.x as f32,
+            s.position.y as f32,
+            s.position.z as f32,
+        );
+        if p.is_finite() && pose.translation != p {
+            pose.translation = p;
+        }
+        let grab = s.buttons & GRAB_BUTTON != 0;
+        if tool.grab != grab {
+            tool.grab = grab;
+        }
+        let watts = if s.buttons & CAUTERY_BUTTON != 0 {
+            haptic.cautery_watts
+        } else {
+            0.0
+        };
+        if tool.cautery_watts != watts {
+            tool.cautery_watts = watts;
+        }
+    }
+}
+
+fn publish_models(
+    mut haptics: Query<(Entity, &mut HapticTool)>,
+    tools: Query<(Entity, &ToolState)>,
+    contacts: Res<SoftTissueContacts>,
+    status: Res<SoftTissueStatus>,
+) {
+    if haptics.is_empty() {
+        return;
+    }
+    // Contacts name tools by build order.
+    let mut order: Vec<(u64, Entity)> = tools.iter().map(|(e, t)| (t.order, e)).collect();
+    order.sort_unstable();
+    for (entity, mut haptic) in &mut haptics {
+        let Some(index) = order.iter().position(|&(_, e)| e == entity) else {
+            continue;
+        };
+        let Ok((_, state)) = tools.get(entity) else {
+            continue;
+        };
+        let model = contact_model(
+            &state.tool,
+            index as u32,
+            &contacts.0,
+            &haptic.model,
+            haptic.nominal_stiffness,
+            status.steps,
+        );
+        haptic.model = model;
+        haptic.thread.shared().publish_model(&model);
+    }
+}
