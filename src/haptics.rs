@@ -32,10 +32,7 @@ use soft_tissue_core::haptics::{
 use crate::components::{SoftTool, ToolState};
 use crate::physics::{SoftTissueContacts, SoftTissueStatus, SoftTissueSystems};
 
-/// Button bit that grabs.
-pub const GRAB_BUTTON: u32 = 1;
-/// Button bit that turns the electrocautery on.
-pub const CAUTERY_BUTTON: u32 = 2;
+pub use soft_tissue_core::haptics::{CAUTERY_BUTTON, GRAB_BUTTON};
 
 /// Drives [`HapticTool`] entities in the physics schedule.
 pub struct SoftTissueHapticsPlugin {

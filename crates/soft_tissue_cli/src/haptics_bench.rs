@@ -16,9 +16,7 @@ use soft_tissue_core::world::{Script, SoftTissueWorld};
 
 use crate::simulate::load_scene;
 
-/// Button bits of the recordings (grab, cautery).
-const GRAB: u32 = 1;
-const CAUTERY: u32 = 2;
+use soft_tissue_core::haptics::{CAUTERY_BUTTON as CAUTERY, GRAB_BUTTON as GRAB};
 
 #[derive(Args)]
 pub struct HapticsBenchArgs {

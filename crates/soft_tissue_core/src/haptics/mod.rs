@@ -26,7 +26,7 @@ mod recording;
 mod thread;
 
 pub use coupling::{ContactModel, CouplingParams};
-pub use recording::{RecordedSample, Recording, RecordingError};
+pub use recording::{CAUTERY_BUTTON, GRAB_BUTTON, RecordedSample, Recording, RecordingError};
 pub use thread::{
     DeviceMapping, HapticConfig, HapticRun, HapticShared, HapticThread, ToolSample, contact_model,
 };
