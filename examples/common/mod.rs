@@ -14,7 +14,8 @@
 //! force it would render is shown in the controls panel.
 //!
 //! `--screenshot FILE --frames N` drives the tool with a built-in script instead of the mouse,
-//! renders N frames and saves a PNG of the window, then exits. `--smooth L` draws each body
+//! renders N frames and saves a PNG of the window, then exits (with `--mouse`, the mouse keeps
+//! driving the tool: `scripts/mouse-check.sh` moves it with xdotool under Xvfb). `--smooth L` draws each body
 //! with its simulation surface refined by L rounds of Loop subdivision and embedded in its
 //! tetrahedra (default 2; 0 draws the simulation surface itself).
 
@@ -40,6 +41,8 @@ pub struct ExampleOptions {
     pub frames: u32,
     /// Rounds of subdivision of the drawn surface (0: the simulation surface).
     pub smooth: u8,
+    /// With `--screenshot`: the mouse drives the tool instead of the built-in script.
+    pub mouse: bool,
 }
 
 impl ExampleOptions {
@@ -49,6 +52,7 @@ impl ExampleOptions {
             screenshot: None,
             frames: 240,
             smooth: 2,
+            mouse: false,
         };
         let mut args = std::env::args().skip(1);
         while let Some(a) = args.next() {
@@ -63,6 +67,7 @@ impl ExampleOptions {
                         .parse()
                         .map_err(|e| format!("--frames: {e}"))?
                 }
+                "--mouse" => o.mouse = true,
                 "--smooth" => {
                     o.smooth = args
                         .next()
@@ -75,7 +80,7 @@ impl ExampleOptions {
                 }
                 other => {
                     return Err(format!(
-                        "unknown option {other} (--screenshot FILE --frames N --smooth L)"
+                        "unknown option {other} (--screenshot FILE --frames N --smooth L --mouse)"
                     ));
                 }
             }
@@ -151,7 +156,7 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
             return AppExit::error();
         }
     };
-    let script = if options.screenshot.is_some() {
+    let script = if options.screenshot.is_some() && !options.mouse {
         match Script::builtin(example.script, &world) {
             Ok(s) => Some(s),
             Err(e) => {
@@ -449,12 +454,23 @@ fn screenshot(
     mut commands: Commands,
     options: Res<ExampleOptions>,
     driver: Option<ResMut<ToolDriver>>,
+    tools: Query<(&Transform, &ToolReaction)>,
+    windows: Query<&Window>,
     mut exit: MessageWriter<AppExit>,
 ) {
     let (Some(path), Some(mut driver)) = (&options.screenshot, driver) else {
         return;
     };
     driver.frames += 1;
+    if driver.frames % 50 == 0
+        && let Ok((pose, reaction)) = tools.get(driver.tool)
+    {
+        let cursor = windows.single().ok().and_then(|w| w.cursor_position());
+        info!(
+            "frame {}: cursor {cursor:?}, tool at {}, {} contacts, force {}",
+            driver.frames, pose.translation, reaction.contacts, reaction.force
+        );
+    }
     if driver.frames == options.frames && !driver.shot_requested {
         driver.shot_requested = true;
         let _ = std::fs::remove_file(path);
