@@ -116,18 +116,20 @@ fn level(app: &App, e: Entity) -> LevelKind {
     app.world().get::<PrecisionLevel>(e).unwrap().level
 }
 
+/// The cylinder mesh file, read and added to the app's tetrahedral mesh assets.
+fn cylinder_asset(app: &mut App) -> Handle<TetMeshAsset> {
+    let m = bevy_soft_tissue::core::mesh::io::read_tet_mesh(assets().join("meshes/cylinder.vtk"))
+        .unwrap()
+        .mesh;
+    app.world_mut()
+        .resource_mut::<Assets<TetMeshAsset>>()
+        .add(TetMeshAsset::from(m))
+}
+
 #[test]
 fn bodies_get_only_the_components_they_use() {
     let mut app = app(0.02);
-    let mesh = {
-        let m =
-            bevy_soft_tissue::core::mesh::io::read_tet_mesh(assets().join("meshes/cylinder.vtk"))
-                .unwrap()
-                .mesh;
-        app.world_mut()
-            .resource_mut::<Assets<TetMeshAsset>>()
-            .add(TetMeshAsset::from(m))
-    };
+    let mesh = cylinder_asset(&mut app);
     let scene = cylinders_scene();
     let (_, bodies) = bevy_soft_tissue::core::world::scene_bodies(&scene, assets()).unwrap();
     let settings = bodies[0].settings.clone();
@@ -539,15 +541,7 @@ fn finer_visual_meshes_follow_the_simulation() {
 #[test]
 fn visual_meshes_are_placed_with_the_body_and_mismatched_ones_refused() {
     let mut app = app(0.02);
-    let mesh = {
-        let m =
-            bevy_soft_tissue::core::mesh::io::read_tet_mesh(assets().join("meshes/cylinder.vtk"))
-                .unwrap()
-                .mesh;
-        app.world_mut()
-            .resource_mut::<Assets<TetMeshAsset>>()
-            .add(TetMeshAsset::from(m))
-    };
+    let mesh = cylinder_asset(&mut app);
     let (_, bodies) =
         bevy_soft_tissue::core::world::scene_bodies(&cylinders_scene(), assets()).unwrap();
     let mut settings = bodies[0].settings.clone();

@@ -83,6 +83,17 @@ pub struct DeviceLimits {
     pub max_force: f64,
 }
 
+impl DeviceLimits {
+    /// No workspace bound (a software device) and a force limit, N.
+    pub fn unbounded(max_force: f64) -> Self {
+        DeviceLimits {
+            workspace_min: Vec3::repeat(f64::NEG_INFINITY),
+            workspace_max: Vec3::repeat(f64::INFINITY),
+            max_force,
+        }
+    }
+}
+
 /// A force-feedback device (see the module docs).
 pub trait HapticDevice: Send {
     /// Name, for errors and reports.
@@ -126,11 +137,7 @@ impl HapticDevice for NullDevice {
         true
     }
     fn limits(&self) -> DeviceLimits {
-        DeviceLimits {
-            workspace_min: Vec3::repeat(f64::NEG_INFINITY),
-            workspace_max: Vec3::repeat(f64::INFINITY),
-            max_force: f64::INFINITY,
-        }
+        DeviceLimits::unbounded(f64::INFINITY)
     }
     fn read(&mut self, _time: f64) -> Result<DeviceState, HapticError> {
         Ok(self.state)
@@ -188,11 +195,7 @@ impl VirtualDevice {
         (
             VirtualDevice {
                 shared: shared.clone(),
-                limits: DeviceLimits {
-                    workspace_min: Vec3::repeat(f64::NEG_INFINITY),
-                    workspace_max: Vec3::repeat(f64::INFINITY),
-                    max_force,
-                },
+                limits: DeviceLimits::unbounded(max_force),
                 smoothing: Self::SMOOTHING,
                 current: None,
             },
@@ -305,11 +308,7 @@ impl HapticDevice for ReplayDevice {
         true
     }
     fn limits(&self) -> DeviceLimits {
-        DeviceLimits {
-            workspace_min: Vec3::repeat(f64::NEG_INFINITY),
-            workspace_max: Vec3::repeat(f64::INFINITY),
-            max_force: self.max_force,
-        }
+        DeviceLimits::unbounded(self.max_force)
     }
     fn read(&mut self, time: f64) -> Result<DeviceState, HapticError> {
         Ok(self.state_at(time))
