@@ -90,7 +90,7 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
     let thread = HapticThread::spawn(Box::new(ReplayDevice::new(recording, max_force)?), config)?;
     let shared = thread.shared().clone();
     let mut model = ContactModel::NONE;
-    let mut step_us = Vec::new();
+    let mut step_us = Vec::with_capacity((args.seconds / dt).ceil() as usize + 1);
     let mut behind = 0u64;
     let mut last_buttons = 0u32;
     let start = Instant::now();

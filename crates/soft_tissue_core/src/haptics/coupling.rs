@@ -203,14 +203,11 @@ impl Coupling {
         if !model.is_valid() {
             return;
         }
-        self.old = self.current_model_for_blend();
+        // Mid-blend, what remains of the older model is dropped (blends are kept shorter
+        // than a physics step, see `blend_ticks`).
+        self.old = self.new;
         self.new = model;
         self.blend = 0;
-    }
-
-    /// The model that was fully in force (mid-blend: the newer one).
-    fn current_model_for_blend(&self) -> ContactModel {
-        self.new
     }
 
     /// Weight of the new model this tick.
