@@ -31,10 +31,17 @@ pub struct ContactModel {
     pub grab: bool,
     /// Physics step that produced it.
     pub step: u64,
+    /// How far the proxy may lead `origin`, the tool position the physics last saw (scene
+    /// units; 0: no limit). Between physics steps the proxy follows the device freely only
+    /// this far, so however slowly the physics runs, the tool cannot cross a surface the
+    /// physics has not yet seen ([`contact_model`](super::contact_model) sets half the
+    /// tip's radius). When the physics stalls, the proxy waits for it and the device feels
+    /// the coupling pulling it back, as with a wall.
+    pub reach: f64,
 }
 
 /// Words of a [`ContactModel`] in the exchange.
-pub(crate) const MODEL_WORDS: usize = 11;
+pub(crate) const MODEL_WORDS: usize = 12;
 
 impl ContactModel {
     /// No surface near the tool.
@@ -46,6 +53,7 @@ impl ContactModel {
         stiffness: 0.0,
         grab: false,
         step: 0,
+        reach: 0.0,
     };
 
     /// Penetration at `x`.
@@ -82,6 +90,7 @@ impl ContactModel {
             self.stiffness,
             if self.grab { 1.0 } else { 0.0 },
             self.step as f64,
+            self.reach,
         ]
     }
 
@@ -94,18 +103,23 @@ impl ContactModel {
             stiffness: w[8],
             grab: w[9] != 0.0,
             step: w[10] as u64,
+            reach: w[11],
         }
     }
 
     /// Whether every number is finite and the normal unit (a model that is not is ignored).
     pub fn is_valid(&self) -> bool {
-        !self.active
-            || (self.normal.iter().all(|c| c.is_finite())
-                && (self.normal.norm() - 1.0).abs() < 1e-6
-                && self.origin.iter().all(|c| c.is_finite())
-                && self.depth.is_finite()
-                && self.stiffness.is_finite()
-                && self.stiffness >= 0.0)
+        let reach_ok = self.reach.is_finite()
+            && self.reach >= 0.0
+            && (self.reach == 0.0 || self.origin.iter().all(|c| c.is_finite()));
+        reach_ok
+            && (!self.active
+                || self.normal.iter().all(|c| c.is_finite())
+                    && (self.normal.norm() - 1.0).abs() < 1e-6
+                    && self.origin.iter().all(|c| c.is_finite())
+                    && self.depth.is_finite()
+                    && self.stiffness.is_finite()
+                    && self.stiffness >= 0.0)
     }
 }
 
@@ -228,7 +242,7 @@ impl Coupling {
     /// Advances the proxy by `h` seconds toward the device at `device` moving at
     /// `device_velocity`; returns the force for the device (clamped to the limit).
     pub fn step(&mut self, device: &Vec3, device_velocity: &Vec3, h: f64) -> Vec3 {
-        let p = &self.params;
+        let p = self.params;
         let (kc, bc, m) = (p.stiffness, p.damping(), p.proxy_mass);
         let w = self.weight();
         // Implicit Euler on m dv/dt = kc (xd - x) + bc (vd - v) + sum_i w_i f_i(x, v),
@@ -267,11 +281,31 @@ impl Coupling {
             .unwrap_or_else(Vec3::zeros);
         self.v = v;
         self.x += v * h;
+        self.keep_within_reach();
         if self.blend < p.blend_ticks {
             self.blend += 1;
         }
         let f = (self.x - device) * kc + (self.v - device_velocity) * bc;
         clamp(f, p.max_force)
+    }
+
+    /// Holds the proxy within the newest model's reach of the tool the physics last saw,
+    /// dropping the velocity that would carry it farther.
+    fn keep_within_reach(&mut self) {
+        let reach = self.new.reach;
+        if reach <= 0.0 {
+            return;
+        }
+        let lead = self.x - self.new.origin;
+        let d = lead.norm();
+        if d > reach {
+            let u = lead / d;
+            self.x = self.new.origin + u * reach;
+            let out = self.v.dot(&u);
+            if out > 0.0 {
+                self.v -= u * out;
+            }
+        }
     }
 
     /// Puts the proxy at `position`, at rest (a reset, or a jump of the device).
@@ -348,6 +382,7 @@ mod tests {
             stiffness,
             grab: false,
             step: 1,
+            reach: 0.0,
         };
         let mut c = Coupling::new(p, Vec3::zeros());
         c.set_model(model);
@@ -379,6 +414,7 @@ mod tests {
             stiffness,
             grab: true,
             step: 1,
+            reach: 0.0,
         });
         let device = Vec3::new(0.03, 0.0, 0.0);
         let mut f = Vec3::zeros();
@@ -402,6 +438,7 @@ mod tests {
             stiffness: 1000.0 * p.stiffness,
             grab: false,
             step: 1,
+            reach: 0.0,
         };
         let mut c = Coupling::new(p, Vec3::zeros());
         c.set_model(model);
@@ -442,6 +479,7 @@ mod tests {
             stiffness: 1000.0,
             grab: false,
             step: 1,
+            reach: 0.0,
         });
         let mut last = 0.0;
         for _ in 0..10 {
@@ -458,5 +496,55 @@ mod tests {
             ..ContactModel::NONE
         });
         assert_eq!(c.contact_force(), before);
+    }
+
+    #[test]
+    fn the_proxy_waits_for_the_physics_within_its_reach() {
+        // The device jumps 1.0 away while the physics last saw the tool at the origin with a
+        // reach of 0.1: the proxy stops at 0.1 (the tool cannot skip a surface the physics has
+        // not seen), at rest, and the device feels the coupling spring over the remaining
+        // 0.9. Each later physics step lets it advance one reach more.
+        let p = params();
+        let mut c = Coupling::new(p, Vec3::zeros());
+        let seen = |x: f64, step| ContactModel {
+            origin: Vec3::new(x, 0.0, 0.0),
+            reach: 0.1,
+            step,
+            ..ContactModel::NONE
+        };
+        c.set_model(seen(0.0, 1));
+        let device = Vec3::new(1.0, 0.0, 0.0);
+        let mut f = Vec3::zeros();
+        for _ in 0..2000 {
+            f = c.step(&device, &Vec3::zeros(), H);
+            assert!(c.position().x <= 0.1 + 1e-15);
+        }
+        assert!((c.position().x - 0.1).abs() < 1e-12);
+        assert!(c.velocity().norm() < 1e-12);
+        assert!((f.x + p.stiffness * 0.9).abs() < 1e-6, "{f}");
+        for step in 2..=12 {
+            c.set_model(seen(c.position().x, step));
+            for _ in 0..200 {
+                c.step(&device, &Vec3::zeros(), H);
+            }
+        }
+        // Ten steps of 0.1 reach the device, which the proxy then follows freely.
+        assert!((c.position().x - 1.0).abs() < 1e-6, "{}", c.position());
+        // A model without reach (0) sets no limit; a negative or non-finite one is refused.
+        assert!(ContactModel::NONE.is_valid());
+        assert!(
+            !ContactModel {
+                reach: -1.0,
+                ..ContactModel::NONE
+            }
+            .is_valid()
+        );
+        assert!(
+            !ContactModel {
+                reach: f64::NAN,
+                ..ContactModel::NONE
+            }
+            .is_valid()
+        );
     }
 }

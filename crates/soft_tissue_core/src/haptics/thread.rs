@@ -447,6 +447,11 @@ pub fn contact_model(
     step: u64,
 ) -> ContactModel {
     let x = tool.position();
+    // The proxy may lead this pose by half the tip's radius: the physics pushed the surface
+    // out of the tip at this pose, so at the next pose the tip's centre is still on the
+    // outer side of every surface it touches (a whole radius could put the centre on the
+    // surface, where the push-out direction flips and the tool slips through).
+    let reach = 0.5 * tool.shape().radius();
     let reaction = tool.reaction_force();
     let f = reaction.norm();
     let grab = !tool.grips().is_empty();
@@ -477,6 +482,7 @@ pub fn contact_model(
             stiffness,
             grab,
             step,
+            reach,
         };
     }
     // Not pushing: the nearest contact within the margin gives the plane and the gap.
@@ -496,10 +502,13 @@ pub fn contact_model(
                 stiffness: stiffness.clamp(0.25 * nominal_stiffness, 4.0 * nominal_stiffness),
                 grab: false,
                 step,
+                reach,
             }
         }
         _ => ContactModel {
             step,
+            origin: x,
+            reach,
             ..ContactModel::NONE
         },
     }
@@ -554,6 +563,7 @@ mod tests {
             stiffness: 400.0,
             grab: false,
             step: 1,
+            reach: 0.0,
         });
         handle.set(Vec3::new(0.0, -0.02, 0.0), 0);
         let deadline = Instant::now() + Duration::from_secs(5);
