@@ -16,12 +16,16 @@
 //!   [`ReplayDevice`], turned into a world [`crate::world::Script`] with
 //!   [`Recording::to_script`] (and built from one with [`Recording::from_script`]).
 //! - [`contact_model`]: the linearisation of a world's tool contact for the loop.
+//! - `haply::HaplyInverse3` (feature `haply`): a Haply Inverse3 through the Haply Inverse
+//!   Service.
 //!
 //! Units are the scene's; a real device maps its workspace into the scene with
 //! [`DeviceMapping`].
 
 pub mod coupling;
 pub mod exchange;
+#[cfg(feature = "haply")]
+pub mod haply;
 mod recording;
 mod thread;
 
@@ -158,6 +162,8 @@ pub struct VirtualDevice {
     limits: DeviceLimits,
     smoothing: f64,
     current: Option<(f64, Vec3)>,
+    hand: Option<f64>,
+    last_force: Vec3,
 }
 
 #[derive(Debug)]
@@ -186,6 +192,17 @@ impl VirtualDevice {
         self
     }
 
+    /// The same device held by a hand that stops pushing against the rendered force once
+    /// it reaches `strength` N, as a user who feels the wall does: the device keeps following
+    /// the handle sideways and backward but not deeper. Without it (the default) the device
+    /// always reaches the handle, like a hand of unlimited strength, and a mouse pushed far
+    /// beyond a surface drives the tool through soft tissue. A strength at or above the
+    /// device's force limit never stops it (the force is clamped to the limit).
+    pub fn with_hand(mut self, strength: f64) -> Self {
+        self.hand = (strength.is_finite() && strength > 0.0).then_some(strength);
+        self
+    }
+
     /// A virtual device at `position` with a force limit (N), and its handle.
     pub fn new(position: Vec3, max_force: f64) -> (Self, VirtualDeviceHandle) {
         let shared = Arc::new(VirtualShared {
@@ -198,6 +215,8 @@ impl VirtualDevice {
                 limits: DeviceLimits::unbounded(max_force),
                 smoothing: Self::SMOOTHING,
                 current: None,
+                hand: None,
+                last_force: Vec3::zeros(),
             },
             VirtualDeviceHandle(shared),
         )
@@ -232,7 +251,7 @@ impl HapticDevice for VirtualDevice {
     fn read(&mut self, time: f64) -> Result<DeviceState, HapticError> {
         let (w, _) = self.shared.input.read();
         let target = Vec3::new(w[0], w[1], w[2]);
-        let position = match self.current {
+        let mut position = match self.current {
             Some((t0, p)) if self.smoothing > 0.0 && time > t0 => {
                 let a = 1.0 - (-(time - t0) / self.smoothing).exp();
                 p + (target - p) * a
@@ -240,6 +259,17 @@ impl HapticDevice for VirtualDevice {
             Some((t0, p)) if self.smoothing > 0.0 && time <= t0 => p,
             _ => target,
         };
+        if let (Some(strength), Some((_, p))) = (self.hand, self.current) {
+            let f = self.last_force.norm();
+            if f >= strength {
+                // The hand stops pushing: no motion against the force.
+                let n = self.last_force / f;
+                let against = (position - p).dot(&n);
+                if against < 0.0 {
+                    position -= n * against;
+                }
+            }
+        }
         self.current = Some((time, position));
         Ok(DeviceState {
             position,
@@ -247,6 +277,7 @@ impl HapticDevice for VirtualDevice {
         })
     }
     fn write_force(&mut self, force: Vec3) -> Result<(), HapticError> {
+        self.last_force = force;
         self.shared.force.write([force.x, force.y, force.z]);
         Ok(())
     }
@@ -315,5 +346,38 @@ impl HapticDevice for ReplayDevice {
     }
     fn write_force(&mut self, _force: Vec3) -> Result<(), HapticError> {
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_virtual_hand_stops_pushing_at_its_strength_but_still_moves_sideways() {
+        let (device, handle) = VirtualDevice::new(Vec3::zeros(), 8.0);
+        let mut device = device.with_hand(2.0);
+        assert_eq!(device.read(0.0).unwrap().position, Vec3::zeros());
+        handle.set(Vec3::new(1.0, -1.0, 0.0), 0);
+        // The tissue pushes back (+y) with 3 N, above the hand's 2 N: no deeper, but sideways.
+        device.write_force(Vec3::new(0.0, 3.0, 0.0)).unwrap();
+        let p = device.read(0.1).unwrap().position;
+        assert_eq!(p.y, 0.0);
+        assert!(p.x > 0.99, "{p}");
+        // Below its strength the hand pushes on toward the handle.
+        device.write_force(Vec3::new(0.0, 1.0, 0.0)).unwrap();
+        let q = device.read(0.2).unwrap().position;
+        assert!(q.y < -0.99, "{q}");
+        // Pulled back by the user (handle above), the device follows whatever the force.
+        device.write_force(Vec3::new(0.0, 7.0, 0.0)).unwrap();
+        handle.set(Vec3::new(1.0, 0.5, 0.0), 0);
+        let r = device.read(0.3).unwrap().position;
+        assert!(r.y > 0.49, "{r}");
+        // Without a hand the device always reaches the handle.
+        let (free, handle) = VirtualDevice::new(Vec3::zeros(), 8.0);
+        let mut free = free.with_smoothing(0.0);
+        handle.set(Vec3::new(0.0, -1.0, 0.0), 0);
+        free.write_force(Vec3::new(0.0, 8.0, 0.0)).unwrap();
+        assert_eq!(free.read(0.0).unwrap().position.y, -1.0);
     }
 }
