@@ -7,7 +7,8 @@
 //!   moving it into a body pokes it;
 //! - left button held: pick (grab what the tool touches and drag it); release lets go;
 //! - C: toggle the electrocautery (heats what the tool touches);
-//! - P: pause / resume, N: single step, R: reset.
+//! - P: pause / resume, N: single step, R: reset, F12: save a screenshot (the `--screenshot`
+//!   file, else `screenshot.png`; later presses add `-2`, `-3`, ...).
 //!
 //! The mouse moves a virtual haptic device: the tool follows it through the 1 kHz haptic
 //! thread's virtual coupling (`HapticTool`), as a force-feedback device would drive it; the
@@ -21,7 +22,7 @@
 
 use std::path::{Path, PathBuf};
 
-use bevy::input::mouse::{AccumulatedMouseMotion, AccumulatedMouseScroll};
+use bevy::input::mouse::{AccumulatedMouseMotion, AccumulatedMouseScroll, MouseScrollUnit};
 use bevy::prelude::*;
 use bevy::render::view::screenshot::{Screenshot, save_to_disk};
 use bevy_egui::input::egui_wants_any_pointer_input;
@@ -117,6 +118,10 @@ struct ToolDriver {
     dt: f64,
     frames: u32,
     shot_requested: bool,
+    /// Pictures saved with F12 so far.
+    key_shots: u32,
+    /// Whether the tool touched something at the last frame (screenshot-mode log).
+    touching: bool,
 }
 
 /// The orbit camera's state.
@@ -209,9 +214,10 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
     .insert_resource(Controls(example.extra_controls.clone()))
     .insert_resource(ClearColor(Color::srgb(0.08, 0.09, 0.11)));
 
-    if options.screenshot.is_some() {
+    if options.screenshot.is_some() && !options.mouse {
         // Scripted mode: every frame advances 1/60 s of simulated time however slowly it
-        // renders (software Vulkan), so frame N shows the script at N/60 s.
+        // renders (software Vulkan), so frame N shows the script at N/60 s. (With the mouse,
+        // time is real: the haptic thread moves the tool in real time.)
         app.insert_resource(bevy::time::TimeUpdateStrategy::ManualDuration(
             std::time::Duration::from_secs_f64(1.0 / 60.0),
         ));
@@ -259,8 +265,11 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
         if tool_shape.is_none() {
             // Mouse mode: the mouse moves a virtual device; the haptic thread (sleeping most
             // of each period, to leave the CPU to the renderer) drives the tool.
+            // The hand holding it stops pushing at half the device's 8 N, as a user who
+            // feels the tissue would, so a wheel pushed on does not drive the tool through.
             let (device, handle) =
                 VirtualDevice::new(bevy_soft_tissue::convert::to_core(start), 8.0);
+            let device = device.with_hand(4.0);
             let config = HapticConfig {
                 spin_us: 300.0,
                 record_seconds: 0.0,
@@ -305,6 +314,8 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
             dt,
             frames: 0,
             shot_requested: false,
+            key_shots: 0,
+            touching: false,
         });
     });
     app.add_systems(
@@ -347,7 +358,7 @@ fn orbit_camera(
 #[allow(clippy::too_many_arguments)]
 fn mouse_tool(
     windows: Query<&Window>,
-    cams: Query<(&Camera, &GlobalTransform)>,
+    cams: Query<(&Camera, &Transform, &Orbit), Without<SoftTool>>,
     buttons: Res<ButtonInput<MouseButton>>,
     keys: Res<ButtonInput<KeyCode>>,
     scroll: Res<AccumulatedMouseScroll>,
@@ -359,19 +370,32 @@ fn mouse_tool(
     if driver.script.is_some() {
         return;
     }
-    let shift = keys.pressed(KeyCode::ShiftLeft) || keys.pressed(KeyCode::ShiftRight);
-    if !shift {
-        driver.depth = (driver.depth * (1.0 - 0.05 * scroll.delta.y)).max(0.01);
-    }
-    let (Ok(window), Ok((camera, cam_pose))) = (windows.single(), cams.single()) else {
+    let (Ok(window), Ok((camera, cam_pose, orbit))) = (windows.single(), cams.single()) else {
         return;
     };
+    // The camera has no parent and `orbit_camera` placed it just before: its `Transform` is
+    // this frame's pose (its `GlobalTransform` is last frame's, identity on the first).
+    let cam_pose = GlobalTransform::from(*cam_pose);
+    let shift = keys.pressed(KeyCode::ShiftLeft) || keys.pressed(KeyCode::ShiftRight);
+    if !shift {
+        // One wheel line moves the tool 1 % of the camera distance (a fraction of an organ's
+        // thickness, so a poke can be dosed); wheel down is farther. Pixel scrolling
+        // (touchpads) counts 40 pixels as a line.
+        let lines = match scroll.unit {
+            MouseScrollUnit::Line => scroll.delta.y,
+            MouseScrollUnit::Pixel => scroll.delta.y / 40.0,
+        };
+        if lines != 0.0 {
+            driver.depth = (driver.depth - 0.01 * orbit.distance * lines)
+                .clamp(0.2 * orbit.distance, 1.8 * orbit.distance);
+        }
+    }
     let Ok((mut pose, mut tool)) = tools.get_mut(driver.tool) else {
         return;
     };
     let target = window
         .cursor_position()
-        .and_then(|cursor| camera.viewport_to_world(cam_pose, cursor).ok())
+        .and_then(|cursor| camera.viewport_to_world(&cam_pose, cursor).ok())
         .map(|ray| ray.origin + *ray.direction * driver.depth);
     let grab = buttons.pressed(MouseButton::Left);
     if let Some(device) = device {
@@ -421,13 +445,33 @@ fn scripted_tool(
 }
 
 fn keys(
+    mut commands: Commands,
     keys: Res<ButtonInput<KeyCode>>,
+    options: Res<ExampleOptions>,
     driver: Option<ResMut<ToolDriver>>,
     mut status: ResMut<SoftTissueStatus>,
     mut tools: Query<&mut SoftTool>,
     mut reset: MessageWriter<ResetSimulation>,
 ) {
     let Some(mut driver) = driver else { return };
+    if keys.just_pressed(KeyCode::F12) {
+        // The screenshot file (or `screenshot.png`), then `-2`, `-3`, ... for later presses.
+        driver.key_shots += 1;
+        let base = options
+            .screenshot
+            .clone()
+            .unwrap_or_else(|| PathBuf::from("screenshot.png"));
+        let path = if driver.key_shots == 1 {
+            base
+        } else {
+            let stem = base.file_stem().unwrap_or_default().to_string_lossy();
+            base.with_file_name(format!("{stem}-{}.png", driver.key_shots))
+        };
+        info!("frame {}: F12, saving {}", driver.frames, path.display());
+        commands
+            .spawn(Screenshot::primary_window())
+            .observe(save_to_disk(path));
+    }
     if keys.just_pressed(KeyCode::KeyC) && driver.script.is_none() {
         driver.cautery_on = !driver.cautery_on;
         if let Ok(mut t) = tools.get_mut(driver.tool) {
@@ -456,20 +500,47 @@ fn screenshot(
     driver: Option<ResMut<ToolDriver>>,
     tools: Query<(&Transform, &ToolReaction)>,
     windows: Query<&Window>,
+    device: Option<Res<MouseDevice>>,
     mut exit: MessageWriter<AppExit>,
 ) {
     let (Some(path), Some(mut driver)) = (&options.screenshot, driver) else {
         return;
     };
     driver.frames += 1;
-    if driver.frames % 50 == 0
-        && let Ok((pose, reaction)) = tools.get(driver.tool)
-    {
-        let cursor = windows.single().ok().and_then(|w| w.cursor_position());
-        info!(
-            "frame {}: cursor {cursor:?}, tool at {}, {} contacts, force {}",
-            driver.frames, pose.translation, reaction.contacts, reaction.force
-        );
+    if let Ok((pose, reaction)) = tools.get(driver.tool) {
+        let touching = reaction.contacts > 0;
+        if touching != driver.touching {
+            driver.touching = touching;
+            info!(
+                "frame {}: tool {} at {} ({} contacts)",
+                driver.frames,
+                if touching { "touches" } else { "leaves" },
+                pose.translation,
+                reaction.contacts
+            );
+        }
+        if touching && let Some(device) = &device {
+            info!(
+                "frame {}: touching, tool at {}, tissue force {}, device force {:.2}",
+                driver.frames,
+                pose.translation,
+                reaction.force,
+                device.0.force().norm()
+            );
+        }
+        if driver.frames % 50 == 0 {
+            let cursor = windows.single().ok().and_then(|w| w.cursor_position());
+            info!(
+                "frame {}: cursor {cursor:?}, depth {:.3}, tool at {}, {} contacts, force {}",
+                driver.frames, driver.depth, pose.translation, reaction.contacts, reaction.force
+            );
+        }
+    }
+    if driver.frames == options.frames && !driver.shot_requested && driver.key_shots > 0 {
+        // Pictures were taken with F12: leave them.
+        info!("frame {}: done", driver.frames);
+        exit.write(AppExit::Success);
+        return;
     }
     if driver.frames == options.frames && !driver.shot_requested {
         driver.shot_requested = true;
@@ -505,7 +576,7 @@ fn controls_panel(
                 "mouse: move the tool, wheel: nearer / farther",
                 "left button held: pick and drag",
                 "C: electrocautery on / off",
-                "P: pause, N: step, R: reset",
+                "P: pause, N: step, R: reset, F12: screenshot",
             ]
             .into_iter()
             .chain(controls.0.iter().copied())
