@@ -1,5 +1,6 @@
 //! `soft-tissue simulate`: a scene run headless under a scripted tool.
 
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -211,16 +212,20 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                     "contacts": tl.contact_count(),
                 })
             });
-            println!(
-                "{}",
-                json!({
-                    "step": k + 1,
-                    "t": t,
-                    "step_us": st.total_us(),
-                    "bodies": bodies,
-                    "tool": tool_json,
-                })
-            );
+            let line = json!({
+                "step": k + 1,
+                "t": t,
+                "step_us": st.total_us(),
+                "bodies": bodies,
+                "tool": tool_json,
+            });
+            // A reader that stops early (`| head`) ends the run quietly, not with a panic.
+            if let Err(e) = writeln!(std::io::stdout().lock(), "{line}") {
+                if e.kind() == std::io::ErrorKind::BrokenPipe {
+                    return Ok(());
+                }
+                return Err(e.into());
+            }
         }
     }
     let mut sorted = step_times.clone();

@@ -315,3 +315,27 @@ fn haptics_bench_reports_records_and_its_session_replays_as_a_script() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--seconds"));
 }
+
+#[test]
+fn simulate_ends_quietly_when_its_reader_stops() {
+    // `simulate --json | head -1`: the pipe closes after one line; the run must end without a
+    // panic and with success.
+    use std::io::{BufRead, BufReader};
+    let mut child = bin()
+        .args(["simulate", "--scene", "cylinders", "--script", "poke-a"])
+        .args(["--steps", "400", "--json", "--assets"])
+        .arg(root().join("assets"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stdout = child.stdout.take().unwrap();
+    let mut first = String::new();
+    BufReader::new(stdout).read_line(&mut first).unwrap();
+    assert!(first.starts_with('{'), "{first}");
+    // The reader is dropped here: the pipe is closed.
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{:?}: {err}", out.status);
+    assert!(!err.contains("panicked"), "{err}");
+}
