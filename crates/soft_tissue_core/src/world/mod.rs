@@ -945,17 +945,16 @@ fn apply_corrections(
             }
         }
         Level::Cage => {
-            let x = b.body.node_positions();
             let mut targets = Vec::new();
             let mut shadow_loads = Vec::new();
             let masses = b.body.precise().masses();
-            for i in 0..b.weight.len() {
-                let w = b.weight[i];
+            for (i, (&w, m)) in b.weight.iter().zip(masses).enumerate() {
                 if w > 0.0 {
+                    // `displace_points` takes displacements, not target positions.
                     let dx = b.correction[i] / w;
-                    targets.push((i, x[i] + dx));
-                    force += dx * (masses[i] / (dt * dt));
-                    shadow_loads.push((i, dx * (masses[i] / (dt * dt))));
+                    targets.push((i, dx));
+                    force += dx * (m / (dt * dt));
+                    shadow_loads.push((i, dx * (m / (dt * dt))));
                 }
             }
             b.body
