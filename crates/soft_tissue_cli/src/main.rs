@@ -2,6 +2,7 @@
 //! generation, scene files, cages, benchmarks, headless simulation).
 
 mod haptics_bench;
+mod report;
 mod simulate;
 
 use clap::{Args, Parser, Subcommand};
@@ -43,6 +44,9 @@ enum Command {
     /// Run a scene in real time while the 1 kHz haptic thread replays a session; print the
     /// haptic loop's period distribution, missed deadlines and force continuity.
     HapticsBench(haptics_bench::HapticsBenchArgs),
+    /// Measure the paper's tables, the cage level's error and the scaling; write
+    /// report.md, report.json and CSV series to a folder.
+    Report(report::ReportArgs),
 }
 
 #[derive(Subcommand)]
@@ -197,6 +201,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => bench(&args),
         Command::Simulate(args) => simulate::simulate(&args),
         Command::HapticsBench(args) => haptics_bench::haptics_bench(&args),
+        Command::Report(args) => report::report(&args),
         Command::Cage(CageCommand::Deform {
             cage_rest,
             cage_deformed,

@@ -70,7 +70,7 @@ pub(crate) fn load_scene(name: &str, assets: &Path) -> Result<Scene, String> {
     }
 }
 
-fn add_resting_copies(scene: &mut Scene, n: usize, world: &SoftTissueWorld) {
+pub(crate) fn add_resting_copies(scene: &mut Scene, n: usize, world: &SoftTissueWorld) {
     let Some(last) = scene.bodies.last().cloned() else {
         return;
     };
@@ -102,6 +102,28 @@ fn add_resting_copies(scene: &mut Scene, n: usize, world: &SoftTissueWorld) {
 
 fn level_name(world: &SoftTissueWorld, i: usize) -> &'static str {
     world.bodies()[i].diagnostics().method
+}
+
+/// Puts tool `ti` where `script` has it at time `t` and applies the script's events of the
+/// step ending at `t`.
+pub(crate) fn drive_tool(
+    world: &mut SoftTissueWorld,
+    script: &Script,
+    ti: usize,
+    t: f64,
+    dt: f64,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let (p, a) = script.pose_at(t);
+    let tl = &mut world.tools_mut()[ti];
+    tl.set_pose(p, a)?;
+    for e in script.events_in(t - dt, t) {
+        match e.action {
+            ScriptAction::Grab => tl.grab(),
+            ScriptAction::Release => tl.release(),
+            ScriptAction::Cautery(w) => tl.set_cautery(w)?,
+        }
+    }
+    Ok(())
 }
 
 pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
@@ -145,16 +167,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     for k in 0..args.steps {
         let t = (k + 1) as f64 * dt;
         if let (Some(s), Some(ti)) = (&script, tool) {
-            let (p, a) = s.pose_at(t);
-            let tl = &mut world.tools_mut()[ti];
-            tl.set_pose(p, a)?;
-            for e in s.events_in(t - dt, t) {
-                match e.action {
-                    ScriptAction::Grab => tl.grab(),
-                    ScriptAction::Release => tl.release(),
-                    ScriptAction::Cautery(w) => tl.set_cautery(w)?,
-                }
-            }
+            drive_tool(&mut world, s, ti, t, dt)?;
         }
         world.step_fixed()?;
         let st = world.stage_times();
