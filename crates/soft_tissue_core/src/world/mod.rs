@@ -945,27 +945,24 @@ fn apply_corrections(
             }
         }
         Level::Cage => {
-            let mut targets = Vec::new();
-            let mut shadow_loads = Vec::new();
-            let masses = b.body.precise().masses();
-            for (i, (&w, m)) in b.weight.iter().zip(masses).enumerate() {
+            // The cage level takes contact as forces through the coordinates' transpose (the
+            // paper's mapping): the force that would move each corrected node by its
+            // correction in one step, spread on the cage vertices by their coordinates. (A
+            // least-squares displacement of the cage with the face terms held fixed amplifies
+            // a few nearby contact points into large cage motions.)
+            for (i, &w) in b.weight.iter().enumerate() {
                 if w > 0.0 {
-                    // `displace_points` takes displacements, not target positions.
-                    let dx = b.correction[i] / w;
-                    targets.push((i, dx));
-                    force += dx * (m / (dt * dt));
-                    shadow_loads.push((i, dx * (m / (dt * dt))));
+                    let m = b.body.precise().masses()[i];
+                    let f = b.correction[i] / w * (m / (dt * dt));
+                    force += f;
+                    b.body.add_shadow_force(i, f);
+                    b.body.cage_mut().apply_point_force(i, f).map_err(|e| {
+                        WorldError::Precision {
+                            body: b.name.clone(),
+                            source: e.into(),
+                        }
+                    })?;
                 }
-            }
-            b.body
-                .cage_mut()
-                .displace_points(&targets)
-                .map_err(|e| WorldError::Precision {
-                    body: b.name.clone(),
-                    source: e.into(),
-                })?;
-            for (i, f) in shadow_loads {
-                b.body.add_shadow_force(i, f);
             }
         }
     }
