@@ -440,22 +440,14 @@ pub fn report(args: &ReportArgs) -> Res<()> {
         "body,with_cage_mean_cage_us,with_cage_mean_precise_us,without_cage_mean_precise_us\n",
     );
     for (b, c) in with_cage.bodies.iter().zip(&without_cage.bodies) {
-        writeln!(
-            md,
-            "| {} | {} | {} | {} |",
-            b.name,
+        let cells = [
+            b.name.clone(),
             us(b.mean_cage_us()),
             us(b.mean_precise_us()),
-            us(c.mean_precise_us())
-        )?;
-        writeln!(
-            csv,
-            "{},{},{},{}",
-            b.name,
-            us(b.mean_cage_us()),
-            us(b.mean_precise_us()),
-            us(c.mean_precise_us())
-        )?;
+            us(c.mean_precise_us()),
+        ];
+        writeln!(md, "| {} |", cells.join(" | "))?;
+        writeln!(csv, "{}", cells.join(","))?;
     }
     let all_precise_sum: f64 = without_cage
         .bodies
