@@ -39,6 +39,7 @@ pub mod mesh;
 pub mod msd;
 pub mod precision;
 pub mod scenario;
+pub mod stability;
 pub mod state;
 pub mod world;
 

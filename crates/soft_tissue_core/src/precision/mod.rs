@@ -552,6 +552,20 @@ impl LeveledBody {
         self.precise.body_mut()
     }
 
+    /// Sets the CG tolerance and iteration cap of the precise level's iterative solve
+    /// (corotational FEM, implicit MSD; the others ignore it).
+    pub fn set_precise_cg(
+        &mut self,
+        tolerance: f64,
+        max_iterations: u32,
+    ) -> Result<(), PrecisionError> {
+        match &mut self.precise {
+            Precise::Fem(b) => b.set_cg(tolerance, max_iterations)?,
+            Precise::Msd(b) => b.set_cg(tolerance, max_iterations)?,
+        }
+        Ok(())
+    }
+
     /// The FEM body, when the precise method is FEM.
     pub fn fem(&self) -> Option<&FemBody> {
         match &self.precise {
