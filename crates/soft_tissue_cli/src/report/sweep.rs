@@ -1,0 +1,288 @@
+//! Speed against error (every level and setting against a fine-step corotational FEM
+//! reference) and step time against mesh size.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use soft_tissue_core::Vec3;
+use soft_tissue_core::bench::{BenchBody, BenchMethod};
+use soft_tissue_core::contact::Tool;
+use soft_tissue_core::fem::FemModel;
+use soft_tissue_core::mesh::generate::Organ;
+use soft_tissue_core::msd::MsdIntegrator;
+use soft_tissue_core::precision::{BodySettings, Level, PreciseMethod as Method};
+use soft_tissue_core::scenario::{CYLINDER_MSD, CageKind, ORGAN_FEM, Scene};
+use soft_tissue_core::world::{Script, SimBody, SoftTissueWorld, scene_bodies};
+
+use super::{Res, median};
+use crate::simulate::drive_tool;
+
+/// Builds a scene's world after `edit` has changed every body's level settings.
+pub(super) fn build_world(
+    scene: &Scene,
+    assets: &Path,
+    edit: &dyn Fn(&mut BodySettings),
+) -> Res<SoftTissueWorld> {
+    let (mut config, bodies) = scene_bodies(scene, assets)?;
+    let mut world = None;
+    for mut b in bodies {
+        edit(&mut b.settings);
+        config.dt = b.settings.dt;
+        let w = match &mut world {
+            Some(w) => w,
+            None => world.insert(SoftTissueWorld::new(config)?),
+        };
+        w.add_body(SimBody::new(b.name, Arc::new(b.mesh), b.settings, b.heat)?)?;
+    }
+    Ok(world.ok_or("the scene has no bodies")?)
+}
+
+/// One configuration of the sweep: a level, its method or cage, and a time step.
+#[derive(Debug, Clone)]
+pub(super) struct Config {
+    pub label: String,
+    /// The family a point is drawn with.
+    pub family: &'static str,
+    pub method: Method,
+    pub level: Level,
+    pub cage: CageKind,
+    pub dt: f64,
+}
+
+/// A measured point of the sweep.
+#[derive(Debug, Clone)]
+pub(super) struct Point {
+    pub config: Config,
+    /// Median step time of the measured body, us.
+    pub median_us: f64,
+    /// Mean over the run of the mean node distance, % of the smallest dimension.
+    pub mean_pct: f64,
+    /// Largest node distance over the run, % of the smallest dimension.
+    pub max_pct: f64,
+    /// No other point is both faster and more accurate (by the largest distance).
+    pub pareto: bool,
+}
+
+/// The sweep's configurations around the paper's step `dt`.
+pub(super) fn configs(quick: bool, dt: f64) -> Vec<Config> {
+    let fem = |model, family, dt: f64| Config {
+        label: format!("{family} dt {dt}"),
+        family,
+        method: Method::Fem(model),
+        level: Level::Precise,
+        cage: CageKind::BoundingBox,
+        dt,
+    };
+    let msd = |i, family, dt: f64| Config {
+        label: format!("{family} dt {dt}"),
+        family,
+        method: Method::Msd(i),
+        level: Level::Precise,
+        cage: CageKind::BoundingBox,
+        dt,
+    };
+    let cage = |kind, name: &str, dt: f64| Config {
+        label: format!("cage {name} dt {dt}"),
+        family: "cage",
+        method: Method::Fem(FemModel::Corotational),
+        level: Level::Cage,
+        cage: kind,
+        dt,
+    };
+    let co = FemModel::Corotational;
+    let li = FemModel::Linear;
+    if quick {
+        return vec![
+            fem(co, "FEM corotational", dt),
+            fem(li, "FEM linear", dt),
+            msd(MsdIntegrator::ImplicitEuler, "MSD implicit", dt),
+            cage(CageKind::BoundingBox, "box", dt),
+        ];
+    }
+    let mut v = Vec::new();
+    for s in [1.0, 2.0, 4.0] {
+        v.push(fem(co, "FEM corotational", dt * s));
+    }
+    for s in [1.0, 2.0] {
+        v.push(fem(li, "FEM linear", dt * s));
+    }
+    for s in [1.0, 2.0] {
+        v.push(msd(MsdIntegrator::Rk4, "MSD RK4", dt * s));
+    }
+    for s in [1.0, 2.0] {
+        v.push(msd(MsdIntegrator::ImplicitEuler, "MSD implicit", dt * s));
+    }
+    for s in [1.0, 2.0] {
+        v.push(cage(CageKind::BoundingBox, "box", dt * s));
+    }
+    for n in [32, 64, 128] {
+        v.push(cage(
+            CageKind::Fitted { vertices: n },
+            &format!("fitted {n}"),
+            dt,
+        ));
+    }
+    v
+}
+
+/// Positions of the first body after each step of a run of `duration` seconds at `config`,
+/// every body held at the config's level; also the first body's median step time, us.
+fn trajectory(
+    scene: &Scene,
+    assets: &Path,
+    script: &str,
+    config: &Config,
+    duration: f64,
+    cg: Option<(f64, u32)>,
+) -> Res<(Vec<Vec<Vec3>>, f64)> {
+    let mut world = build_world(scene, assets, &|s: &mut BodySettings| {
+        s.precise = config.method;
+        s.cage = config.cage;
+        s.dt = config.dt;
+    })?;
+    for b in world.bodies_mut() {
+        if let Some((tol, cap)) = cg {
+            b.body_mut().set_precise_cg(tol, cap)?;
+        }
+        b.body_mut().pin(Some(config.level))?;
+    }
+    let s = Script::builtin(script, &world)?;
+    let ti = world.add_tool(Tool::new(s.name.clone(), s.tool)?);
+    let dt = config.dt;
+    let steps = (duration / dt).round() as usize;
+    let mut out = Vec::with_capacity(steps);
+    let mut times = Vec::with_capacity(steps);
+
+    for k in 0..steps {
+        let t = (k + 1) as f64 * dt;
+        drive_tool(&mut world, &s, ti, t, dt)?;
+        world.step_fixed()?;
+        let b = &world.bodies()[0];
+        times.push(b.diagnostics().step_us);
+        out.push(b.body().node_positions().to_vec());
+    }
+    Ok((out, median(&times).unwrap_or(0.0)))
+}
+
+/// Runs every configuration of `scene` under `script` for `duration` seconds and
+/// measures its first body against corotational FEM at a tenth of the paper's step with a tight CG
+/// tolerance. `progress` is called before each run.
+pub(super) fn speed_against_error(
+    scene: &Scene,
+    assets: &Path,
+    script: &str,
+    configs: &[Config],
+    duration: f64,
+    progress: &mut dyn FnMut(&str),
+) -> Res<(Config, Vec<Point>)> {
+    let base = configs.iter().map(|c| c.dt).fold(f64::INFINITY, f64::min);
+    let reference = Config {
+        label: format!("reference: FEM corotational dt {}", base / 10.0),
+        family: "reference",
+        method: Method::Fem(FemModel::Corotational),
+        level: Level::Precise,
+        cage: CageKind::BoundingBox,
+        dt: base / 10.0,
+    };
+    progress(&reference.label);
+    let (refs, _) = trajectory(
+        scene,
+        assets,
+        script,
+        &reference,
+        duration,
+        Some((1e-8, 200)),
+    )?;
+    let scale = {
+        let w = build_world(scene, assets, &|_| {})?;
+        w.bodies()[0].body().smallest_dimension()
+    };
+    let mut points = Vec::with_capacity(configs.len());
+    for c in configs {
+        progress(&c.label);
+        let (traj, median_us) = trajectory(scene, assets, script, c, duration, None)?;
+        let (mut sum, mut max, mut n) = (0.0f64, 0.0f64, 0usize);
+        for (k, x) in traj.iter().enumerate() {
+            let t = (k + 1) as f64 * c.dt;
+            let j = ((t / reference.dt).round() as usize).clamp(1, refs.len()) - 1;
+            let r = &refs[j];
+            let mut s = 0.0;
+            for (p, q) in x.iter().zip(r) {
+                let d = (p - q).norm();
+                s += d;
+                max = max.max(d);
+            }
+            sum += s / x.len().max(1) as f64;
+            n += 1;
+        }
+        points.push(Point {
+            config: c.clone(),
+            median_us,
+            mean_pct: 100.0 * sum / n.max(1) as f64 / scale,
+            max_pct: 100.0 * max / scale,
+            pareto: false,
+        });
+    }
+    for i in 0..points.len() {
+        let (t, e) = (points[i].median_us, points[i].max_pct);
+        points[i].pareto = !points
+            .iter()
+            .any(|q| q.median_us <= t && q.max_pct <= e && (q.median_us < t || q.max_pct < e));
+    }
+    Ok((reference, points))
+}
+
+/// One row of the mesh-size scaling.
+#[derive(Debug, Clone)]
+pub(super) struct SizeRow {
+    pub resolution: f64,
+    pub nodes: usize,
+    pub tets: usize,
+    pub surface: usize,
+    /// Median step per method (same order as [`SIZE_METHODS`]), us; `None` where it failed.
+    pub median_us: Vec<Option<f64>>,
+}
+
+/// The methods of the mesh-size scaling.
+pub(super) const SIZE_METHODS: [BenchMethod; 5] = [
+    BenchMethod::FemLinear,
+    BenchMethod::FemCorotational,
+    BenchMethod::MsdImplicit,
+    BenchMethod::CageBox,
+    BenchMethod::CageFitted,
+];
+
+/// Step time against mesh size: the generated liver at several resolutions under the bench
+/// load (`soft-tissue bench`'s swinging force, organ FEM parameters), median of `steps` steps.
+pub(super) fn mesh_size(
+    resolutions: &[f64],
+    steps: usize,
+    progress: &mut dyn FnMut(&str),
+) -> Res<Vec<SizeRow>> {
+    let mut rows = Vec::with_capacity(resolutions.len());
+    for &r in resolutions {
+        progress(&format!("mesh size: liver at resolution {r}"));
+        let mesh = Organ::Liver.generate(r)?;
+        let mut row = SizeRow {
+            resolution: r,
+            nodes: mesh.node_count(),
+            tets: mesh.tet_count(),
+            surface: mesh.surface().vertices().len(),
+            median_us: Vec::with_capacity(SIZE_METHODS.len()),
+        };
+        for m in SIZE_METHODS {
+            let measured = BenchBody::new(
+                &mesh,
+                m,
+                (&ORGAN_FEM.params, ORGAN_FEM.dt),
+                (&CYLINDER_MSD.params, CYLINDER_MSD.dt),
+                false,
+                64,
+            )
+            .and_then(|mut b| b.run(m, &mesh, steps / 10, steps));
+            row.median_us.push(measured.ok().map(|r| r.median_us));
+        }
+        rows.push(row);
+    }
+    Ok(rows)
+}
