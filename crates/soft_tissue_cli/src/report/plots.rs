@@ -39,6 +39,20 @@ pub(super) struct Axis<'a> {
     pub log: bool,
 }
 
+/// A compact tick label: no more digits than the value's size needs.
+fn tick(v: &f64) -> String {
+    let a = v.abs();
+    if a >= 100.0 || a == 0.0 {
+        format!("{v:.0}")
+    } else if a >= 1.0 {
+        format!("{v:.1}")
+    } else if a >= 0.01 {
+        format!("{v:.2}")
+    } else {
+        format!("{v:.1e}")
+    }
+}
+
 fn range(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for v in values.filter(|v| v.is_finite() && (!log || *v > 0.0)) {
@@ -131,6 +145,10 @@ where
         .build_cartesian_2d(xr, yr)
         .map_err(|e| err(&e))?;
     c.configure_mesh()
+        .x_labels(8)
+        .y_labels(8)
+        .x_label_formatter(&tick)
+        .y_label_formatter(&tick)
         .x_desc(x.desc)
         .y_desc(y.desc)
         .label_style((FONT, 14))
