@@ -65,18 +65,10 @@ pub(super) struct Point {
 
 /// The sweep's configurations around the paper's step `dt`.
 pub(super) fn configs(quick: bool, dt: f64) -> Vec<Config> {
-    let fem = |model, family, dt: f64| Config {
+    let precise = |method, family, dt: f64| Config {
         label: format!("{family} dt {dt}"),
         family,
-        method: Method::Fem(model),
-        level: Level::Precise,
-        cage: CageKind::BoundingBox,
-        dt,
-    };
-    let msd = |i, family, dt: f64| Config {
-        label: format!("{family} dt {dt}"),
-        family,
-        method: Method::Msd(i),
+        method,
         level: Level::Precise,
         cage: CageKind::BoundingBox,
         dt,
@@ -89,28 +81,30 @@ pub(super) fn configs(quick: bool, dt: f64) -> Vec<Config> {
         cage: kind,
         dt,
     };
-    let co = FemModel::Corotational;
-    let li = FemModel::Linear;
+    let co = Method::Fem(FemModel::Corotational);
+    let li = Method::Fem(FemModel::Linear);
+    let rk4 = Method::Msd(MsdIntegrator::Rk4);
+    let implicit = Method::Msd(MsdIntegrator::ImplicitEuler);
     if quick {
         return vec![
-            fem(co, "FEM corotational", dt),
-            fem(li, "FEM linear", dt),
-            msd(MsdIntegrator::ImplicitEuler, "MSD implicit", dt),
+            precise(co, "FEM corotational", dt),
+            precise(li, "FEM linear", dt),
+            precise(implicit, "MSD implicit", dt),
             cage(CageKind::BoundingBox, "box", dt),
         ];
     }
     let mut v = Vec::new();
     for s in [1.0, 2.0, 4.0] {
-        v.push(fem(co, "FEM corotational", dt * s));
+        v.push(precise(co, "FEM corotational", dt * s));
     }
     for s in [1.0, 2.0] {
-        v.push(fem(li, "FEM linear", dt * s));
+        v.push(precise(li, "FEM linear", dt * s));
     }
     for s in [1.0, 2.0] {
-        v.push(msd(MsdIntegrator::Rk4, "MSD RK4", dt * s));
+        v.push(precise(rk4, "MSD RK4", dt * s));
     }
     for s in [1.0, 2.0] {
-        v.push(msd(MsdIntegrator::ImplicitEuler, "MSD implicit", dt * s));
+        v.push(precise(implicit, "MSD implicit", dt * s));
     }
     for s in [1.0, 2.0] {
         v.push(cage(CageKind::BoundingBox, "box", dt * s));
