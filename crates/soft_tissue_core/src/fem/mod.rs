@@ -634,30 +634,12 @@ impl FemBody {
         self.backup_v.copy_from_slice(&self.nodes.v);
         let h = self.config.dt;
         let alpha = self.config.mass_damping;
-        let beta = self.config.stiffness_damping;
-        let g = self.config.gravity;
-        // Forces that do not depend on the model: external, gravity, mass damping, anchors
-        // (with their implicit term).
-        for i in 0..self.nodes.x.len() {
-            let m = self.nodes.mass[i];
-            let k = self.nodes.anchor_k[i];
-            self.rhs[i] = self.nodes.f_ext[i] + m * g
-                - alpha * m * self.nodes.v[i]
-                - k * (self.nodes.x[i] - self.nodes.anchor_target[i] + h * self.nodes.v[i]);
-        }
+        self.fill_common_rhs();
         let mut stats = FemStepStats::default();
         match self.config.model {
             FemModel::Linear => {
-                // -K (u + (beta + h) v)
-                for i in 0..self.nodes.x.len() {
-                    self.tmp[i] =
-                        self.nodes.x[i] - self.nodes.rest[i] + (beta + h) * self.nodes.v[i];
-                }
-                self.k_rest.mul_add(-1.0, &self.tmp, &mut self.rhs);
-                for r in &mut self.rhs {
-                    *r *= h;
-                }
-                self.system.solve_direct(&self.rhs, &mut self.dv)?;
+                let with_product = !self.fixed_at_rest();
+                self.linear_dv(with_product)?;
             }
             FemModel::Corotational => {
                 (stats.rotation_iterations, stats.assembled) =
@@ -697,6 +679,68 @@ impl FemBody {
         self.nodes.f_ext.fill(Vec3::zeros());
         self.stats = stats;
         Ok(stats)
+    }
+
+    /// Forces that do not depend on the model: external, gravity, mass damping, anchors
+    /// (with their implicit term), into `rhs`.
+    fn fill_common_rhs(&mut self) {
+        let h = self.config.dt;
+        let alpha = self.config.mass_damping;
+        let g = self.config.gravity;
+        for i in 0..self.nodes.x.len() {
+            let m = self.nodes.mass[i];
+            let k = self.nodes.anchor_k[i];
+            self.rhs[i] = self.nodes.f_ext[i] + m * g
+                - alpha * m * self.nodes.v[i]
+                - k * (self.nodes.x[i] - self.nodes.anchor_target[i] + h * self.nodes.v[i]);
+        }
+    }
+
+    /// Linear model: `dv` from the forces in `rhs`, either with a product with `K` or
+    /// without one (exact only when the fixed components sit at rest).
+    fn linear_dv(&mut self, with_product: bool) -> Result<(), FemError> {
+        let h = self.config.dt;
+        let alpha = self.config.mass_damping;
+        let beta = self.config.stiffness_damping;
+        if !with_product {
+            // The system matrix is A = G + c K with G = (1 + h alpha) M + h^2 Ka diagonal
+            // and c = h beta + h^2, so h K y = (h / c) (A y - G y) for y = u + (beta + h) v:
+            // dv = A^-1 (h r + (h / c) G y) - (h / c) y, one solve and no product with K.
+            // Exact on the free unknowns when the fixed components sit at rest (y = 0
+            // there); otherwise the branch below multiplies by K.
+            let c = beta * h + h * h;
+            let hc = h / c;
+            for i in 0..self.nodes.x.len() {
+                let y = self.nodes.x[i] - self.nodes.rest[i] + (beta + h) * self.nodes.v[i];
+                let diag = (1.0 + h * alpha) * self.nodes.mass[i] + h * h * self.nodes.anchor_k[i];
+                self.tmp[i] = y;
+                self.rhs[i] = h * self.rhs[i] + (hc * diag) * y;
+            }
+            self.system.solve_direct(&self.rhs, &mut self.dv)?;
+            for (d, y) in self.dv.iter_mut().zip(&self.tmp) {
+                *d -= hc * y;
+            }
+        } else {
+            // -K (u + (beta + h) v)
+            for i in 0..self.nodes.x.len() {
+                self.tmp[i] = self.nodes.x[i] - self.nodes.rest[i] + (beta + h) * self.nodes.v[i];
+            }
+            self.k_rest.mul_add(-1.0, &self.tmp, &mut self.rhs);
+            for r in &mut self.rhs {
+                *r *= h;
+            }
+            self.system.solve_direct(&self.rhs, &mut self.dv)?;
+        }
+        Ok(())
+    }
+
+    /// Whether every fixed component sits at its rest coordinate (not moved kinematically).
+    fn fixed_at_rest(&self) -> bool {
+        self.nodes
+            .fixed
+            .iter()
+            .zip(self.nodes.x.iter().zip(&self.nodes.rest))
+            .all(|(f, (x, r))| (0..3).all(|a| !f[a] || x[a] == r[a]))
     }
 
     /// Corotational: updates rotations, adds elastic forces to `rhs`, and assembles the
@@ -1015,5 +1059,51 @@ mod tests {
         }
         assert!(worst < 1e-12 * size, "system matrix differs by {worst}");
         assert!(body.system.matrix.asymmetry() < 1e-15 * size);
+    }
+
+    /// The linear step without a product with `K` (used when the fixed components sit at rest)
+    /// gives the `dv` of the step with the product, on a body with fixed nodes, an anchor,
+    /// stiffness damping, a deformed state, velocities and external forces.
+    #[test]
+    fn linear_step_without_the_stiffness_product_is_the_same_step() {
+        let mesh = block(Vec3::zeros(), Vec3::new(2.0, 1.0, 1.0), [4, 2, 2]).unwrap();
+        for beta in [0.0, 0.004] {
+            let mut c = FemConfig::paper(&crate::scenario::ORGAN_FEM.params, 0.01);
+            c.model = FemModel::Linear;
+            c.stiffness_damping = beta;
+            c.mass_damping = 0.3;
+            c.gravity = Vec3::new(0.0, -9.81, 0.0);
+            let mut boundary = Boundary::fixed_nodes([0, 1, 2]);
+            boundary.anchors.push((7, 40.0));
+            let mut body = FemBody::new(&mesh, c, &boundary).unwrap();
+            for (i, (x, v)) in body
+                .nodes
+                .x
+                .iter_mut()
+                .zip(body.nodes.v.iter_mut())
+                .enumerate()
+            {
+                if i > 2 {
+                    let s = i as f64;
+                    *x += Vec3::new(0.01 * s.sin(), 0.02 * s.cos(), -0.015 * (0.7 * s).sin());
+                    *v = Vec3::new(0.3 * (1.3 * s).cos(), -0.2 * s.sin(), 0.1);
+                }
+            }
+            body.nodes.f_ext[9] = Vec3::new(3.0, -1.0, 2.0);
+            assert!(body.fixed_at_rest());
+            body.fill_common_rhs();
+            body.linear_dv(true).unwrap();
+            let with = body.dv.clone();
+            body.fill_common_rhs();
+            body.linear_dv(false).unwrap();
+            let scale = with.iter().map(|d| d.norm()).fold(0.0, f64::max);
+            assert!(scale > 1e-3, "the state moves");
+            for (i, (a, b)) in with.iter().zip(&body.dv).enumerate() {
+                assert!(
+                    (a - b).norm() <= 1e-10 * scale,
+                    "beta {beta}, node {i}: {a:?} vs {b:?}"
+                );
+            }
+        }
     }
 }

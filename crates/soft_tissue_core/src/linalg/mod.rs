@@ -4,6 +4,7 @@
 mod bsr;
 mod cholesky;
 mod pcg;
+mod supernodal;
 
 pub use bsr::BlockSparse;
 pub use cholesky::{ScalarCholesky, SparseCholesky};
