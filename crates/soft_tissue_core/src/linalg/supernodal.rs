@@ -74,6 +74,7 @@ impl SupernodalSolver {
     }
 
     /// Number of supernodes.
+    #[cfg(test)]
     pub(super) fn supernodes(&self) -> usize {
         self.nodes.len()
     }
