@@ -142,23 +142,35 @@ impl BlockSparse {
     /// `y = A x`.
     pub fn mul(&self, x: &[Vec3], y: &mut [Vec3]) {
         for (i, yi) in y.iter_mut().enumerate().take(self.nodes()) {
-            let mut acc = Vec3::zeros();
-            for k in self.row_ptr[i]..self.row_ptr[i + 1] {
-                acc += self.blocks[k] * x[self.cols[k] as usize];
-            }
-            *yi = acc;
+            *yi = self.row_product(i, x);
         }
     }
 
     /// `y += s A x`.
     pub fn mul_add(&self, s: f64, x: &[Vec3], y: &mut [Vec3]) {
         for (i, yi) in y.iter_mut().enumerate().take(self.nodes()) {
-            let mut acc = Vec3::zeros();
-            for k in self.row_ptr[i]..self.row_ptr[i + 1] {
-                acc += self.blocks[k] * x[self.cols[k] as usize];
-            }
-            *yi += s * acc;
+            *yi += s * self.row_product(i, x);
         }
+    }
+
+    /// Block row `i` times `x`, with two running sums (even and odd blocks) so consecutive
+    /// blocks do not wait on each other's additions.
+    #[inline(always)]
+    fn row_product(&self, i: usize, x: &[Vec3]) -> Vec3 {
+        let range = self.row_ptr[i]..self.row_ptr[i + 1];
+        let blocks = &self.blocks[range.clone()];
+        let cols = &self.cols[range];
+        let (mut a0, mut a1) = (Vec3::zeros(), Vec3::zeros());
+        let pairs = blocks.chunks_exact(2).zip(cols.chunks_exact(2));
+        for (b, c) in pairs {
+            a0 += b[0] * x[c[0] as usize];
+            a1 += b[1] * x[c[1] as usize];
+        }
+        if blocks.len() % 2 == 1 {
+            let k = blocks.len() - 1;
+            a0 += blocks[k] * x[cols[k] as usize];
+        }
+        a0 + a1
     }
 
     /// Largest absolute difference between `A` and `A^T` (a check for assembly code).
