@@ -13,6 +13,7 @@ use faer::{Conj, MatMut, Par, Side};
 
 use super::supernodal::SupernodalSolver;
 use super::{BlockSparse, LinalgError};
+use crate::Vec3;
 
 const ENTRY_ZERO: u32 = u32::MAX;
 const ENTRY_ONE: u32 = u32::MAX - 1;
@@ -135,6 +136,10 @@ pub struct SparseCholesky {
     /// block storage, or a sentinel for a fixed entry (zero, or one on the diagonal).
     source: Vec<u32>,
     llt: UpperLlt,
+    /// Fixed flag per unknown.
+    fixed: Vec<bool>,
+    /// Workspace of [`SparseCholesky::solve_nodes`] when `faer` solves.
+    flat: Vec<f64>,
 }
 
 impl std::fmt::Debug for SparseCholesky {
@@ -195,6 +200,8 @@ impl SparseCholesky {
         Ok(SparseCholesky {
             llt: UpperLlt::new(dim, col_ptr, row_idx)?,
             source,
+            fixed: fixed.to_vec(),
+            flat: vec![0.0; dim],
         })
     }
 
@@ -232,6 +239,33 @@ impl SparseCholesky {
     /// If `rhs.len() != self.dim()`.
     pub fn solve_in_place(&mut self, rhs: &mut [f64]) -> Result<(), LinalgError> {
         self.llt.solve_in_place(rhs)
+    }
+
+    /// Solves `A x = b` for node vectors (unknown `3 i + a` is component `a` of node `i`);
+    /// fixed components of `b` are ignored and those of `x` set to zero. No allocation.
+    ///
+    /// # Panics
+    /// If `b` or `x` does not have `dim() / 3` nodes.
+    pub fn solve_nodes(&mut self, b: &[Vec3], x: &mut [Vec3]) -> Result<(), LinalgError> {
+        assert!(
+            3 * b.len() == self.llt.dim && 3 * x.len() == self.llt.dim,
+            "one node vector per three unknowns"
+        );
+        if !self.llt.factored {
+            return Err(LinalgError::NotFactored);
+        }
+        if let Some(sn) = &mut self.llt.supernodal {
+            sn.solve_nodes(&self.llt.l_values, &self.fixed, b, x);
+            return Ok(());
+        }
+        for (d, v) in self.flat.iter_mut().enumerate() {
+            *v = if self.fixed[d] { 0.0 } else { b[d / 3][d % 3] };
+        }
+        self.llt.faer_solve_in_place(&mut self.flat);
+        for (d, v) in self.flat.iter().enumerate() {
+            x[d / 3][d % 3] = if self.fixed[d] { 0.0 } else { *v };
+        }
+        Ok(())
     }
 }
 

@@ -31,7 +31,6 @@ pub struct ImplicitSystem {
     z: Vec<Vec3>,
     p: Vec<Vec3>,
     q: Vec<Vec3>,
-    flat: Vec<f64>,
 }
 
 impl ImplicitSystem {
@@ -50,7 +49,6 @@ impl ImplicitSystem {
             z: vec![Vec3::zeros(); n],
             p: vec![Vec3::zeros(); n],
             q: vec![Vec3::zeros(); n],
-            flat: vec![0.0; 3 * n],
         })
     }
 
@@ -92,26 +90,13 @@ impl ImplicitSystem {
     }
 
     fn precondition(&mut self, r: &[Vec3], z: &mut [Vec3]) -> Result<(), LinalgError> {
-        for (c, v) in self.flat.chunks_exact_mut(3).zip(r) {
-            c.copy_from_slice(v.as_slice());
-        }
-        self.factor.solve_in_place(&mut self.flat)?;
-        for (c, v) in self.flat.chunks_exact(3).zip(z.iter_mut()) {
-            *v = Vec3::new(c[0], c[1], c[2]);
-        }
-        self.project(z);
-        Ok(())
+        self.factor.solve_nodes(r, z)
     }
 
     /// Solves with the held factorization only: exact when it was made from the current
     /// matrix values. `b`'s fixed components are ignored; `x`'s are zero on return.
     pub fn solve_direct(&mut self, b: &[Vec3], x: &mut [Vec3]) -> Result<(), LinalgError> {
-        let mut r = std::mem::take(&mut self.r);
-        r.copy_from_slice(b);
-        self.project(&mut r);
-        let out = self.precondition(&r, x);
-        self.r = r;
-        out
+        self.factor.solve_nodes(b, x)
     }
 
     /// Preconditioned conjugate gradients from the initial guess in `x`, until

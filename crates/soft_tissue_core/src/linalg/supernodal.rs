@@ -12,6 +12,8 @@
 
 use faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky;
 
+use crate::Vec3;
+
 /// One supernode: columns `start .. start + width` of `L`, stored column-major with
 /// `width + pattern_len` rows from `value_offset`; its rows below the diagonal block are
 /// `pattern[pattern_offset ..][.. pattern_len]`.
@@ -90,17 +92,69 @@ impl SupernodalSolver {
     }
 
     /// Solves `L L^T x = rhs` in place with the factor `values`.
-    #[allow(unsafe_code)]
     pub(super) fn solve_in_place(&mut self, values: &[f64], rhs: &mut [f64]) {
-        let x = &mut self.x;
         match &self.perm {
             Some(p) => {
-                for (xi, &pi) in x.iter_mut().zip(p) {
+                for (xi, &pi) in self.x.iter_mut().zip(p) {
                     *xi = rhs[pi as usize];
                 }
             }
-            None => x.copy_from_slice(rhs),
+            None => self.x.copy_from_slice(rhs),
         }
+        self.substitute(values);
+        match &self.perm {
+            Some(p) => {
+                for (xi, &pi) in self.x.iter().zip(p) {
+                    rhs[pi as usize] = *xi;
+                }
+            }
+            None => rhs.copy_from_slice(&self.x),
+        }
+    }
+
+    /// Solves `L L^T x = b` for node vectors (unknown `3 i + a` is component `a` of node
+    /// `i`), with the unknowns flagged in `fixed` read and written as zero: the permutation
+    /// and the projection in the same pass as the copies.
+    pub(super) fn solve_nodes(
+        &mut self,
+        values: &[f64],
+        fixed: &[bool],
+        b: &[Vec3],
+        x: &mut [Vec3],
+    ) {
+        match &self.perm {
+            Some(p) => {
+                for (xi, &pi) in self.x.iter_mut().zip(p) {
+                    let d = pi as usize;
+                    *xi = if fixed[d] { 0.0 } else { b[d / 3][d % 3] };
+                }
+            }
+            None => {
+                for (d, xi) in self.x.iter_mut().enumerate() {
+                    *xi = if fixed[d] { 0.0 } else { b[d / 3][d % 3] };
+                }
+            }
+        }
+        self.substitute(values);
+        match &self.perm {
+            Some(p) => {
+                for (xi, &pi) in self.x.iter().zip(p) {
+                    let d = pi as usize;
+                    x[d / 3][d % 3] = if fixed[d] { 0.0 } else { *xi };
+                }
+            }
+            None => {
+                for (d, xi) in self.x.iter().enumerate() {
+                    x[d / 3][d % 3] = if fixed[d] { 0.0 } else { *xi };
+                }
+            }
+        }
+    }
+
+    /// Forward and backward substitution of `self.x` in place.
+    #[allow(unsafe_code)]
+    fn substitute(&mut self, values: &[f64]) {
+        let x = &mut self.x;
         let parts = Parts {
             nodes: &self.nodes,
             pattern: &self.pattern,
@@ -121,14 +175,6 @@ impl SupernodalSolver {
         }
         #[cfg(not(target_arch = "x86_64"))]
         substitute::<false>(&parts, x, &mut self.tmp);
-        match &self.perm {
-            Some(p) => {
-                for (xi, &pi) in x.iter().zip(p) {
-                    rhs[pi as usize] = *xi;
-                }
-            }
-            None => rhs.copy_from_slice(x),
-        }
     }
 }
 
