@@ -12,8 +12,11 @@
 //!
 //! where `Ka` holds the soft anchors. Linear FEM (`f_el = -K u`, `K` constant) gives a constant
 //! matrix: it is factorized once (sparse Cholesky with AMD ordering) and each step is one
-//! product with `K` and one solve, exactly backward Euler. Corotational FEM (the default)
-//! extracts a rotation per element (robust to inverted and flat elements, [`rotation`]),
+//! solve, exactly backward Euler (the product with `K` the right-hand side needs is taken
+//! from the system matrix itself, `h K y = (h / (h beta + h^2)) (A y - G y)` with `G` the
+//! diagonal part, while the fixed nodes sit at rest). Corotational FEM (the default)
+//! extracts a rotation per element (robust to inverted and flat elements, [`rotation`];
+//! eight elements at a time in vector registers),
 //! computes `f_el` with the rotated strain and assembles the warped stiffness `R K R^T` in
 //! place through a scatter map; the system is solved by conjugate gradients warm-started from
 //! the last step's `dv` and preconditioned by the rest-state factorization (the same matrix
