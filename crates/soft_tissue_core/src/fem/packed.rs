@@ -16,6 +16,7 @@ use nalgebra::{Matrix3, Quaternion, UnitQuaternion};
 
 use super::rotation;
 use crate::Vec3;
+use crate::linalg::madd;
 
 /// Elements per pack.
 pub(super) const LANES: usize = 8;
@@ -238,12 +239,6 @@ fn packs_avx2(
     stats: &mut LoopStats,
 ) {
     packs_loop::<true>(packs, args, state, out, stats)
-}
-
-/// `a * b + c`, fused where the kernel is compiled for FMA.
-#[inline(always)]
-fn madd<const FMA: bool>(a: f64, b: f64, c: f64) -> f64 {
-    if FMA { a.mul_add(b, c) } else { a * b + c }
 }
 
 /// Rotation matrix (`r[i][j]`, row `i`, column `j`) of the unit quaternion `(w, x, y, z)`.

@@ -10,6 +10,14 @@ pub use bsr::BlockSparse;
 pub use cholesky::{ScalarCholesky, SparseCholesky};
 pub use pcg::{CgStats, ImplicitSystem};
 
+/// `a * b + c`, fused where the calling kernel is compiled for FMA (the vector kernels of the
+/// substitution and the corotational element loop; without FMA `mul_add` would be a library
+/// call).
+#[inline(always)]
+pub(crate) fn madd<const FMA: bool>(a: f64, b: f64, c: f64) -> f64 {
+    if FMA { a.mul_add(b, c) } else { a * b + c }
+}
+
 /// A failure of the linear algebra, naming the degree of freedom (`3 * node + axis`).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum LinalgError {

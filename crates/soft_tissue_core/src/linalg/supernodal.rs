@@ -12,6 +12,7 @@
 
 use faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky;
 
+use super::madd;
 use crate::Vec3;
 
 /// One supernode: columns `start .. start + width` of `L`, stored column-major with
@@ -196,12 +197,6 @@ fn substitute_avx512(parts: &Parts, x: &mut [f64], tmp: &mut [f64]) {
 #[target_feature(enable = "avx2,fma")]
 fn substitute_avx2(parts: &Parts, x: &mut [f64], tmp: &mut [f64]) {
     substitute::<true>(parts, x, tmp)
-}
-
-/// `a * b + c`, fused where the kernel is compiled for FMA.
-#[inline(always)]
-fn madd<const FMA: bool>(a: f64, b: f64, c: f64) -> f64 {
-    if FMA { a.mul_add(b, c) } else { a * b + c }
 }
 
 /// Dot product with four running sums (so the compiler can keep them in one vector).
