@@ -268,6 +268,18 @@ impl HeatField {
                 }
             }
         }
+        // Nodes no tetrahedron uses (real meshes have them) conduct nothing; a capacity keeps
+        // the matrix definite and their temperature constant.
+        let smallest = capacity
+            .iter()
+            .copied()
+            .filter(|&c| c > 0.0)
+            .fold(f64::INFINITY, f64::min);
+        for c in &mut capacity {
+            if *c <= 0.0 && smallest.is_finite() {
+                *c = smallest;
+            }
+        }
         let mut coupling = Vec::new();
         let mut matrix = Vec::with_capacity(entries.len() + n);
         for &(i, j, k) in &entries {

@@ -1,37 +1,45 @@
 //! Contact between bodies and between tools and bodies.
 //!
 //! - **Surfaces.** Each body has a [`SurfaceCollider`]: its boundary triangles, positions
-//!   gathered from the body each stage, face normals, angle-weighted vertex normals and edge
-//!   pseudo-normals (Baerentzen and Aanaes 2005, so the inside/outside sign is right at edges and
-//!   vertices too), and a bounding-volume hierarchy of the triangles (parry3d's `Bvh`, refitted,
-//!   not rebuilt, when the body moves). parry works in `f32` on glam 0.33; the conversion is
-//!   [`to_parry_aabb`], the only crossing point, which rounds outward so no candidate is lost.
+//!   gathered from the body, the inside/outside test by pseudo-normals (Baerentzen and Aanaes
+//!   2005) made right at non-manifold edges and vertices too (triangles paired through the
+//!   tetrahedra around each edge, one vertex normal per sheet; see [`surface`]'s docs),
+//!   normals computed only where a query lands, and a bounding-volume hierarchy of the
+//!   triangles (parry3d's `Bvh`) whose leaf boxes are grown by a slack so that a move updates
+//!   only the leaves of vertices that left them. parry works in `f32` on glam 0.33; the
+//!   conversion is [`to_parry_aabb`], the only crossing point, which rounds outward so no
+//!   candidate is lost.
 //! - **Broad phase.** Sweep and prune on x over body bounds grown by the search radius
-//!   ([`broad_phase`]); tools test their own bounds against each body's.
-//! - **Narrow phase.** Vertex against triangle, both ways ([`detect_pair`]): each surface
-//!   vertex of one body near the other is projected on the other's nearest triangle (found
-//!   through the hierarchy within [`ContactConfig::search_radius`]); its signed distance from
-//!   the pseudo-normal decides contact. Tools ([`detect_tool`]) are spheres or capsules: every
-//!   triangle near the tool gets its closest point to the tool's core segment.
-//! - **Response** is positional (after the solvers move the bodies): penetrating points are
-//!   moved out along the contact normal, split between the two sides in proportion to their
-//!   inverse masses (so momentum is kept), and the approaching part of the relative normal
-//!   velocity is removed (perfectly inelastic, so contact never adds kinetic energy). A body at
-//!   the cage level has its cage displaced instead (least-norm cage motion that moves the
-//!   points) and is treated as immovable by the other side. The force on a tool is the
-//!   tissue's reaction, estimated from the corrections as `m dx / dt^2` (the force that would
-//!   have made the correction in one step).
+//!   ([`broad_phase`]); tools test their own bounds against each body's. Pairs whose bounds
+//!   do not overlap cost nothing further.
+//! - **Narrow phase.** Vertex against triangle, both ways: each surface vertex of one body
+//!   near the other is projected on the other's nearest triangle (a pruned descent of the
+//!   hierarchy within [`ContactConfig::search_radius`]); its signed distance from the
+//!   pseudo-normal decides contact. Only the [`PairCandidates`] of a pair are projected: the
+//!   vertices that were within the reach plus a slack when the list was built, kept while
+//!   the two bodies have moved less than the slack since ([`SurfaceCollider::travel`]).
+//!   [`detect_pair`] projects every vertex (the reference). Tools ([`detect_tool`]) are
+//!   spheres or capsules: every triangle near the tool gets its closest point to the tool's
+//!   core segment.
+//! - **Response** is positional (after the solvers move the bodies, on the same candidates):
+//!   penetrating points are moved out along the contact normal, split between the two sides
+//!   in proportion to their inverse masses (so momentum is kept), and the approaching part of
+//!   the relative normal velocity is removed (perfectly inelastic, so contact never adds
+//!   kinetic energy). A body at the cage level takes the correction as forces on its cage
+//!   (through the transpose of its coordinates) and is treated as immovable by the other side.
+//!   The force on a tool is the tissue's reaction, estimated from the corrections as
+//!   `m dx / dt^2` (the force that would have made the correction in one step).
 
-use std::collections::HashMap;
+pub mod surface;
+
+pub use surface::{SurfaceCollider, SurfaceHit};
 
 use parry3d::bounding_volume::Aabb as ParryAabb;
 use parry3d::math::Vector as ParryVector;
-use parry3d::partitioning::{Bvh, BvhBuildStrategy, BvhWorkspace};
 use serde::{Deserialize, Serialize};
 
 use crate::Vec3;
 use crate::geometry::{closest_on_segment, closest_on_triangle};
-use crate::mesh::TetMesh;
 
 /// Contact settings, in scene units.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -92,15 +100,14 @@ pub enum ContactError {
         /// Value given.
         value: f64,
     },
-    /// The body's surface is not a closed 2-manifold, so inside and outside are undefined.
-    #[error("body surface edge ({a}, {b}) has {count} triangles (a closed surface has 2)")]
-    OpenSurface {
-        /// Edge end nodes.
-        a: u32,
-        /// Edge end nodes.
-        b: u32,
-        /// Triangles found on it.
-        count: usize,
+    /// A boundary triangle has no partner across one of its edges (a mesh that passed
+    /// validation always has one; this names the triangle if it does not).
+    #[error("surface triangle {triangle}: {reason}")]
+    BadSurface {
+        /// Triangle index (surface order).
+        triangle: usize,
+        /// What is wrong.
+        reason: String,
     },
     /// A tool pose or setting is not finite or out of range.
     #[error("tool `{tool}`: {what} is invalid ({value})")]
@@ -131,247 +138,8 @@ pub fn to_parry_aabb(min: &Vec3, max: &Vec3) -> ParryAabb {
     )
 }
 
-fn bounds_of(points: impl Iterator<Item = Vec3>) -> (Vec3, Vec3) {
-    let mut lo = Vec3::repeat(f64::INFINITY);
-    let mut hi = Vec3::repeat(f64::NEG_INFINITY);
-    for p in points {
-        lo = lo.inf(&p);
-        hi = hi.sup(&p);
-    }
-    (lo, hi)
-}
-
 fn overlaps(a: &(Vec3, Vec3), b: &(Vec3, Vec3), grow: f64) -> bool {
     (0..3).all(|k| a.0[k] - grow <= b.1[k] && b.0[k] - grow <= a.1[k])
-}
-
-/// The closest surface point of a body to a query point.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SurfaceHit {
-    /// Triangle (index into the collider's triangles).
-    pub triangle: u32,
-    /// Barycentric weights of the closest point in the triangle.
-    pub weights: [f64; 3],
-    /// The closest point.
-    pub point: Vec3,
-    /// Signed distance of the query point (negative inside the body).
-    pub distance: f64,
-    /// Unit outward direction at the contact (from the surface toward a point outside).
-    pub normal: Vec3,
-}
-
-/// The boundary of one body for contact (see the module docs).
-pub struct SurfaceCollider {
-    nodes: Vec<u32>,
-    triangles: Vec<[u32; 3]>,
-    /// Neighbour across edge `k` = (`t[k]`, `t[k + 1]`).
-    neighbors: Vec<[u32; 3]>,
-    positions: Vec<Vec3>,
-    face_normals: Vec<Vec3>,
-    vertex_normals: Vec<Vec3>,
-    bounds: (Vec3, Vec3),
-    bvh: Bvh,
-    workspace: BvhWorkspace,
-    geometry_fresh: bool,
-}
-
-impl std::fmt::Debug for SurfaceCollider {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("SurfaceCollider")
-            .field("vertices", &self.nodes.len())
-            .field("triangles", &self.triangles.len())
-            .field("bounds", &self.bounds)
-            .finish()
-    }
-}
-
-impl SurfaceCollider {
-    /// Builds the collider of `mesh`'s boundary at its rest positions. Fails when the boundary
-    /// is not closed (every edge on exactly two triangles).
-    pub fn new(mesh: &TetMesh) -> Result<Self, ContactError> {
-        let surface = mesh.surface();
-        let nodes = surface.vertices().to_vec();
-        let triangles = surface.local_triangles().to_vec();
-        let mut edges: HashMap<(u32, u32), Vec<(u32, u8)>> = HashMap::new();
-        for (t, tri) in triangles.iter().enumerate() {
-            for k in 0..3 {
-                let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                edges
-                    .entry((a.min(b), a.max(b)))
-                    .or_default()
-                    .push((t as u32, k as u8));
-            }
-        }
-        let mut neighbors = vec![[u32::MAX; 3]; triangles.len()];
-        let mut keys: Vec<_> = edges.keys().copied().collect();
-        keys.sort_unstable();
-        for key in keys {
-            let list = &edges[&key];
-            if list.len() != 2 {
-                return Err(ContactError::OpenSurface {
-                    a: nodes[key.0 as usize],
-                    b: nodes[key.1 as usize],
-                    count: list.len(),
-                });
-            }
-            let (t0, k0) = list[0];
-            let (t1, k1) = list[1];
-            neighbors[t0 as usize][k0 as usize] = t1;
-            neighbors[t1 as usize][k1 as usize] = t0;
-        }
-        let positions: Vec<Vec3> = nodes
-            .iter()
-            .map(|&i| mesh.positions()[i as usize])
-            .collect();
-        let leaves: Vec<ParryAabb> = triangles
-            .iter()
-            .map(|t| {
-                let b = bounds_of(t.iter().map(|&i| positions[i as usize]));
-                to_parry_aabb(&b.0, &b.1)
-            })
-            .collect();
-        let bvh = Bvh::from_leaves(BvhBuildStrategy::Binned, &leaves);
-        let n = positions.len();
-        let nt = triangles.len();
-        let mut collider = SurfaceCollider {
-            bounds: bounds_of(positions.iter().copied()),
-            nodes,
-            triangles,
-            neighbors,
-            positions,
-            face_normals: vec![Vec3::zeros(); nt],
-            vertex_normals: vec![Vec3::zeros(); n],
-            bvh,
-            workspace: BvhWorkspace::default(),
-            geometry_fresh: false,
-        };
-        collider.refresh();
-        Ok(collider)
-    }
-
-    /// Mesh node of each surface vertex.
-    pub fn nodes(&self) -> &[u32] {
-        &self.nodes
-    }
-
-    /// Triangles, as indices into [`SurfaceCollider::nodes`].
-    pub fn triangles(&self) -> &[[u32; 3]] {
-        &self.triangles
-    }
-
-    /// Surface positions as last gathered.
-    pub fn positions(&self) -> &[Vec3] {
-        &self.positions
-    }
-
-    /// Bounds of the surface as last gathered.
-    pub fn bounds(&self) -> (Vec3, Vec3) {
-        self.bounds
-    }
-
-    /// Copies the surface positions from the body's node positions and updates the bounds;
-    /// normals and the hierarchy are refreshed on the next query.
-    pub fn gather(&mut self, node_positions: &[Vec3]) {
-        for (p, &i) in self.positions.iter_mut().zip(&self.nodes) {
-            *p = node_positions[i as usize];
-        }
-        self.bounds = bounds_of(self.positions.iter().copied());
-        self.geometry_fresh = false;
-    }
-
-    /// Normals and hierarchy for the current positions (no-op when up to date).
-    pub fn refresh(&mut self) {
-        if self.geometry_fresh {
-            return;
-        }
-        self.vertex_normals.fill(Vec3::zeros());
-        for (t, tri) in self.triangles.iter().enumerate() {
-            let p = tri.map(|i| self.positions[i as usize]);
-            let n = (p[1] - p[0]).cross(&(p[2] - p[0]));
-            let len = n.norm();
-            let unit = if len > 0.0 { n / len } else { Vec3::zeros() };
-            self.face_normals[t] = unit;
-            for k in 0..3 {
-                let e1 = p[(k + 1) % 3] - p[k];
-                let e2 = p[(k + 2) % 3] - p[k];
-                let denom = e1.norm() * e2.norm();
-                if denom > 0.0 {
-                    let angle = (e1.dot(&e2) / denom).clamp(-1.0, 1.0).acos();
-                    self.vertex_normals[tri[k] as usize] += unit * angle;
-                }
-            }
-            let b = bounds_of(p.into_iter());
-            self.bvh
-                .insert_or_update_partially(to_parry_aabb(&b.0, &b.1), t as u32, 0.0);
-        }
-        self.bvh.refit(&mut self.workspace);
-        self.geometry_fresh = true;
-    }
-
-    /// Closest surface point to `p` within `radius`, with its signed distance (negative
-    /// inside) from the pseudo-normal of the closest feature. `None` when no triangle is that
-    /// close. Call [`SurfaceCollider::refresh`] after [`SurfaceCollider::gather`] first.
-    pub fn closest(&self, p: &Vec3, radius: f64) -> Option<SurfaceHit> {
-        let r = Vec3::repeat(radius);
-        let query = to_parry_aabb(&(p - r), &(p + r));
-        let mut best: Option<(f64, u32, [f64; 3], Vec3)> = None;
-        for t in self.bvh.intersect_aabb(&query) {
-            let tri = self.triangles[t as usize];
-            let [a, b, c] = tri.map(|i| self.positions[i as usize]);
-            let w = closest_on_triangle(p, &a, &b, &c);
-            let q = a * w[0] + b * w[1] + c * w[2];
-            let d2 = (p - q).norm_squared();
-            let better = match best {
-                None => true,
-                Some((bd, bt, _, _)) => d2 < bd || (d2 == bd && t < bt),
-            };
-            if better {
-                best = Some((d2, t, w, q));
-            }
-        }
-        let (d2, t, w, q) = best?;
-        let d = d2.sqrt();
-        if d > radius {
-            return None;
-        }
-        let pseudo = self.pseudo_normal(t as usize, &w);
-        let offset = p - q;
-        let sign = if offset.dot(&pseudo) < 0.0 { -1.0 } else { 1.0 };
-        let normal = if d > 1e-12 * (1.0 + q.norm()) {
-            offset * (sign / d)
-        } else {
-            pseudo
-                .try_normalize(0.0)
-                .unwrap_or(self.face_normals[t as usize])
-        };
-        Some(SurfaceHit {
-            triangle: t,
-            weights: w,
-            point: q,
-            distance: sign * d,
-            normal,
-        })
-    }
-
-    fn pseudo_normal(&self, t: usize, w: &[f64; 3]) -> Vec3 {
-        let tri = self.triangles[t];
-        let zeros = w.iter().filter(|&&x| x == 0.0).count();
-        match zeros {
-            0 => self.face_normals[t],
-            1 => {
-                // On the edge opposite the zero weight: edge k = (t[k], t[k+1]) with the zero
-                // at k + 2.
-                let z = w.iter().position(|&x| x == 0.0).unwrap_or(0);
-                let k = (z + 1) % 3;
-                let nb = self.neighbors[t][k] as usize;
-                self.face_normals[t] + self.face_normals[nb]
-            }
-            _ => {
-                let v = w.iter().position(|&x| x != 0.0).unwrap_or(0);
-                self.vertex_normals[tri[v] as usize]
-            }
-        }
-    }
 }
 
 /// Shape of a tool's tip.
@@ -695,8 +463,119 @@ pub fn broad_phase(
     out.sort_unstable();
 }
 
-/// Vertices of `a` against the surface of `b` (call both ways for a pair). Appends contacts
-/// closer than `thickness + margin` (depth > -margin). Both colliders must be refreshed.
+/// The body-body reach of a narrow phase with `margin`: the deepest penetration looked for,
+/// or the contact distance when that is larger.
+pub fn pair_reach(config: &ContactConfig, margin: f64) -> f64 {
+    config.search_radius.max(config.thickness + margin)
+}
+
+/// The surface vertices of two bodies that may touch, kept from step to step.
+///
+/// A vertex of `a` is a candidate when it was within `reach + slack` of `b`'s surface (and
+/// the other way round) when the list was built. The unsigned distance between a vertex and a
+/// surface changes by at most how far the two moved, so while the two colliders'
+/// [`SurfaceCollider::travel`] grew by less than `slack` together, every vertex within
+/// `reach` of the other body is in the list: the narrow phase then looks at the candidates
+/// only, in detection and again in the response after the solvers. The list is rebuilt when
+/// the travel exceeds the slack, or when either body is a different one (identified by
+/// [`SurfaceCollider::id`]).
+#[derive(Debug, Clone, Default)]
+pub struct PairCandidates {
+    ids: (u64, u64),
+    travel: (f64, f64),
+    slack: f64,
+    reach: f64,
+    valid: bool,
+    /// Candidate vertices of `a` (near `b`) and of `b` (near `a`), collider indices.
+    near: [Vec<u32>; 2],
+    rebuilds: u64,
+}
+
+impl PairCandidates {
+    /// Makes the lists valid for the colliders' current positions, rebuilding them when they
+    /// are stale. `reach` is the narrow phase's reach ([`pair_reach`]), `slack` how much the
+    /// two bodies may move before the lists are rebuilt.
+    pub fn update(&mut self, a: &SurfaceCollider, b: &SurfaceCollider, reach: f64, slack: f64) {
+        let moved = (a.travel() - self.travel.0) + (b.travel() - self.travel.1);
+        let fresh = self.valid
+            && self.ids == (a.id(), b.id())
+            && reach <= self.reach
+            && moved <= self.slack;
+        if fresh {
+            return;
+        }
+        let radius = reach + slack;
+        for (list, (x, y)) in self.near.iter_mut().zip([(a, b), (b, a)]) {
+            list.clear();
+            let (lo, hi) = y.bounds();
+            let grow = Vec3::repeat(radius);
+            let (lo, hi) = (lo - grow, hi + grow);
+            for (v, p) in x.positions().iter().enumerate() {
+                if (0..3).any(|k| !(p[k] >= lo[k] && p[k] <= hi[k])) {
+                    continue;
+                }
+                if y.within(p, radius) {
+                    list.push(v as u32);
+                }
+            }
+        }
+        self.ids = (a.id(), b.id());
+        self.travel = (a.travel(), b.travel());
+        self.slack = slack;
+        self.reach = reach;
+        // A body with non-finite positions has infinite travel: never trust a list then.
+        self.valid = self.travel.0.is_finite() && self.travel.1.is_finite();
+        self.rebuilds += 1;
+    }
+
+    /// Candidate vertices of `a` near `b` (`side` 0) or of `b` near `a` (`side` 1).
+    pub fn near(&self, side: usize) -> &[u32] {
+        &self.near[side]
+    }
+
+    /// How many times the lists were built.
+    pub fn rebuilds(&self) -> u64 {
+        self.rebuilds
+    }
+}
+
+/// Candidate vertices `candidates` of `a` against the surface of `b`: appends contacts
+/// closer than `thickness + margin` (depth > -margin) found within `reach` ([`pair_reach`]).
+#[allow(clippy::too_many_arguments)]
+pub fn detect_candidates(
+    ia: u32,
+    a: &SurfaceCollider,
+    candidates: &[u32],
+    ib: u32,
+    b: &SurfaceCollider,
+    config: &ContactConfig,
+    margin: f64,
+    out: &mut Vec<BodyContact>,
+) {
+    let reach = pair_reach(config, margin);
+    for &v in candidates {
+        let p = a.positions()[v as usize];
+        let Some(hit) = b.closest(&p, reach) else {
+            continue;
+        };
+        let depth = config.thickness - hit.distance;
+        if depth > -margin {
+            out.push(BodyContact {
+                a: ia,
+                vertex: v,
+                b: ib,
+                vertices: b.triangles()[hit.triangle as usize],
+                weights: hit.weights,
+                normal: hit.normal,
+                depth,
+            });
+        }
+    }
+}
+
+/// Every vertex of `a` against the surface of `b` (call both ways for a pair). Appends
+/// contacts closer than `thickness + margin` (depth > -margin). The reference the cached
+/// narrow phase ([`PairCandidates`], [`detect_candidates`]) is checked against.
 pub fn detect_pair(
     ia: u32,
     a: &SurfaceCollider,
@@ -706,11 +585,11 @@ pub fn detect_pair(
     margin: f64,
     out: &mut Vec<BodyContact>,
 ) {
-    let reach = config.search_radius.max(config.thickness + margin);
-    let (lo, hi) = b.bounds;
+    let reach = pair_reach(config, margin);
+    let (lo, hi) = b.bounds();
     let grow = Vec3::repeat(reach);
     let (lo, hi) = (lo - grow, hi + grow);
-    for (v, p) in a.positions.iter().enumerate() {
+    for (v, p) in a.positions().iter().enumerate() {
         if (0..3).any(|k| p[k] < lo[k] || p[k] > hi[k]) {
             continue;
         }
@@ -723,7 +602,7 @@ pub fn detect_pair(
                 a: ia,
                 vertex: v as u32,
                 b: ib,
-                vertices: b.triangles[hit.triangle as usize],
+                vertices: b.triangles()[hit.triangle as usize],
                 weights: hit.weights,
                 normal: hit.normal,
                 depth,
@@ -749,27 +628,26 @@ fn triangle_segment_closest(tri: &[Vec3; 3], s0: &Vec3, s1: &Vec3) -> ([f64; 3],
     (w, q, s)
 }
 
-/// Triangles of `body` within the tool's radius plus `margin`. The collider must be refreshed.
+/// Triangles of `body` within the tool's radius plus `margin`; `triangles` is a workspace.
 pub fn detect_tool(
     it: u32,
     tool: &Tool,
     ib: u32,
     body: &SurfaceCollider,
     margin: f64,
+    triangles: &mut Vec<u32>,
     out: &mut Vec<ToolContact>,
 ) {
     let (lo, hi) = tool.bounds(margin);
-    if !overlaps(&(lo, hi), &body.bounds, 0.0) {
+    if !overlaps(&(lo, hi), &body.bounds(), 0.0) {
         return;
     }
     let (s0, s1) = tool.core();
     let radius = tool.shape.radius();
-    let query = to_parry_aabb(&lo, &hi);
-    let mut found: Vec<u32> = body.bvh.intersect_aabb(&query).collect();
-    found.sort_unstable();
-    for t in found {
-        let tri_idx = body.triangles[t as usize];
-        let tri = tri_idx.map(|i| body.positions[i as usize]);
+    body.triangles_in(&lo, &hi, triangles);
+    for &t in triangles.iter() {
+        let tri_idx = body.triangles()[t as usize];
+        let tri = tri_idx.map(|i| body.positions()[i as usize]);
         let (w, q, s) = triangle_segment_closest(&tri, &s0, &s1);
         let d = (q - s).norm();
         let depth = radius - d;
@@ -777,7 +655,7 @@ pub fn detect_tool(
             let normal = if d > 1e-12 * (1.0 + q.norm()) {
                 (q - s) / d
             } else {
-                body.face_normals[t as usize]
+                body.face_normal(t as usize)
             };
             out.push(ToolContact {
                 tool: it,
@@ -796,14 +674,14 @@ pub fn detect_tool(
 pub fn grab_vertices(tool: &Tool, ib: u32, body: &SurfaceCollider, margin: f64) -> Vec<Grip> {
     let (s0, s1) = tool.core();
     let reach = tool.shape.radius() + margin;
-    body.positions
+    body.positions()
         .iter()
         .enumerate()
         .filter_map(|(v, p)| {
             let s = s0 + (s1 - s0) * closest_on_segment(p, &s0, &s1);
             ((p - s).norm() <= reach).then(|| Grip {
                 body: ib,
-                node: body.nodes[v],
+                node: body.nodes()[v],
                 offset: p - tool.position,
             })
         })

@@ -300,13 +300,31 @@ pub struct ShadowError {
 /// Most fixed-point iterations of the cage fits (they stop earlier once converged).
 const MAX_FIT_ITERATIONS: usize = 100;
 
-/// The cage body of the settings' kind around `nodes` (surface `triangles` for fitted cages),
-/// embedding every node.
+/// Node positions for the cage: nodes no tetrahedron uses (real meshes have them; they carry
+/// no physics) stand at a used node's place, so they neither stretch the cage nor fall
+/// outside it.
+fn cage_points(mesh: &TetMesh, positions: &[Vec3]) -> Vec<Vec3> {
+    let used = |i: usize| !mesh.node_tets(i).is_empty();
+    let mut points = positions.to_vec();
+    if let Some(stand_in) = (0..points.len()).find(|&i| used(i)) {
+        for i in 0..points.len() {
+            if !used(i) {
+                points[i] = positions[stand_in];
+            }
+        }
+    }
+    points
+}
+
+/// The cage body of the settings' kind around the nodes of `mesh` at `positions` (its surface
+/// for fitted cages), embedding every node (see [`cage_points`]).
 fn build_cage(
-    nodes: &[Vec3],
-    triangles: &[[u32; 3]],
+    mesh: &TetMesh,
+    positions: &[Vec3],
     settings: &BodySettings,
 ) -> Result<CageBody, PrecisionError> {
+    let nodes = &cage_points(mesh, positions)[..];
+    let triangles = mesh.surface().triangles();
     let options = FitOptions::for_points(
         nodes,
         match settings.cage {
@@ -380,7 +398,7 @@ impl LeveledBody {
     /// starts at rest at the cage level.
     pub fn new(mesh: &TetMesh, settings: BodySettings) -> Result<Self, PrecisionError> {
         let nodes = mesh.positions();
-        let cage = build_cage(nodes, mesh.surface().triangles(), &settings)?;
+        let cage = build_cage(mesh, nodes, &settings)?;
         let precise = build_precise(mesh, &settings)?;
         let surface = mesh.surface().vertices().to_vec();
         let fit = Self::build_fit(cage.coordinates(), &surface)?;
@@ -1069,7 +1087,7 @@ impl LeveledBody {
         // The cage is rebuilt around the settled shape, which it then reproduces exactly at
         // rest: the settled shape is the cage level's rest state and the initial state.
         let settled = self.precise.body().positions().to_vec();
-        let cage = build_cage(&settled, mesh.surface().triangles(), &self.settings)?;
+        let cage = build_cage(mesh, &settled, &self.settings)?;
         self.install_cage(cage)?;
         self.level = Level::Cage;
         self.pin = pin;

@@ -21,9 +21,11 @@
 //!
 //! Everything runs on one thread in index order, so a run is bit-for-bit repeatable.
 
+mod contact_stages;
 mod scene;
 mod script;
 
+pub use contact_stages::{ContactState, collide, detect_contacts};
 pub use scene::{SceneBody, body_settings, load_mesh, placed_mesh, scene_bodies};
 pub use script::{Script, ScriptAction, ScriptError, ScriptEvent, Waypoint};
 
@@ -32,10 +34,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use crate::Vec3;
-use crate::contact::{
-    BodyContact, ContactConfig, ContactError, SurfaceCollider, Tool, ToolContact, broad_phase,
-    detect_pair, detect_tool, grab_vertices, tool_distance,
-};
+use crate::contact::{ContactConfig, ContactError, SurfaceCollider, Tool, ToolContact};
 use crate::heat::{HeatBoundary, HeatError, HeatField, HeatParams};
 use crate::mesh::TetMesh;
 use crate::precision::{
@@ -173,15 +172,6 @@ impl StageTimes {
     }
 }
 
-/// Fraction of a body-body penetration corrected per step. Correcting all of it at once (a
-/// full projection) pushes the contact layers apart faster than the solvers can follow and
-/// adds elastic energy (+4.7 % in the colliding-blocks test); half per step removes the
-/// overlap within a few steps and the collision then gains no energy.
-const RELAX: f64 = 0.5;
-
-/// Jacobi rounds of the tool response per step.
-const TOOL_ROUNDS: usize = 3;
-
 /// Most precise steps [`SimBody::new`] spends settling a body under gravity.
 pub const SETTLE_STEPS: u32 = 5000;
 
@@ -202,6 +192,8 @@ pub struct SimBody {
     active: bool,
     correction: Vec<Vec3>,
     weight: Vec<f64>,
+    /// Nodes with a correction pending (weight above zero).
+    corrected: Vec<u32>,
     /// The surface was last written while the body slept (nothing to write again).
     written_asleep: bool,
 }
@@ -234,7 +226,6 @@ impl SimBody {
             source,
         })?;
         collider.gather(body.node_positions());
-        collider.refresh();
         let heat = match heat {
             Some((params, boundary)) => Some(
                 HeatField::new(&mesh, params, dt, &boundary).map_err(|source| {
@@ -274,6 +265,7 @@ impl SimBody {
             active: false,
             correction: vec![Vec3::zeros(); n],
             weight: vec![0.0; n],
+            corrected: Vec::with_capacity(n),
             written_asleep: false,
         };
         b.write_surface();
@@ -426,21 +418,6 @@ fn max_of(v: &[f64]) -> f64 {
     v.iter().copied().fold(f64::NEG_INFINITY, f64::max)
 }
 
-/// Contacts and pairs of the current step (kept between stages, reused between steps).
-#[derive(Debug, Default)]
-pub struct ContactState {
-    /// Body pairs whose grown bounds overlap.
-    pub pairs: Vec<(u32, u32)>,
-    /// Tool contacts at the start of the step.
-    pub tool_contacts: Vec<ToolContact>,
-    /// Body contacts at the start of the step.
-    pub body_contacts: Vec<BodyContact>,
-    bounds: Vec<(Vec3, Vec3)>,
-    order: Vec<u32>,
-    scratch: Vec<BodyContact>,
-    tool_scratch: Vec<ToolContact>,
-}
-
 /// Prepare: tool velocities over `dt`, surfaces gathered from the bodies.
 pub fn prepare<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
     bodies: &mut [B],
@@ -460,136 +437,6 @@ pub fn prepare<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
         b.contacts = 0;
         b.active = false;
     }
-}
-
-/// Detect contacts on the positions at the start of the step (margins included) and resolve
-/// pending grabs; marks touched bodies.
-pub fn detect_contacts<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
-    bodies: &mut [B],
-    tools: &mut [T],
-    config: &ContactConfig,
-    state: &mut ContactState,
-) {
-    state.bounds.clear();
-    state
-        .bounds
-        .extend(bodies.iter().map(|b| b.borrow().collider.bounds()));
-    let grow = 0.5
-        * config
-            .search_radius
-            .max(config.thickness + config.body_margin);
-    broad_phase(&state.bounds, grow, &mut state.order, &mut state.pairs);
-    state.tool_contacts.clear();
-    state.body_contacts.clear();
-    // Tools.
-    for (it, tool) in tools.iter_mut().enumerate() {
-        let tool = tool.borrow_mut();
-        let (lo, hi) = tool.bounds(config.tool_margin);
-        for (ib, b) in bodies.iter_mut().enumerate() {
-            let b = b.borrow_mut();
-            let (blo, bhi) = b.collider.bounds();
-            if (0..3).any(|k| lo[k] > bhi[k] || blo[k] > hi[k]) {
-                continue;
-            }
-            b.collider.refresh();
-            b.active = true;
-            let before = state.tool_contacts.len();
-            detect_tool(
-                it as u32,
-                tool,
-                ib as u32,
-                &b.collider,
-                config.tool_margin,
-                &mut state.tool_contacts,
-            );
-            let found = (state.tool_contacts.len() - before) as u32;
-            if found > 0 {
-                b.touched = true;
-                b.contacts += found;
-            }
-        }
-        if tool.grab_requested() {
-            // The nearest body under the tip.
-            let mut best: Option<(f64, usize)> = None;
-            for (ib, b) in bodies.iter().enumerate() {
-                let b = b.borrow();
-                for p in b.collider.positions() {
-                    let d = tool_distance(tool, p).0;
-                    if d <= config.tool_margin && best.is_none_or(|(bd, _)| d < bd) {
-                        best = Some((d, ib));
-                    }
-                }
-            }
-            let grips = match best {
-                Some((_, ib)) => grab_vertices(
-                    tool,
-                    ib as u32,
-                    &bodies[ib].borrow().collider,
-                    config.tool_margin,
-                ),
-                None => Vec::new(),
-            };
-            tool.take_grips(grips);
-        }
-        for g in tool.grips() {
-            let b = bodies[g.body as usize].borrow_mut();
-            b.touched = true;
-            b.active = true;
-        }
-    }
-    // Body pairs.
-    for &(i, j) in &state.pairs {
-        let (bi, bj) = pair_mut(bodies, i as usize, j as usize);
-        if bi.body.level() == Level::Cage && bj.body.level() == Level::Cage {
-            // Resting cages have no contact response and do not wake each other: nothing to
-            // find, so a resting scene pays nothing here.
-            continue;
-        }
-        bi.collider.refresh();
-        bj.collider.refresh();
-        bi.active = true;
-        bj.active = true;
-        let before = state.body_contacts.len();
-        detect_pair(
-            i,
-            &bi.collider,
-            j,
-            &bj.collider,
-            config,
-            config.body_margin,
-            &mut state.body_contacts,
-        );
-        detect_pair(
-            j,
-            &bj.collider,
-            i,
-            &bi.collider,
-            config,
-            config.body_margin,
-            &mut state.body_contacts,
-        );
-        let found = (state.body_contacts.len() - before) as u32;
-        if found > 0 {
-            // Bodies resting against each other (organs do, in the paper's scene) do not
-            // count as touching: a pair counts while one side is precise and still moving.
-            if bi.moving() || bj.moving() {
-                bi.touched = true;
-                bj.touched = true;
-            }
-            bi.contacts += found;
-            bj.contacts += found;
-        }
-    }
-}
-
-fn pair_mut<B: BorrowMut<SimBody>>(
-    bodies: &mut [B],
-    i: usize,
-    j: usize,
-) -> (&mut SimBody, &mut SimBody) {
-    debug_assert!(i < j);
-    let (lo, hi) = bodies.split_at_mut(j);
-    (lo[i].borrow_mut(), hi[0].borrow_mut())
 }
 
 /// Raise every touched body to its precise method (before the contact is resolved).
@@ -657,318 +504,6 @@ pub fn step_solvers<B: BorrowMut<SimBody>, T: Borrow<Tool>>(
         b.diagnostics.step_us = start.elapsed().as_secs_f64() * 1e6;
     }
     Ok(())
-}
-
-/// Inverse mass of a node for contact (0 when fixed or when its body is at the cage level).
-fn inverse_mass(b: &SimBody, node: usize) -> f64 {
-    if b.body.level() == Level::Cage {
-        return 0.0;
-    }
-    let p = b.body.precise();
-    if p.fixed()[node].iter().any(|&f| f) {
-        return 0.0;
-    }
-    1.0 / p.masses()[node]
-}
-
-/// Contact response on the positions after the solvers, grips, reaction forces.
-pub fn collide<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
-    bodies: &mut [B],
-    tools: &mut [T],
-    config: &ContactConfig,
-    state: &mut ContactState,
-    dt: f64,
-) -> Result<(), WorldError> {
-    for b in bodies.iter_mut() {
-        let b = b.borrow_mut();
-        if b.active {
-            b.collider.gather(b.body.node_positions());
-            b.collider.refresh();
-        }
-    }
-    // Body against body: Jacobi average of the mass-weighted splits.
-    for &(i, j) in &state.pairs {
-        let (bi, bj) = pair_mut(bodies, i as usize, j as usize);
-        if bi.body.level() == Level::Cage && bj.body.level() == Level::Cage {
-            continue;
-        }
-        state.scratch.clear();
-        detect_pair(
-            i,
-            &bi.collider,
-            j,
-            &bj.collider,
-            config,
-            0.0,
-            &mut state.scratch,
-        );
-        detect_pair(
-            j,
-            &bj.collider,
-            i,
-            &bi.collider,
-            config,
-            0.0,
-            &mut state.scratch,
-        );
-        for c in &state.scratch {
-            let (a, b) = if c.a == i {
-                (&mut *bi, &mut *bj)
-            } else {
-                (&mut *bj, &mut *bi)
-            };
-            resolve_body_contact(a, b, c, dt);
-        }
-    }
-    for b in bodies.iter_mut() {
-        apply_corrections(b.borrow_mut(), None, dt)?;
-    }
-    // Tools: every surface vertex inside a tool goes to its surface and every triangle
-    // crossing it is pushed out as a whole, a few Jacobi rounds on fresh positions.
-    for (it, tool) in tools.iter_mut().enumerate() {
-        let tool = tool.borrow_mut();
-        let (lo, hi) = tool.bounds(0.0);
-        for (ib, b) in bodies.iter_mut().enumerate() {
-            let b = b.borrow_mut();
-            let (blo, bhi) = b.collider.bounds();
-            if (0..3).any(|k| lo[k] > bhi[k] || blo[k] > hi[k]) {
-                continue;
-            }
-            for round in 0..TOOL_ROUNDS {
-                if round > 0 {
-                    b.collider.gather(b.body.node_positions());
-                    b.collider.refresh();
-                }
-                let mut touched = 0u32;
-                for (v, p) in b.collider.positions().iter().enumerate() {
-                    let (d, n) = tool_distance(tool, p);
-                    if d < 0.0 {
-                        let node = b.collider.nodes()[v] as usize;
-                        b.correction[node] += -d * n;
-                        b.weight[node] += 1.0;
-                        touched += 1;
-                    }
-                }
-                state.tool_scratch.clear();
-                detect_tool(
-                    it as u32,
-                    tool,
-                    ib as u32,
-                    &b.collider,
-                    0.0,
-                    &mut state.tool_scratch,
-                );
-                for c in &state.tool_scratch {
-                    if c.depth <= 0.0 {
-                        continue;
-                    }
-                    touched += 1;
-                    let ids = c.vertices.map(|v| b.collider.nodes()[v as usize] as usize);
-                    let denom: f64 = ids
-                        .iter()
-                        .zip(&c.weights)
-                        .map(|(&n, w)| w * w * inverse_mass_or_one(b, n))
-                        .sum();
-                    if denom <= 0.0 {
-                        continue;
-                    }
-                    for (&n, w) in ids.iter().zip(&c.weights) {
-                        let s = w * inverse_mass_or_one(b, n) / denom;
-                        b.correction[n] += c.normal * (c.depth * s);
-                        b.weight[n] += 1.0;
-                    }
-                }
-                if touched == 0 {
-                    break;
-                }
-                if round == 0 {
-                    tool.add_contacts(touched);
-                }
-                let reaction = apply_corrections(b, Some(tool.velocity()), dt)?;
-                tool.add_reaction(-reaction);
-            }
-            b.collider.gather(b.body.node_positions());
-        }
-        // Grips follow the tool.
-        let grips = tool.grips().to_vec();
-        for g in &grips {
-            let b = bodies[g.body as usize].borrow_mut();
-            let node = g.node as usize;
-            let target = tool.position() + g.offset;
-            let x = b.body.node_positions()[node];
-            b.correction[node] += target - x;
-            b.weight[node] += 1.0;
-        }
-        let mut seen: Vec<u32> = grips.iter().map(|g| g.body).collect();
-        seen.dedup();
-        for ib in seen {
-            let b = bodies[ib as usize].borrow_mut();
-            let reaction = apply_corrections(b, Some(tool.velocity()), dt)?;
-            tool.add_reaction(-reaction);
-        }
-    }
-    Ok(())
-}
-
-fn inverse_mass_or_one(b: &SimBody, node: usize) -> f64 {
-    match b.body.level() {
-        Level::Cage => 1.0,
-        Level::Precise => inverse_mass(b, node),
-    }
-}
-
-/// Splits one vertex-triangle correction between the two bodies by inverse mass, removes the
-/// approaching relative normal velocity (an inelastic impulse), and maps what a cage-level side
-/// receives onto its cage as a force.
-fn resolve_body_contact(a: &mut SimBody, b: &mut SimBody, c: &BodyContact, dt: f64) {
-    if c.depth <= 0.0 {
-        return;
-    }
-    let pa = a.collider.nodes()[c.vertex as usize] as usize;
-    let tb = c.vertices.map(|v| b.collider.nodes()[v as usize] as usize);
-    let wa = inverse_mass(a, pa);
-    let wb: f64 = tb
-        .iter()
-        .zip(&c.weights)
-        .map(|(&n, w)| w * w * inverse_mass(b, n))
-        .sum();
-    let n = c.normal;
-    if a.body.level() == Level::Cage && b.body.level() == Level::Cage {
-        // Two cages resting against each other: the cheap level has no contact response.
-        return;
-    }
-    if wa + wb <= 0.0 {
-        // Both sides immovable here (cage level or fixed): push the cages apart instead.
-        let k = 0.5 / (dt * dt);
-        let ma = a.body.precise().masses()[pa];
-        if a.body.level() == Level::Cage {
-            let _ = a.body.add_force(pa, n * (c.depth * ma * k));
-        }
-        if b.body.level() == Level::Cage {
-            for (&nb, w) in tb.iter().zip(&c.weights) {
-                let _ = b.body.add_force(nb, -n * (c.depth * ma * k * w));
-            }
-        }
-        return;
-    }
-    let lambda = RELAX * c.depth / (wa + wb);
-    if wa > 0.0 {
-        a.correction[pa] += n * (lambda * wa);
-        a.weight[pa] += 1.0;
-    }
-    for (&nb, w) in tb.iter().zip(&c.weights) {
-        let wi = inverse_mass(b, nb);
-        if wi > 0.0 {
-            b.correction[nb] -= n * (lambda * w * wi);
-            b.weight[nb] += 1.0;
-        }
-    }
-    // Inelastic normal impulse.
-    let va = if wa > 0.0 {
-        a.body.precise().velocities()[pa]
-    } else {
-        Vec3::zeros()
-    };
-    let vb: Vec3 = if wb > 0.0 {
-        let v = b.body.precise().velocities();
-        tb.iter().zip(&c.weights).map(|(&nb, w)| v[nb] * *w).sum()
-    } else {
-        Vec3::zeros()
-    };
-    let vn = (va - vb).dot(&n);
-    if vn < 0.0 {
-        let j = -vn / (wa + wb);
-        if wa > 0.0 {
-            a.body.precise_mut().velocities_mut()[pa] += n * (j * wa);
-        } else if a.body.level() == Level::Cage {
-            let _ = a.body.add_force(pa, -n * (j / dt));
-        }
-        if wb > 0.0 {
-            let inv: [f64; 3] = tb.map(|nb| inverse_mass(b, nb));
-            let v = b.body.precise_mut().velocities_mut();
-            for ((&nb, w), wi) in tb.iter().zip(&c.weights).zip(inv) {
-                v[nb] -= n * (j * w * wi);
-            }
-        } else if b.body.level() == Level::Cage {
-            for (&nb, w) in tb.iter().zip(&c.weights) {
-                let _ = b.body.add_force(nb, n * (j * w / dt));
-            }
-        }
-    }
-}
-
-/// Applies the averaged corrections gathered in a body's workspace. With a tool velocity, the
-/// approach toward the tool along each correction is removed. Returns `sum m dx / dt^2`, the
-/// force the corrections stand for (on the body). Clears the workspace.
-fn apply_corrections(
-    b: &mut SimBody,
-    tool_velocity: Option<Vec3>,
-    dt: f64,
-) -> Result<Vec3, WorldError> {
-    let mut force = Vec3::zeros();
-    // Only bodies the contact stage looked at (pairs, tools, grips) can hold corrections.
-    if !b.active || !b.weight.iter().any(|&w| w > 0.0) {
-        return Ok(force);
-    }
-    match b.body.level() {
-        Level::Precise => {
-            // One mutable borrow of the node state: positions, velocities, masses and fixed
-            // axes side by side, without copies.
-            let nodes = b.body.precise_mut().nodes_mut();
-            for i in 0..b.weight.len() {
-                let w = b.weight[i];
-                if w <= 0.0 {
-                    continue;
-                }
-                let mut dx = b.correction[i] / w;
-                for k in 0..3 {
-                    if nodes.fixed[i][k] {
-                        dx[k] = 0.0;
-                    }
-                }
-                nodes.x[i] += dx;
-                force += dx * (nodes.mass[i] / (dt * dt));
-                if let (Some(vt), Some(dir)) = (tool_velocity, dx.try_normalize(0.0)) {
-                    let v = &mut nodes.v[i];
-                    let vn = (*v - vt).dot(&dir);
-                    if vn < 0.0 {
-                        *v -= dir * vn;
-                    }
-                }
-                if !nodes.x[i].iter().all(|x| x.is_finite()) {
-                    return Err(WorldError::NonFinite {
-                        body: b.name.clone(),
-                        node: i,
-                        stage: "collide",
-                    });
-                }
-            }
-        }
-        Level::Cage => {
-            // The cage level takes contact as forces through the coordinates' transpose (the
-            // paper's mapping): the force that would move each corrected node by its
-            // correction in one step, spread on the cage vertices by their coordinates. (A
-            // least-squares displacement of the cage with the face terms held fixed amplifies
-            // a few nearby contact points into large cage motions.)
-            for (i, &w) in b.weight.iter().enumerate() {
-                if w > 0.0 {
-                    let m = b.body.precise().masses()[i];
-                    let f = b.correction[i] / w * (m / (dt * dt));
-                    force += f;
-                    b.body.add_shadow_force(i, f);
-                    b.body.cage_mut().apply_point_force(i, f).map_err(|e| {
-                        WorldError::Precision {
-                            body: b.name.clone(),
-                            source: e.into(),
-                        }
-                    })?;
-                }
-            }
-        }
-    }
-    b.correction.fill(Vec3::zeros());
-    b.weight.fill(0.0);
-    Ok(force)
 }
 
 /// Writes the surfaces and diagnostics of every body.
