@@ -2,6 +2,7 @@
 //! generation, scene files, cages, benchmarks, headless simulation).
 
 mod haptics_bench;
+mod realtime;
 mod report;
 mod simulate;
 
@@ -466,12 +467,13 @@ fn bench(args: &BenchArgs) -> Res {
             machine["profile"].as_str().unwrap_or("?")
         );
         println!(
-            "{:<18} {:>7} {:>10} {:>10} {:>10} {:>10} {:>8} {:>9} {:>8}",
+            "{:<18} {:>7} {:>10} {:>10} {:>10} {:>10} {:>10} {:>8} {:>9} {:>8}",
             "method",
             "dt",
             "min us",
             "median us",
             "p99 us",
+            "max us",
             "mean us",
             "cg it",
             "substeps",
@@ -479,18 +481,27 @@ fn bench(args: &BenchArgs) -> Res {
         );
         for (m, r) in &results {
             match r {
-                Ok(r) => println!(
-                    "{:<18} {:>7} {:>10.1} {:>10.1} {:>10.1} {:>10.1} {:>8.2} {:>9.2} {:>7.1}%",
-                    r.method,
-                    r.dt,
-                    r.min_us,
-                    r.median_us,
-                    r.p99_us,
-                    r.mean_us,
-                    r.mean_cg_iterations,
-                    r.mean_substeps,
-                    100.0 * r.max_displacement_ratio
-                ),
+                Ok(r) => {
+                    println!(
+                        "{:<18} {:>7} {:>10.1} {:>10.1} {:>10.1} {:>10.1} {:>10.1} {:>8.2} {:>9.2} {:>7.1}%",
+                        r.method,
+                        r.dt,
+                        r.min_us,
+                        r.median_us,
+                        r.p99_us,
+                        r.max_us,
+                        r.mean_us,
+                        r.mean_cg_iterations,
+                        r.mean_substeps,
+                        100.0 * r.max_displacement_ratio
+                    );
+                    for (stage, t) in &r.stages {
+                        println!(
+                            "  {:<16} {:>7} {:>10.1} {:>10.1} {:>10.1} {:>10.1} {:>10.1}",
+                            stage, "", t.min_us, t.median_us, t.p99_us, t.max_us, t.mean_us
+                        );
+                    }
+                }
                 Err(e) => println!("{:<18} error: {e}", m.name()),
             }
         }

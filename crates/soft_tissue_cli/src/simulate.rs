@@ -5,6 +5,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use clap::Args;
+
+use crate::realtime::{RunRecorder, triple};
 use serde_json::json;
 use soft_tissue_core::contact::Tool;
 use soft_tissue_core::precision::Level;
@@ -41,6 +43,33 @@ pub struct SimulateArgs {
     /// includes its shadow's step.
     #[arg(long)]
     shadow: bool,
+    /// Level of every body: `auto` (switch on contact and rest), or pinned to `precise` or
+    /// `cage` for the whole run (to measure the all-precise cost, or with `--shadow` the
+    /// cage level's error, on any scene).
+    #[arg(long, value_enum, default_value_t = LevelArg::Auto)]
+    level: LevelArg,
+}
+
+/// `--level`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum LevelArg {
+    /// Contact raises a body, rest lowers it.
+    Auto,
+    /// Every body pinned to its precise method.
+    Precise,
+    /// Every body pinned to its cage.
+    Cage,
+}
+
+impl LevelArg {
+    /// The pin it sets (`None` for `auto`).
+    pub fn pin(self) -> Option<Level> {
+        match self {
+            LevelArg::Auto => None,
+            LevelArg::Precise => Some(Level::Precise),
+            LevelArg::Cage => Some(Level::Cage),
+        }
+    }
 }
 
 /// `cylinders` and `organs` are read from `<assets>/scenes/<name>.scene.ron` (the scenario files),
@@ -139,6 +168,14 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
             b.set_shadow(true)?;
         }
     }
+    if let Some(level) = args.level.pin() {
+        for b in world.bodies_mut() {
+            let name = b.name().to_owned();
+            b.body_mut()
+                .pin(Some(level))
+                .map_err(|e| format!("body `{name}`: pinning to {level:?}: {e}"))?;
+        }
+    }
     let build_s = build_start.elapsed().as_secs_f64();
     let script = match &args.script {
         None => None,
@@ -157,13 +194,13 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     };
     let dt = world.config().dt;
     let nb = world.bodies().len();
-    let mut step_times = Vec::with_capacity(args.steps);
+    // The whole run's steps, kept for the statistics (allocated before the first step).
+    let mut recorder = RunRecorder::new(nb, args.steps.min(1 << 24));
     let mut precise_steps = vec![0u64; nb];
     let mut body_us = vec![0.0f64; nb];
     let mut worst_jump = vec![0.0f64; nb];
     let mut worst_shadow = vec![0.0f64; nb];
     let mut shadow_sum = vec![(0.0f64, 0u64); nb];
-    let mut stage_sum = [0.0f64; 6];
     for k in 0..args.steps {
         let t = (k + 1) as f64 * dt;
         if let (Some(s), Some(ti)) = (&script, tool) {
@@ -171,23 +208,13 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
         }
         world.step_fixed()?;
         let st = world.stage_times();
-        step_times.push(st.total_us());
-        for (acc, v) in stage_sum.iter_mut().zip([
-            st.prepare_us,
-            st.detect_us,
-            st.switch_us,
-            st.solve_us,
-            st.collide_us,
-            st.writeback_us,
-        ]) {
-            *acc += v;
-        }
+        recorder.record(&world);
         for (i, b) in world.bodies().iter().enumerate() {
             let d = b.diagnostics();
             if d.level == Level::Precise {
                 precise_steps[i] += 1;
             }
-            body_us[i] += d.step_us;
+            body_us[i] += d.step_us + d.switch_us;
             if let Some(s) = d.switched {
                 worst_jump[i] = worst_jump[i].max(s.jump_ratio);
             }
@@ -208,6 +235,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                         "name": b.name(),
                         "level": level_name(&world, i),
                         "step_us": d.step_us,
+                        "switch_us": d.switch_us,
                         "max_displacement": d.max_displacement,
                         "switch_jump": d.switched.map(|s| s.jump),
                         "switch_jump_ratio": d.switched.map(|s| s.jump_ratio),
@@ -229,6 +257,14 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "step": k + 1,
                 "t": t,
                 "step_us": st.total_us(),
+                "stages": {
+                    "prepare_us": st.prepare_us,
+                    "detect_us": st.detect_us,
+                    "switch_us": st.switch_us,
+                    "solve_us": st.solve_us,
+                    "collide_us": st.collide_us,
+                    "writeback_us": st.writeback_us,
+                },
                 "bodies": bodies,
                 "tool": tool_json,
             });
@@ -241,17 +277,15 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
             }
         }
     }
-    let mut sorted = step_times.clone();
-    sorted.sort_by(f64::total_cmp);
-    let n = sorted.len().max(1) as f64;
-    let mean = step_times.iter().sum::<f64>() / n;
-    let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
-    let max = sorted.last().copied().unwrap_or(0.0);
+    let names: Vec<String> = world.bodies().iter().map(|b| b.name().to_owned()).collect();
+    let costs = recorder.costs(names.iter().map(String::as_str));
+    let n = args.steps.max(1) as f64;
     let bodies: Vec<_> = world
         .bodies()
         .iter()
         .enumerate()
         .map(|(i, b)| {
+            let c = &costs.bodies[i];
             json!({
                 "name": b.name(),
                 "final_level": level_name(&world, i),
@@ -259,6 +293,10 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "precise_steps": precise_steps[i],
                 "max_switch_jump_ratio": worst_jump[i],
                 "mean_step_us": body_us[i] / n,
+                "precise_step": c.precise,
+                "up_switch": c.up_switch,
+                "down_switch": c.down_switch,
+                "worst_switch_over_precise_median": c.worst_switch_ratio,
                 "worst_shadow_error_ratio": args.shadow.then_some(worst_shadow[i]),
                 "mean_shadow_error_ratio": args.shadow.then(|| {
                     shadow_sum[i].0 / shadow_sum[i].1.max(1) as f64
@@ -266,13 +304,14 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
             })
         })
         .collect();
+    let mean_stage = |name: &str| costs.stages.get(name).map_or(0.0, |t| t.mean_us);
     let stages = json!({
-        "prepare_us": stage_sum[0] / n,
-        "detect_us": stage_sum[1] / n,
-        "switch_us": stage_sum[2] / n,
-        "solve_us": stage_sum[3] / n,
-        "collide_us": stage_sum[4] / n,
-        "writeback_us": stage_sum[5] / n,
+        "prepare_us": mean_stage("prepare"),
+        "detect_us": mean_stage("detect"),
+        "switch_us": mean_stage("switch"),
+        "solve_us": mean_stage("solve"),
+        "collide_us": mean_stage("collide"),
+        "writeback_us": mean_stage("writeback"),
     });
     if args.json {
         println!(
@@ -284,11 +323,19 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "steps": args.steps,
                 "dt": dt,
                 "body_count": nb,
+                "level": format!("{:?}", args.level).to_lowercase(),
                 "build_s": build_s,
-                "mean_step_us": mean,
-                "median_step_us": median,
-                "max_step_us": max,
+                "mean_step_us": costs.step.mean_us,
+                "median_step_us": costs.step.median_us,
+                "max_step_us": costs.step.max_us,
                 "mean_stage_us": stages,
+                "step": costs.step,
+                "stage": costs.stages,
+                "precise_step": costs.precise_step,
+                "worst_over_precise_median": costs.worst_over_precise_median,
+                "contact_over_solve": costs.contact_over_solve,
+                "steps_over_1ms": costs.steps_over_1ms,
+                "steps_over_10ms": costs.steps_over_10ms,
                 "bodies": bodies,
             })
         );
@@ -303,30 +350,59 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
             dt
         );
         println!(
-            "step time: mean {mean:.1} us, median {median:.1} us, max {max:.1} us (wall clock, this machine)"
+            "step time (wall clock, this machine), median / p99 / max us: {} (mean {:.1}); steps with a precise body {}; worst step / their median {}",
+            triple(&costs.step),
+            costs.step.mean_us,
+            triple(&costs.precise_step),
+            costs
+                .worst_over_precise_median
+                .map_or("-".into(), |r| format!("{r:.2}"))
         );
         println!(
-            "stages (mean us): prepare {:.1}, detect {:.1}, switch {:.1}, solve {:.1}, collide {:.1}, writeback {:.1}",
-            stage_sum[0] / n,
-            stage_sum[1] / n,
-            stage_sum[2] / n,
-            stage_sum[3] / n,
-            stage_sum[4] / n,
-            stage_sum[5] / n
+            "stages, median / p99 / max us: {}",
+            costs
+                .stages
+                .iter()
+                .map(|(k, t)| format!("{k} {}", triple(t)))
+                .collect::<Vec<_>>()
+                .join(", ")
         );
         println!(
-            "{:<24} {:>6} {:>9} {:>14} {:>13} {:>12}",
-            "body", "final", "switches", "precise steps", "max jump %", "mean us"
+            "contact (detect + collide) / solve: {}; steps over 1 ms: {}, over 10 ms: {}",
+            costs
+                .contact_over_solve
+                .map_or("-".into(), |r| format!("{r:.3}")),
+            costs.steps_over_1ms,
+            costs.steps_over_10ms
+        );
+        println!(
+            "{:<24} {:>6} {:>9} {:>14} {:>11} {:>9} {:>20} {:>20} {:>20} {:>8}",
+            "body",
+            "final",
+            "switches",
+            "precise steps",
+            "max jump %",
+            "mean us",
+            "precise med/p99/max",
+            "up-switch med/p99/max",
+            "down-sw. med/p99/max",
+            "sw/prec"
         );
         for (i, b) in world.bodies().iter().enumerate().take(12) {
+            let c = &costs.bodies[i];
             println!(
-                "{:<24} {:>6} {:>9} {:>14} {:>13.3} {:>12.1}",
+                "{:<24} {:>6} {:>9} {:>14} {:>11.3} {:>9.1} {:>20} {:>20} {:>20} {:>8}",
                 b.name(),
                 level_name(&world, i),
                 b.body().switch_count(),
                 precise_steps[i],
                 100.0 * worst_jump[i],
-                body_us[i] / n
+                body_us[i] / n,
+                triple(&c.precise),
+                triple(&c.up_switch),
+                triple(&c.down_switch),
+                c.worst_switch_ratio
+                    .map_or("-".into(), |r| format!("{r:.2}"))
             );
         }
         if nb > 12 {

@@ -24,6 +24,7 @@ use crate::material::{FemParams, MsdParams};
 use crate::mesh::TetMesh;
 use crate::msd::{MsdBody, MsdConfig, MsdError, MsdIntegrator};
 use crate::state::NodalBody;
+use crate::timing::TimeStats;
 
 /// A precise method to benchmark.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -118,6 +119,9 @@ pub struct BenchBody {
     cg_iterations: u64,
     substeps: u64,
     steps: u64,
+    /// FEM stage times of the timed steps: forces, assembly, solve.
+    stage_times: [Vec<f64>; 3],
+    timing: bool,
 }
 
 /// Timings of a benchmark run, in microseconds per step.
@@ -154,6 +158,12 @@ pub struct BenchReport {
     pub cage_vertices: usize,
     /// Cage methods: embedded points evaluated per step, the surface vertices (0 otherwise).
     pub points: usize,
+    /// The whole step: median, 99th percentile, largest (nearest rank).
+    pub step: TimeStats,
+    /// The stages of a step where the method has them (FEM: `forces`, the element loop;
+    /// `assembly`, the warped stiffness, zero on steps that keep it; `solve`, the linear
+    /// solve); empty otherwise.
+    pub stages: Vec<(String, TimeStats)>,
 }
 
 impl BenchBody {
@@ -254,6 +264,8 @@ impl BenchBody {
             cg_iterations: 0,
             substeps: 0,
             steps: 0,
+            stage_times: Default::default(),
+            timing: false,
         })
     }
 
@@ -269,6 +281,15 @@ impl BenchBody {
                 let s = b.step()?;
                 self.cg_iterations += s.cg.iterations as u64;
                 self.substeps += 1;
+                if self.timing {
+                    for (v, t) in
+                        self.stage_times
+                            .iter_mut()
+                            .zip([s.forces_us, s.assembly_us, s.solve_us])
+                    {
+                        v.push(t);
+                    }
+                }
             }
             Solver::Msd(b) => {
                 for &i in &self.top {
@@ -329,27 +350,42 @@ impl BenchBody {
         self.cg_iterations = 0;
         self.substeps = 0;
         self.steps = 0;
-        let mut times = Vec::with_capacity(steps);
+        // Room for the samples up front (a huge count grows as it goes instead).
+        let room = steps.min(1 << 22);
+        let mut times = Vec::with_capacity(room);
+        for v in &mut self.stage_times {
+            v.clear();
+            v.reserve(room);
+        }
+        self.timing = true;
         let mut displacement: f64 = 0.0;
         for s in 0..steps {
             let t = Instant::now();
-            self.step()?;
+            let stepped = self.step();
             times.push(t.elapsed().as_secs_f64() * 1e6);
+            if let Err(e) = stepped {
+                self.timing = false;
+                return Err(e);
+            }
             if s % 10 == 0 {
                 displacement = displacement.max(self.max_displacement());
             }
         }
+        self.timing = false;
         let size = {
             let b = mesh.bbox();
             let d = b.max - b.min;
             d.x.min(d.y).min(d.z)
         };
-        times.sort_by(f64::total_cmp);
-        let pick = |q: f64| {
-            times
-                .get(((times.len() as f64 - 1.0) * q).round() as usize)
-                .copied()
-                .unwrap_or(0.0)
+        let step = TimeStats::of_sorted_in_place(&mut times);
+        let stages = if self.stage_times[0].is_empty() {
+            Vec::new()
+        } else {
+            ["forces", "assembly", "solve"]
+                .iter()
+                .zip(&mut self.stage_times)
+                .map(|(name, v)| (name.to_string(), TimeStats::of_sorted_in_place(v)))
+                .collect()
         };
         let n = steps.max(1) as f64;
         Ok(BenchReport {
@@ -358,11 +394,11 @@ impl BenchBody {
             tets: mesh.tets().len(),
             steps,
             dt: self.dt,
-            min_us: pick(0.0),
-            median_us: pick(0.5),
-            mean_us: times.iter().sum::<f64>() / n,
-            p99_us: pick(0.99),
-            max_us: pick(1.0),
+            min_us: step.min_us,
+            median_us: step.median_us,
+            mean_us: step.mean_us,
+            p99_us: step.p99_us,
+            max_us: step.max_us,
             mean_cg_iterations: self.cg_iterations as f64 / n,
             mean_substeps: self.substeps as f64 / n,
             max_displacement_ratio: displacement / size,
@@ -374,6 +410,8 @@ impl BenchBody {
                 Solver::Cage(b) => b.points().len(),
                 _ => 0,
             },
+            step,
+            stages,
         })
     }
 }

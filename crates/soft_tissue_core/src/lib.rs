@@ -41,6 +41,7 @@ pub mod precision;
 pub mod scenario;
 pub mod stability;
 pub mod state;
+pub mod timing;
 pub mod world;
 
 pub use state::NodalBody;

@@ -13,6 +13,7 @@
 //!   vertices through the transpose of the coordinates.
 
 pub mod build;
+pub mod fit;
 pub mod green;
 
 mod body;
@@ -20,6 +21,7 @@ use crate::geometry;
 
 pub use body::{CageBody, CageBodyConfig, CageSprings, CageStepStats};
 pub use build::{FitOptions, box_cage, fitted_cage};
+pub use fit::{FitReport, SurfaceFit};
 pub use green::GreenCoordinates;
 
 use std::collections::HashMap;

@@ -32,6 +32,8 @@ pub mod element;
 mod packed;
 pub mod rotation;
 
+use std::time::Instant;
+
 use nalgebra::{Matrix3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
@@ -58,6 +60,10 @@ const PAIRS: [(usize, usize); 10] = [
 
 /// Flag in [`FemBody`]'s upper scatter map: store the block transposed.
 const TRANSPOSED: u32 = 1 << 31;
+
+/// At most this fraction (one in ...) of the elements has its warped stiffness updated in one
+/// step (at least 64).
+const ASSEMBLY_SHARE: usize = 4;
 
 /// Correction angle (radians) below which a warm-started element rotation is accepted.
 const ROTATION_TOLERANCE: f64 = 1e-4;
@@ -109,11 +115,14 @@ pub struct FemConfig {
     pub cg_max_iterations: u32,
     /// Iteration cap of the per-element rotation extraction (warm-started). Default 1.
     pub rotation_iterations: u32,
-    /// Corotational: the warped stiffness in the implicit system is re-assembled when some
-    /// element has turned by more than this angle (radians) since the last assembly; forces
-    /// always use the current rotations. 0 re-assembles every step (the textbook method).
+    /// Corotational: an element's warped stiffness in the implicit system is updated when it
+    /// has turned by more than this angle (radians) since its last update; forces always use
+    /// the current rotations. 0 updates every element every step (the textbook method).
     /// Default 0.01: the implicit Jacobian lags the rotations by at most 0.6 degrees, well
-    /// inside the error of dropping the derivative of `R` that every corotational method makes.
+    /// inside the error of dropping the derivative of `R` that every corotational method
+    /// makes. At most a quarter of the elements are updated in one step (the ones turned
+    /// longest ago first), so a step never pays a whole re-assembly; under fast rotation of
+    /// the whole body the rest follow within a few steps.
     pub stiffness_update_angle: f64,
 }
 
@@ -260,6 +269,12 @@ pub struct FemStepStats {
     pub rotation_iterations: u32,
     /// Whether the warped stiffness was re-assembled this step (corotational).
     pub assembled: bool,
+    /// Wall time of the element loop (rotations and elastic forces), microseconds.
+    pub forces_us: f64,
+    /// Wall time of the warped-stiffness assembly, microseconds (0 when not re-assembled).
+    pub assembly_us: f64,
+    /// Wall time of the linear solve (direct or CG) and its right-hand side, microseconds.
+    pub solve_us: f64,
 }
 
 /// A deformable body discretised by linear tetrahedra.
@@ -284,6 +299,10 @@ pub struct FemBody {
     /// Whether the system matrix holds the warped stiffness of `quats_assembled` for the
     /// current time step and parameters.
     matrix_current: bool,
+    /// Elements turned past the update angle in this step's element loop.
+    stale: Vec<u32>,
+    /// Where the next incremental update starts among the stale elements (round robin).
+    assembly_cursor: usize,
     /// Rest elastic stiffness `K` (no anchors, no constraints).
     k_rest: BlockSparse,
     /// System matrix and the factorization of its rest value.
@@ -397,6 +416,7 @@ impl FemBody {
         fill_rest_system(&mut body_matrix, &k_rest, &mass, &anchor_k, &config);
         let system = ImplicitSystem::new(body_matrix, fixed.clone())?;
         let packed = packed::PackedElements::new(&tets, &grads, &volumes, n);
+        let tet_count = tets.len();
         Ok(FemBody {
             packed,
             config,
@@ -409,7 +429,10 @@ impl FemBody {
             nodes: Nodes::new(rest, mass, fixed, anchor_k),
             rots: vec![Matrix3::identity(); identity.len()],
             quats_assembled: identity.clone(),
-            matrix_current: false,
+            stale: Vec::with_capacity(tet_count),
+            assembly_cursor: 0,
+            // The rest system is the warped system at the identity rotations.
+            matrix_current: true,
             quats: identity,
             k_rest,
             system,
@@ -439,34 +462,50 @@ impl FemBody {
         if model != self.config.model {
             self.config.model = model;
             self.dv.fill(Vec3::zeros());
-            self.matrix_current = false;
+            // The linear model leaves the system matrix as it was: still the warped stiffness
+            // of `quats_assembled`, updated element by element from the next step on.
             if model == FemModel::Corotational {
                 self.sync_rotations();
             }
         }
     }
 
-    /// Recomputes every element rotation from the current positions, from a cold start and
-    /// to convergence. Call after setting positions far from the last step's (state transfer,
-    /// teleporting); steps only refine the rotations incrementally.
+    /// Recomputes every element rotation from the current positions, to convergence. Call
+    /// after setting positions far from the last step's (state transfer, teleporting); steps
+    /// only refine the rotations incrementally. Same as [`FemBody::sync_rotations_from`] with
+    /// no hint.
     pub fn sync_rotations(&mut self) {
-        for t in 0..self.tets.len() {
-            let p = self.tets[t].map(|i| self.nodes.x[i as usize]);
-            let f = element::deformation_gradient(&p, &self.grads[t]);
-            // Warm start from the held rotation (a few iterations when the shape is near the
-            // last one); the cold, saddle-proof search only where that lands in a wrong basin.
-            let (mut q, mut r) = (self.quats[t], self.rots[t]);
-            rotation::extract_rotation(&f, &mut q, &mut r, 50, 1e-15);
-            if (r.transpose() * f).trace() <= 0.0 {
-                r = rotation::rotation_of(&f);
-                q = UnitQuaternion::from_rotation_matrix(
-                    &nalgebra::Rotation3::from_matrix_unchecked(r),
-                );
+        self.sync_rotations_from(UnitQuaternion::identity());
+    }
+
+    /// Recomputes every element rotation from the current positions, to convergence, starting
+    /// from each element's held rotation turned by `hint`: when the body has turned as a whole
+    /// by `hint` since the rotations were last updated (a state handed over from a cage that
+    /// turned), every element starts next to its answer. The warped stiffness is updated by
+    /// the next steps, element by element, as for any rotation.
+    pub fn sync_rotations_from(&mut self, hint: UnitQuaternion<f64>) {
+        if hint.angle() > 0.0 {
+            for (q, r) in self.quats.iter_mut().zip(&mut self.rots) {
+                *q = hint * *q;
+                *r = *q.to_rotation_matrix().matrix();
             }
-            self.rots[t] = r;
-            self.quats[t] = q;
         }
-        self.matrix_current = false;
+        // Eight elements at a time, to a millionth of a radian (steps refine further: they
+        // accept corrections below 1e-4 rad); large corrections and saddles get the scalar,
+        // saddle-proof search.
+        self.packed.sync(
+            &self.nodes.x,
+            packed::RotationState {
+                quats: &mut self.quats,
+                rots: &mut self.rots,
+                assembled: &self.quats_assembled,
+                stale: &mut self.stale,
+            },
+            50,
+            1e-6,
+        );
+        // The last velocity change is no guess for a state from elsewhere.
+        self.dv.fill(Vec3::zeros());
     }
 
     /// Changes the time step: a numeric refactorization of the system (no allocation).
@@ -498,7 +537,9 @@ impl FemBody {
     }
 
     fn refactor_rest(&mut self) -> Result<(), FemError> {
-        self.matrix_current = false;
+        // The rest system is the warped system at the identity rotations.
+        self.quats_assembled.fill(UnitQuaternion::identity());
+        self.matrix_current = true;
         fill_rest_system(
             &mut self.system.matrix,
             &self.k_rest,
@@ -553,7 +594,18 @@ impl FemBody {
         self.dv.fill(Vec3::zeros());
         self.quats.fill(UnitQuaternion::identity());
         self.rots.fill(Matrix3::identity());
-        self.matrix_current = false;
+        // Back to the system matrix the body was built with (the rest system, the warped
+        // system at the identity rotations), so a run after a reset repeats the first.
+        fill_rest_system(
+            &mut self.system.matrix,
+            &self.k_rest,
+            &self.nodes.mass,
+            &self.nodes.anchor_k,
+            &self.config,
+        );
+        self.quats_assembled.fill(UnitQuaternion::identity());
+        self.matrix_current = true;
+        self.assembly_cursor = 0;
     }
 
     /// Elastic plus anchor forces at positions `x` for `model` (rotations extracted to
@@ -646,12 +698,19 @@ impl FemBody {
         let mut stats = FemStepStats::default();
         match self.config.model {
             FemModel::Linear => {
+                let start = Instant::now();
                 let with_product = !self.fixed_at_rest();
                 self.linear_dv(with_product)?;
+                stats.solve_us = start.elapsed().as_secs_f64() * 1e6;
             }
             FemModel::Corotational => {
-                (stats.rotation_iterations, stats.assembled) =
-                    self.corotational_forces_and_matrix();
+                (
+                    stats.rotation_iterations,
+                    stats.assembled,
+                    stats.forces_us,
+                    stats.assembly_us,
+                ) = self.corotational_forces_and_matrix();
+                let start = Instant::now();
                 // -(beta + h) K_R v  =  -(A v - (1 + h alpha) M v - h^2 Ka v) / h
                 self.system.matrix.mul(&self.nodes.v, &mut self.tmp);
                 for i in 0..self.nodes.x.len() {
@@ -666,6 +725,7 @@ impl FemBody {
                     self.config.cg_tolerance,
                     self.config.cg_max_iterations,
                 )?;
+                stats.solve_us = start.elapsed().as_secs_f64() * 1e6;
             }
         }
         for i in 0..self.nodes.x.len() {
@@ -752,8 +812,10 @@ impl FemBody {
     }
 
     /// Corotational: updates rotations, adds elastic forces to `rhs`, and assembles the
-    /// system matrix `(1 + h alpha) M + (h beta + h^2) R K R^T + h^2 Ka`.
-    fn corotational_forces_and_matrix(&mut self) -> (u32, bool) {
+    /// system matrix `(1 + h alpha) M + (h beta + h^2) R K R^T + h^2 Ka`. Returns the worst
+    /// rotation iterations, whether it assembled, and the times of the two, microseconds.
+    fn corotational_forces_and_matrix(&mut self) -> (u32, bool, f64, f64) {
+        let start = Instant::now();
         let cos_half = (0.5 * self.config.stiffness_update_angle).cos();
         let loop_stats = self.packed.forces(
             &self.nodes.x,
@@ -761,6 +823,7 @@ impl FemBody {
                 quats: &mut self.quats,
                 rots: &mut self.rots,
                 assembled: &self.quats_assembled,
+                stale: &mut self.stale,
             },
             self.lambda,
             self.mu,
@@ -770,11 +833,58 @@ impl FemBody {
             &mut self.rhs,
         );
         let worst = loop_stats.worst_iterations;
-        let stale = !self.matrix_current || loop_stats.stale;
-        if stale {
+        let forces_us = start.elapsed().as_secs_f64() * 1e6;
+        let start = Instant::now();
+        let assembled = if !self.matrix_current || self.config.stiffness_update_angle == 0.0 {
             self.assemble_warped_system();
+            true
+        } else if loop_stats.stale {
+            self.update_stale_elements();
+            true
+        } else {
+            false
+        };
+        (
+            worst,
+            assembled,
+            forces_us,
+            start.elapsed().as_secs_f64() * 1e6,
+        )
+    }
+
+    /// Updates the warped stiffness of the stale elements of this step's element loop (at
+    /// most [`ASSEMBLY_SHARE`] of all elements, continuing round robin from where the last
+    /// update stopped): each element's contribution with its assembled rotation is taken out
+    /// and the one with its current rotation put in.
+    fn update_stale_elements(&mut self) {
+        let n = self.stale.len();
+        if n == 0 {
+            return;
         }
-        (worst, stale)
+        let budget = (self.tets.len() / ASSEMBLY_SHARE).max(64).min(n);
+        let start = self
+            .stale
+            .partition_point(|&t| (t as usize) < self.assembly_cursor);
+        let h = self.config.dt;
+        let c = self.config.stiffness_damping * h + h * h;
+        let (lambda, mu) = (self.lambda, self.mu);
+        let mut last = 0;
+        for k in 0..budget {
+            let t = self.stale[(start + k) % n] as usize;
+            let old = *self.quats_assembled[t].to_rotation_matrix().matrix();
+            let blocks = self.system.matrix.blocks_mut();
+            let (g, v) = (&self.grads[t], self.volumes[t]);
+            add_element_upper(blocks, &self.upper[t], g, v, &old, lambda, mu, -c);
+            add_element_upper(blocks, &self.upper[t], g, v, &self.rots[t], lambda, mu, c);
+            for &target in &self.upper[t] {
+                self.system
+                    .matrix
+                    .mirror_block((target & !TRANSPOSED) as usize);
+            }
+            self.quats_assembled[t] = self.quats[t];
+            last = t;
+        }
+        self.assembly_cursor = last + 1;
     }
 
     /// `(1 + h alpha) M + (h beta + h^2) R K R^T + h^2 Ka` with the current rotations, in the
@@ -936,30 +1046,48 @@ fn add_warped_upper(
 ) {
     let blocks = k.blocks_mut();
     for t in 0..grads.len() {
-        let b = &grads[t];
         let r = rotation(t);
-        let cr = [r * b[0], r * b[1], r * b[2], r * b[3]];
-        let (vl, vm) = (volumes[t] * scale * lambda, volumes[t] * scale * mu);
-        for (&(a, bb), &target) in PAIRS.iter().zip(&upper[t]) {
-            let ca = [cr[a].x, cr[a].y, cr[a].z];
-            let cb = [cr[bb].x, cr[bb].y, cr[bb].z];
-            let d = vm * b[a].dot(&b[bb]);
-            let k = blocks[(target & !TRANSPOSED) as usize].as_mut_slice();
-            // Column-major storage: entry (i, j) at 3 j + i. Transposed: (j, i).
-            if target & TRANSPOSED == 0 {
-                for j in 0..3 {
-                    for i in 0..3 {
-                        k[3 * j + i] += vl * ca[i] * cb[j] + vm * cb[i] * ca[j];
-                    }
-                    k[4 * j] += d;
+        add_element_upper(
+            blocks, &upper[t], &grads[t], volumes[t], &r, lambda, mu, scale,
+        );
+    }
+}
+
+/// Adds `scale` times the warped stiffness `R K_e R^T` of one element (shape gradients `b`,
+/// volume, rotation `r`) into the upper-triangle blocks its scatter map names.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn add_element_upper(
+    blocks: &mut [Matrix3<f64>],
+    upper: &[u32; 10],
+    b: &[Vec3; 4],
+    volume: f64,
+    r: &Matrix3<f64>,
+    lambda: f64,
+    mu: f64,
+    scale: f64,
+) {
+    let cr = [r * b[0], r * b[1], r * b[2], r * b[3]];
+    let (vl, vm) = (volume * scale * lambda, volume * scale * mu);
+    for (&(a, bb), &target) in PAIRS.iter().zip(upper) {
+        let ca = [cr[a].x, cr[a].y, cr[a].z];
+        let cb = [cr[bb].x, cr[bb].y, cr[bb].z];
+        let d = vm * b[a].dot(&b[bb]);
+        let k = blocks[(target & !TRANSPOSED) as usize].as_mut_slice();
+        // Column-major storage: entry (i, j) at 3 j + i. Transposed: (j, i).
+        if target & TRANSPOSED == 0 {
+            for j in 0..3 {
+                for i in 0..3 {
+                    k[3 * j + i] += vl * ca[i] * cb[j] + vm * cb[i] * ca[j];
                 }
-            } else {
-                for j in 0..3 {
-                    for i in 0..3 {
-                        k[3 * i + j] += vl * ca[i] * cb[j] + vm * cb[i] * ca[j];
-                    }
-                    k[4 * j] += d;
+                k[4 * j] += d;
+            }
+        } else {
+            for j in 0..3 {
+                for i in 0..3 {
+                    k[3 * i + j] += vl * ca[i] * cb[j] + vm * cb[i] * ca[j];
                 }
+                k[4 * j] += d;
             }
         }
     }
@@ -986,6 +1114,12 @@ mod tests {
             *x = rot * (*x * (1.0 + 0.01 * (i % 5) as f64));
         }
         body.sync_rotations();
+        // Converged rotations (the hand-over sync stops at 1e-6 rad).
+        for t in 0..body.tets.len() {
+            let p = body.tets[t].map(|i| body.nodes.x[i as usize]);
+            let f = element::deformation_gradient(&p, &body.grads[t]);
+            rotation::extract_rotation(&f, &mut body.quats[t], &mut body.rots[t], 100, 1e-15);
+        }
         // Reference: K_R plus anchors, from the element kernel.
         let mut reference = body.k_rest.clone();
         reference.set_zero();
@@ -1029,9 +1163,21 @@ mod tests {
             worst < 1e-12 * size,
             "stiffness_at differs by {worst} (scale {size})"
         );
-        // The step's system matrix: (1 + h alpha) M + c K_R + h^2 Ka.
-        body.rhs.fill(Vec3::zeros());
-        body.corotational_forces_and_matrix();
+        // The step's system matrix: (1 + h alpha) M + c K_R + h^2 Ka, updated element by
+        // element from the rest system, at most a quarter of the elements (at least 64) a
+        // step: every element has turned here, so it takes two element loops.
+        for round in 0..2 {
+            body.rhs.fill(Vec3::zeros());
+            body.corotational_forces_and_matrix();
+            let pending = body
+                .quats
+                .iter()
+                .zip(&body.quats_assembled)
+                .filter(|(q, a)| q.angle_to(a) > 1e-12)
+                .count();
+            let expected = [body.tets.len() - 64, 0][round];
+            assert_eq!(pending, expected, "round {round}");
+        }
         let h = c.dt;
         let scale = c.stiffness_damping * h + h * h;
         let mut worst: f64 = 0.0;
@@ -1129,7 +1275,7 @@ mod tests {
             body.nodes.x[t0[0] as usize] = p0 + 1.6 * ((p1 + p2 + p3) / 3.0 - p0);
             let (quats0, rots0) = (body.quats.clone(), body.rots.clone());
             body.rhs.fill(Vec3::zeros());
-            let (worst, _) = body.corotational_forces_and_matrix();
+            let (worst, ..) = body.corotational_forces_and_matrix();
             // Scalar reference.
             let mut expected = vec![Vec3::zeros(); body.node_count()];
             let mut expected_worst = 0;

@@ -50,7 +50,8 @@ pub(super) struct PackedElements {
 pub(super) struct LoopStats {
     /// Largest number of rotation updates of any element.
     pub worst_iterations: u32,
-    /// Whether some element turned by more than the update angle since the last assembly.
+    /// Whether some element turned by more than the update angle since the last assembly
+    /// (they are listed in [`RotationState::stale`]).
     pub stale: bool,
 }
 
@@ -59,6 +60,9 @@ pub(super) struct RotationState<'a> {
     pub quats: &'a mut [UnitQuaternion<f64>],
     pub rots: &'a mut [Matrix3<f64>],
     pub assembled: &'a [UnitQuaternion<f64>],
+    /// Filled with the elements that turned by more than the update angle since their last
+    /// assembly, in increasing order (cleared first).
+    pub stale: &'a mut Vec<u32>,
 }
 
 impl PackedElements {
@@ -151,48 +155,7 @@ impl PackedElements {
             cos_half,
         };
         let mut stats = LoopStats::default();
-        #[cfg(target_arch = "x86_64")]
-        {
-            if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("fma") {
-                // SAFETY: the CPU has the features `packs_avx512` is compiled for.
-                unsafe {
-                    packs_avx512(
-                        &self.packs,
-                        &args,
-                        state,
-                        &mut self.corner_force,
-                        &mut stats,
-                    )
-                };
-            } else if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
-                // SAFETY: the CPU has the features `packs_avx2` is compiled for.
-                unsafe {
-                    packs_avx2(
-                        &self.packs,
-                        &args,
-                        state,
-                        &mut self.corner_force,
-                        &mut stats,
-                    )
-                };
-            } else {
-                packs_loop::<false>(
-                    &self.packs,
-                    &args,
-                    state,
-                    &mut self.corner_force,
-                    &mut stats,
-                );
-            }
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        packs_loop::<false>(
-            &self.packs,
-            &args,
-            state,
-            &mut self.corner_force,
-            &mut stats,
-        );
+        self.dispatch::<true>(&args, state, &mut stats);
         for (i, r) in rhs.iter_mut().enumerate() {
             let (s, e) = (
                 self.corner_start[i] as usize,
@@ -205,6 +168,64 @@ impl PackedElements {
             *r = f;
         }
         stats
+    }
+
+    /// Brings every element's rotation to the rotation of its deformation gradient at `x`,
+    /// from the held rotations, to `tolerance` radians (at most `max_iterations` updates;
+    /// elements that need a large correction or end in a saddle get the scalar extraction).
+    /// No forces. For handing a state over from elsewhere.
+    pub(super) fn sync(
+        &mut self,
+        x: &[Vec3],
+        state: RotationState,
+        max_iterations: u32,
+        tolerance: f64,
+    ) -> LoopStats {
+        let args = Args {
+            x,
+            lambda: 0.0,
+            mu: 0.0,
+            max_iterations,
+            tolerance,
+            cos_half: -1.0,
+        };
+        let mut stats = LoopStats::default();
+        self.dispatch::<false>(&args, state, &mut stats);
+        stats
+    }
+
+    /// Runs the element loop with the widest kernel this CPU has.
+    #[allow(unsafe_code)]
+    fn dispatch<const FORCES: bool>(
+        &mut self,
+        args: &Args,
+        state: RotationState,
+        stats: &mut LoopStats,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("fma") {
+                // SAFETY: the CPU has the features `packs_avx512` is compiled for.
+                unsafe {
+                    packs_avx512::<FORCES>(&self.packs, args, state, &mut self.corner_force, stats)
+                };
+            } else if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
+                // SAFETY: the CPU has the features `packs_avx2` is compiled for.
+                unsafe {
+                    packs_avx2::<FORCES>(&self.packs, args, state, &mut self.corner_force, stats)
+                };
+            } else {
+                packs_loop::<false, FORCES>(
+                    &self.packs,
+                    args,
+                    state,
+                    &mut self.corner_force,
+                    stats,
+                );
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        packs_loop::<false, FORCES>(&self.packs, args, state, &mut self.corner_force, stats);
     }
 }
 
@@ -219,26 +240,26 @@ struct Args<'a> {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
-fn packs_avx512(
+fn packs_avx512<const FORCES: bool>(
     packs: &[Pack],
     args: &Args,
     state: RotationState,
     out: &mut [Vec3],
     stats: &mut LoopStats,
 ) {
-    packs_loop::<true>(packs, args, state, out, stats)
+    packs_loop::<true, FORCES>(packs, args, state, out, stats)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn packs_avx2(
+fn packs_avx2<const FORCES: bool>(
     packs: &[Pack],
     args: &Args,
     state: RotationState,
     out: &mut [Vec3],
     stats: &mut LoopStats,
 ) {
-    packs_loop::<true>(packs, args, state, out, stats)
+    packs_loop::<true, FORCES>(packs, args, state, out, stats)
 }
 
 /// Rotation matrix (`r[i][j]`, row `i`, column `j`) of the unit quaternion `(w, x, y, z)`.
@@ -255,7 +276,7 @@ fn quat_matrix(w: f64, x: f64, y: f64, z: f64) -> [[f64; 3]; 3] {
 }
 
 #[inline(always)]
-fn packs_loop<const FMA: bool>(
+fn packs_loop<const FMA: bool, const FORCES: bool>(
     packs: &[Pack],
     args: &Args,
     state: RotationState,
@@ -266,7 +287,9 @@ fn packs_loop<const FMA: bool>(
         quats,
         rots,
         assembled,
+        stale,
     } = state;
+    stale.clear();
     let x = args.x;
     let tol2 = args.tolerance * args.tolerance;
     for (p, pack) in packs.iter().enumerate() {
@@ -412,13 +435,35 @@ fn packs_loop<const FMA: bool>(
                 rots[t] = Matrix3::from_fn(|i, j| r[i][j][l]);
             }
             stats.worst_iterations = stats.worst_iterations.max(iterations[l]);
-            if !stats.stale {
+            if FORCES {
                 let a = assembled[t].coords;
                 let d = a[3] * q[0][l] + a[0] * q[1][l] + a[1] * q[2][l] + a[2] * q[3][l];
                 if d.abs() < args.cos_half {
                     stats.stale = true;
+                    stale.push(t as u32);
+                }
+            } else {
+                // A hand-over: a rotation in a saddle (a half turn away from the best one)
+                // gets the cold, saddle-proof search.
+                let rr = &rots[t];
+                let mut trace = 0.0;
+                for i in 0..3 {
+                    for j in 0..3 {
+                        trace += rr[(j, i)] * f[j][i][l];
+                    }
+                }
+                if trace <= 0.0 && finite[l] {
+                    let fm = Matrix3::from_fn(|i, j| f[i][j][l]);
+                    let cold = rotation::rotation_of(&fm);
+                    rots[t] = cold;
+                    quats[t] = UnitQuaternion::from_rotation_matrix(
+                        &nalgebra::Rotation3::from_matrix_unchecked(cold),
+                    );
                 }
             }
+        }
+        if !FORCES {
+            continue;
         }
         // Forces: S = R^T F, eps = sym(S) - I, sigma = 2 mu eps + lambda tr(eps) I,
         // P = -V R sigma, f_a = P b_a.

@@ -131,6 +131,14 @@ impl BlockSparse {
         }
     }
 
+    /// Copies block `k` transposed into its mirror `(j, i)` (nothing for a diagonal block).
+    pub fn mirror_block(&mut self, k: usize) {
+        let t = self.transpose[k] as usize;
+        if t != k {
+            self.blocks[t] = self.blocks[k].transpose();
+        }
+    }
+
     /// Copies the values of a matrix with the same pattern.
     ///
     /// # Panics

@@ -8,13 +8,17 @@
 //!
 //! - **Up** ([`LeveledBody::raise`], called by contact before the contact is resolved): node
 //!   positions are the cage's exact (`f64`) Green-coordinate evaluation, node velocities its
-//!   derivative along the cage vertex velocities (central difference of the exact map).
+//!   derivative along the cage vertex velocities (the map is linear in the vertices and face
+//!   terms: one evaluation with the face terms' rate). A FEM body's element rotations start
+//!   from the ones it held at its last down-switch, turned by how far the cage turned since
+//!   (its best rigid fit), and are brought to the new state eight elements at a time.
 //! - **Down** ([`LeveledBody::lower`], or automatically at the end of a step): the cage is
 //!   fitted so its coordinates reproduce the current surface in the least-squares sense
-//!   (`min |Phi V + Psi T(V) - P|^2`, face terms `T` refreshed by a fixed-point iteration,
-//!   a small Tikhonov term toward the current cage), cage velocities by the same normal
-//!   equations on the surface velocities. The cage keeps its rest shape, the body's settled
-//!   equilibrium ([`LeveledBody::settle`]), so what motion is left dies out toward it.
+//!   ([`crate::cage::fit`]: face terms refreshed by an Anderson-accelerated fixed point whose
+//!   iterations cost `O(cage vertices x cage faces)`, warm-started from the last fit), cage
+//!   velocities the same way. The fit that decides the switch is the one the switch uses. The
+//!   cage keeps its rest shape, the body's settled equilibrium ([`LeveledBody::settle`]), so
+//!   what motion is left dies out toward it.
 //! - Every switch records the largest surface-vertex jump ([`SwitchRecord`]).
 //! - Automatic down-switch ([`PrecisionPolicy`]): no contact, largest nodal speed and the cage
 //!   fit residual (the distance from a cage-reproducible shape) below thresholds for
@@ -29,13 +33,13 @@
 //!
 //! Steps do not allocate; a switch (a rare event) may.
 
-use nalgebra::DMatrix;
+use nalgebra::UnitQuaternion;
 use serde::{Deserialize, Serialize};
 
 use crate::Vec3;
 use crate::boundary::{Boundary, BoundaryError};
 use crate::cage::{
-    CageBody, CageBodyConfig, CageError, FitOptions, GreenCoordinates, box_cage, fitted_cage,
+    CageBody, CageBodyConfig, CageError, FitOptions, FitReport, SurfaceFit, box_cage, fitted_cage,
 };
 use crate::fem::{FemBody, FemConfig, FemError, FemModel};
 use crate::material::{FemParams, MsdParams, PAPER_CAGE_MSD};
@@ -230,14 +234,6 @@ impl Precise {
     }
 }
 
-/// The least-squares fit of cage vertices to the surface: normal matrix of the surface
-/// rows of `phi` (with the Tikhonov term), factorized once.
-struct CageFit {
-    phi_t: DMatrix<f64>,
-    normal: nalgebra::Cholesky<f64, nalgebra::Dyn>,
-    mu: f64,
-}
-
 /// A body with a cage level and a precise level (see the module docs).
 pub struct LeveledBody {
     settings: BodySettings,
@@ -246,7 +242,16 @@ pub struct LeveledBody {
     smallest: f64,
     precise: Precise,
     cage: CageBody,
-    fit: CageFit,
+    fit: SurfaceFit,
+    /// The last cage fit (positions, velocities) of the current precise episode: the warm
+    /// start of the next fit.
+    fit_cage: Vec<Vec3>,
+    fit_velocity: Vec<Vec3>,
+    last_fit: FitReport,
+    /// Rotation of the cage (best rigid fit to its rest shape) at the last down-switch: the
+    /// precise solver's element rotations are from then, so an up-switch starts them turned
+    /// by how far the cage turned since.
+    lowered_rotation: UnitQuaternion<f64>,
     level: Level,
     pin: Option<Level>,
     steps: u64,
@@ -263,11 +268,9 @@ pub struct LeveledBody {
     nodes_work: Vec<Vec3>,
     nodes_work2: Vec<Vec3>,
     cage_work: Vec<Vec3>,
-    cage_prior: Vec<Vec3>,
     terms_work: Vec<Vec3>,
+    rate_work: Vec<Vec3>,
     surface_work: Vec<Vec3>,
-    surface_targets: Vec<Vec3>,
-    rhs_work: DMatrix<f64>,
 }
 
 impl std::fmt::Debug for LeveledBody {
@@ -297,8 +300,13 @@ pub struct ShadowError {
     pub worst_ratio: f64,
 }
 
-/// Most fixed-point iterations of the cage fits (they stop earlier once converged).
-const MAX_FIT_ITERATIONS: usize = 100;
+/// Most iterations of a cage fit to convergence (Anderson-accelerated; a warm-started fit
+/// takes a few).
+const MAX_FIT_ITERATIONS: u32 = 100;
+
+/// A fit has converged when no cage vertex moves by more than this fraction of the body's
+/// smallest dimension (positions) or of that dimension per time step (velocities).
+const FIT_TOLERANCE: f64 = 1e-10;
 
 /// Node positions for the cage: nodes no tetrahedron uses (real meshes have them; they carry
 /// no physics) stand at a used node's place, so they neither stretch the cage nor fall
@@ -307,9 +315,9 @@ fn cage_points(mesh: &TetMesh, positions: &[Vec3]) -> Vec<Vec3> {
     let used = |i: usize| !mesh.node_tets(i).is_empty();
     let mut points = positions.to_vec();
     if let Some(stand_in) = (0..points.len()).find(|&i| used(i)) {
-        for i in 0..points.len() {
+        for (i, p) in points.iter_mut().enumerate() {
             if !used(i) {
-                points[i] = positions[stand_in];
+                *p = positions[stand_in];
             }
         }
     }
@@ -401,7 +409,7 @@ impl LeveledBody {
         let cage = build_cage(mesh, nodes, &settings)?;
         let precise = build_precise(mesh, &settings)?;
         let surface = mesh.surface().vertices().to_vec();
-        let fit = Self::build_fit(cage.coordinates(), &surface)?;
+        let fit = SurfaceFit::new(cage.coordinates(), &surface)?;
         let n = nodes.len();
         let nv = cage.cage().vertices().len();
         let nf = cage.cage().triangles().len();
@@ -410,6 +418,10 @@ impl LeveledBody {
             rest: nodes.to_vec(),
             precise,
             fit,
+            fit_cage: cage.cage_positions().to_vec(),
+            fit_velocity: vec![Vec3::zeros(); nv],
+            last_fit: FitReport::default(),
+            lowered_rotation: UnitQuaternion::identity(),
             level: Level::Cage,
             pin: None,
             steps: 0,
@@ -425,11 +437,9 @@ impl LeveledBody {
             nodes_work: vec![Vec3::zeros(); n],
             nodes_work2: vec![Vec3::zeros(); n],
             cage_work: vec![Vec3::zeros(); nv],
-            cage_prior: vec![Vec3::zeros(); nv],
             terms_work: vec![Vec3::zeros(); nf],
+            rate_work: vec![Vec3::zeros(); nf],
             surface_work: vec![Vec3::zeros(); surface.len()],
-            surface_targets: vec![Vec3::zeros(); surface.len()],
-            rhs_work: DMatrix::zeros(nv, 3),
             surface,
             cage,
             settings,
@@ -440,25 +450,14 @@ impl LeveledBody {
     fn install_cage(&mut self, cage: CageBody) -> Result<(), PrecisionError> {
         let nv = cage.cage().vertices().len();
         let nf = cage.cage().triangles().len();
-        self.fit = Self::build_fit(cage.coordinates(), &self.surface)?;
+        self.fit = SurfaceFit::new(cage.coordinates(), &self.surface)?;
+        self.fit_cage = cage.cage_positions().to_vec();
+        self.fit_velocity = vec![Vec3::zeros(); nv];
         self.cage = cage;
         self.cage_work = vec![Vec3::zeros(); nv];
-        self.cage_prior = vec![Vec3::zeros(); nv];
         self.terms_work = vec![Vec3::zeros(); nf];
-        self.rhs_work = DMatrix::zeros(nv, 3);
+        self.rate_work = vec![Vec3::zeros(); nf];
         Ok(())
-    }
-
-    fn build_fit(coords: &GreenCoordinates, surface: &[u32]) -> Result<CageFit, PrecisionError> {
-        let nv = coords.vertex_count();
-        let phi_t = DMatrix::from_fn(nv, surface.len(), |r, c| coords.phi(surface[c] as usize)[r]);
-        let mut normal = &phi_t * phi_t.transpose();
-        let mu = 1e-8 * normal.trace() / nv as f64;
-        for i in 0..nv {
-            normal[(i, i)] += mu;
-        }
-        let normal = normal.cholesky().ok_or(PrecisionError::SingularFit)?;
-        Ok(CageFit { phi_t, normal, mu })
     }
 
     /// Whether the body sleeps: at the cage level, in its rest shape, at rest, with no load,
@@ -736,7 +735,18 @@ impl LeveledBody {
         }
         self.snapshot_surface();
         self.cage_state()?;
-        load_state(&mut self.precise, &self.nodes_work, &self.nodes_work2);
+        let turned =
+            self.cage_rotation(self.cage.cage_positions()) * self.lowered_rotation.inverse();
+        load_state(
+            &mut self.precise,
+            &self.nodes_work,
+            &self.nodes_work2,
+            turned,
+        );
+        // The cage this state came from is the exact fit of it: the next fit starts there.
+        self.fit_cage.copy_from_slice(self.cage.cage_positions());
+        self.fit_velocity
+            .copy_from_slice(self.cage.msd().velocities());
         self.level = Level::Precise;
         Ok(Some(self.record(Level::Cage, Level::Precise, 0.0)))
     }
@@ -746,21 +756,21 @@ impl LeveledBody {
     /// into `nodes_work2`.
     fn cage_state(&mut self) -> Result<(), PrecisionError> {
         let coords = self.cage.coordinates().clone();
-        let x = self.cage.cage_positions().to_vec();
-        let u = self.cage.msd().velocities().to_vec();
-        coords.face_terms(&x, &mut self.terms_work);
-        coords.evaluate(&x, &self.terms_work, &mut self.nodes_work)?;
+        let x = self.cage.msd().positions();
+        let u = self.cage.msd().velocities();
+        coords.face_terms(x, &mut self.terms_work);
+        coords.evaluate(x, &self.terms_work, &mut self.nodes_work)?;
+        // The map is linear in (vertices, face terms): the velocity is the map of the vertex
+        // velocities and the face terms' rate (central difference along them), one evaluation.
         let h = 1e-3 * self.settings.dt;
-        shifted(&x, &u, h, &mut self.cage_work);
+        shifted(x, u, h, &mut self.cage_work);
+        coords.face_terms(&self.cage_work, &mut self.rate_work);
+        shifted(x, u, -h, &mut self.cage_work);
         coords.face_terms(&self.cage_work, &mut self.terms_work);
-        coords.evaluate(&self.cage_work, &self.terms_work, &mut self.nodes_work2)?;
-        let forward = self.nodes_work2.clone();
-        shifted(&x, &u, -h, &mut self.cage_work);
-        coords.face_terms(&self.cage_work, &mut self.terms_work);
-        coords.evaluate(&self.cage_work, &self.terms_work, &mut self.nodes_work2)?;
-        for (v, f) in self.nodes_work2.iter_mut().zip(&forward) {
-            *v = (f - *v) / (2.0 * h);
+        for (r, t) in self.rate_work.iter_mut().zip(&self.terms_work) {
+            *r = (*r - t) / (2.0 * h);
         }
+        coords.evaluate(u, &self.rate_work, &mut self.nodes_work2)?;
         Ok(())
     }
 
@@ -808,7 +818,12 @@ impl LeveledBody {
         match self.level {
             Level::Cage => {
                 self.cage_state()?;
-                load_state(&mut shadow, &self.nodes_work, &self.nodes_work2);
+                load_state(
+                    &mut shadow,
+                    &self.nodes_work,
+                    &self.nodes_work2,
+                    UnitQuaternion::identity(),
+                );
             }
             Level::Precise => {
                 let from = self.precise.body();
@@ -851,128 +866,61 @@ impl LeveledBody {
         Ok(())
     }
 
-    /// Solves the normal equations `(Phi^T Phi + mu I) X = Phi^T (targets) + mu prior` for the
-    /// cage vertices, `targets[c]` the value wanted at surface vertex `c` after the face-term
-    /// part is removed. Result in `rhs_work` (nv x 3).
-    fn normal_solve(&mut self, targets: &[Vec3], prior: &[Vec3]) {
-        let nv = prior.len();
-        self.rhs_work.fill(0.0);
-        for (c, t) in targets.iter().enumerate() {
-            for r in 0..nv {
-                let w = self.fit.phi_t[(r, c)];
-                for a in 0..3 {
-                    self.rhs_work[(r, a)] += w * t[a];
-                }
-            }
+    /// The rotation of the rigid motion that best maps the rest cage onto `cage` (Kabsch).
+    fn cage_rotation(&self, cage: &[Vec3]) -> UnitQuaternion<f64> {
+        let rest = self.cage.cage().vertices();
+        let n = rest.len().max(1) as f64;
+        let (c0, c1) = (rest.iter().sum::<Vec3>() / n, cage.iter().sum::<Vec3>() / n);
+        let mut h = nalgebra::Matrix3::zeros();
+        for (x, x0) in cage.iter().zip(rest) {
+            h += (x - c1) * (x0 - c0).transpose();
         }
-        for (r, p) in prior.iter().enumerate() {
-            for a in 0..3 {
-                self.rhs_work[(r, a)] += self.fit.mu * p[a];
-            }
-        }
-        self.fit.normal.solve_mut(&mut self.rhs_work);
+        let mut q = UnitQuaternion::identity();
+        let mut r = nalgebra::Matrix3::identity();
+        crate::fem::rotation::extract_rotation(&h, &mut q, &mut r, 100, 1e-12);
+        q
     }
 
-    /// Fits the cage to the precise body's current surface into `cage_work` (positions) and
-    /// returns the largest surface distance of the fit. The face terms depend on the cage, so
-    /// the linear fit is repeated with refreshed face terms until the cage stops moving.
-    fn fit_cage(&mut self) -> Result<f64, PrecisionError> {
+    /// Iterates the cage fit on the precise body's current surface, at most `max_iterations`
+    /// times from the last fit, and returns the largest surface distance of the fit (the cage
+    /// level's error if the body dropped now).
+    fn fit_cage(&mut self, max_iterations: u32) -> Result<f64, PrecisionError> {
         let coords = self.cage.coordinates().clone();
-        self.cage_work.copy_from_slice(self.cage.cage_positions());
-        let mut targets = std::mem::take(&mut self.surface_targets);
-        let mut prior = std::mem::take(&mut self.cage_prior);
-        for _ in 0..MAX_FIT_ITERATIONS {
-            // The Tikhonov term pulls toward the previous iterate: it regularises each solve
-            // and vanishes at the fixed point.
-            prior.copy_from_slice(&self.cage_work);
-            coords.face_terms(&self.cage_work, &mut self.terms_work);
-            let p = self.precise.body().positions();
-            for (t, &i) in targets.iter_mut().zip(&self.surface) {
-                let i = i as usize;
-                *t = p[i];
-                for (psi, term) in coords.psi(i).iter().zip(&self.terms_work) {
-                    *t -= term * *psi;
-                }
-            }
-            self.normal_solve(&targets, &prior);
-            let mut change: f64 = 0.0;
-            for (r, v) in self.cage_work.iter_mut().enumerate() {
-                let new = Vec3::new(
-                    self.rhs_work[(r, 0)],
-                    self.rhs_work[(r, 1)],
-                    self.rhs_work[(r, 2)],
-                );
-                change = change.max((new - *v).norm());
-                *v = new;
-            }
-            if change <= 1e-14 * self.smallest {
-                break;
-            }
-        }
-        self.surface_targets = targets;
-        self.cage_prior = prior;
-        coords.face_terms(&self.cage_work, &mut self.terms_work);
-        coords.evaluate(&self.cage_work, &self.terms_work, &mut self.nodes_work)?;
-        let p = self.precise.body().positions();
-        let residual = self
-            .surface
-            .iter()
-            .map(|&i| (self.nodes_work[i as usize] - p[i as usize]).norm())
-            .fold(0.0, f64::max);
+        let points = self.precise.body().positions();
+        self.last_fit = self.fit.positions(
+            &coords,
+            points,
+            &mut self.fit_cage,
+            FIT_TOLERANCE * self.smallest,
+            max_iterations,
+        );
+        let residual = self.fit.residual(&coords, &self.fit_cage, points);
         if !residual.is_finite() {
+            // Start the next fit from the cage, not from a broken estimate.
+            self.fit_cage.copy_from_slice(self.cage.cage_positions());
             return Err(PrecisionError::SingularFit);
         }
         Ok(residual)
     }
 
-    /// Cage vertex velocities whose Green-coordinate map (vertex and face terms, linearised
-    /// at the fitted cage `cage_work`) best reproduces the surface velocities, into
-    /// `rhs_work` rows.
-    fn fit_velocities(&mut self) -> Vec<Vec3> {
+    /// Iterates the cage velocity fit (linearised at the fitted positions) from the last one.
+    fn fit_velocities(&mut self, max_iterations: u32) -> FitReport {
         let coords = self.cage.coordinates().clone();
-        let nv = self.cage_work.len();
-        let mut targets = std::mem::take(&mut self.surface_targets);
-        let mut u = vec![Vec3::zeros(); nv];
-        let mut rate = vec![Vec3::zeros(); coords.face_count()];
-        let mut moved = vec![Vec3::zeros(); nv];
-        let h = 1e-3 * self.settings.dt;
-        let zeros = vec![Vec3::zeros(); nv];
-        for _ in 0..MAX_FIT_ITERATIONS {
-            // Rate of the face terms along u (central difference).
-            shifted(&self.cage_work, &u, h, &mut moved);
-            coords.face_terms(&moved, &mut rate);
-            shifted(&self.cage_work, &u, -h, &mut moved);
-            coords.face_terms(&moved, &mut self.terms_work);
-            for (r, t) in rate.iter_mut().zip(&self.terms_work) {
-                *r = (*r - t) / (2.0 * h);
-            }
-            let vel = self.precise.body().velocities();
-            for (t, &i) in targets.iter_mut().zip(&self.surface) {
-                let i = i as usize;
-                *t = vel[i];
-                for (psi, r) in coords.psi(i).iter().zip(&rate) {
-                    *t -= r * *psi;
-                }
-            }
-            self.normal_solve(&targets, &zeros);
-            let mut change: f64 = 0.0;
-            let mut size: f64 = 0.0;
-            for (r, v) in u.iter_mut().enumerate() {
-                let new = Vec3::new(
-                    self.rhs_work[(r, 0)],
-                    self.rhs_work[(r, 1)],
-                    self.rhs_work[(r, 2)],
-                );
-                change = change.max((new - *v).norm());
-                size = size.max(new.norm());
-                *v = new;
-            }
-            if change <= 1e-12 * size.max(f64::MIN_POSITIVE) {
-                break;
-            }
-        }
-        self.surface_targets = targets;
-        u
+        let dt = self.settings.dt;
+        self.fit.velocities(
+            &coords,
+            &self.fit_cage,
+            self.precise.body().velocities(),
+            &mut self.fit_velocity,
+            1e-3 * dt,
+            FIT_TOLERANCE * self.smallest / dt,
+            max_iterations,
+        )
+    }
+
+    /// The last cage fit: iterations, last change, whether it converged.
+    pub fn last_fit(&self) -> FitReport {
+        self.last_fit
     }
 
     /// Precise to cage (rest, or a pin). No effect at the cage level or when pinned to the
@@ -981,21 +929,26 @@ impl LeveledBody {
         if self.level == Level::Cage || self.pin == Some(Level::Precise) {
             return Ok(None);
         }
+        let residual = self.fit_cage(MAX_FIT_ITERATIONS)?;
+        self.lower_fitted(residual).map(Some)
+    }
+
+    /// The down-switch onto the converged fit (`residual` its error).
+    fn lower_fitted(&mut self, residual: f64) -> Result<SwitchRecord, PrecisionError> {
         self.snapshot_surface();
-        let residual = self.fit_cage()?;
         self.residual = residual;
-        let u = self.fit_velocities();
-        let positions = self.cage_work.clone();
+        self.fit_velocities(MAX_FIT_ITERATIONS);
+        self.lowered_rotation = self.cage_rotation(&self.fit_cage);
         let msd = self.cage.msd_mut();
-        msd.positions_mut().copy_from_slice(&positions);
-        msd.velocities_mut().copy_from_slice(&u);
+        msd.positions_mut().copy_from_slice(&self.fit_cage);
+        msd.velocities_mut().copy_from_slice(&self.fit_velocity);
         // The cage keeps its rest shape (the body's equilibrium, see `settle`): whatever
         // motion is left carries on at the cage level and its springs bring it back to rest.
         self.cage.update_points()?;
         // The shadow carries on from the precise state the cage now stands for.
         self.restart_shadow()?;
         self.level = Level::Cage;
-        Ok(Some(self.record(Level::Precise, Level::Cage, residual)))
+        Ok(self.record(Level::Precise, Level::Cage, residual))
     }
 
     /// Advances the current level by one step. `in_contact` (from the contact stage) keeps
@@ -1033,14 +986,15 @@ impl LeveledBody {
             } else {
                 self.rest_count += 1;
                 // The fit (the distance from a cage-reproducible shape) is checked once the
-                // body has been slow long enough, not every step.
+                // body has been slow long enough, not every step, warm-started from the last
+                // one; a down-switch then uses it as it is.
                 if self.rest_count >= p.rest_steps
                     && self.steps_at_level >= p.min_precise_steps as u64
                 {
-                    let residual = self.fit_cage()?;
+                    let residual = self.fit_cage(MAX_FIT_ITERATIONS)?;
                     self.residual = residual;
                     if residual <= p.rest_residual * self.smallest {
-                        switched = self.lower()?;
+                        switched = Some(self.lower_fitted(residual)?);
                     } else {
                         self.rest_count = 0;
                     }
@@ -1118,6 +1072,7 @@ impl LeveledBody {
         self.switches = 0;
         self.last_switch = None;
         self.residual = 0.0;
+        self.lowered_rotation = UnitQuaternion::identity();
         if self.pin == Some(Level::Precise) {
             self.pin = None;
             self.raise()?;
@@ -1137,28 +1092,20 @@ impl LeveledBody {
 
 /// Sets a precise solver's nodes to `x`, `v`; components it holds fixed keep their position
 /// and get no velocity.
-fn load_state(target: &mut Precise, x: &[Vec3], v: &[Vec3]) {
-    let body = target.body_mut();
-    let fixed: Vec<[bool; 3]> = body.fixed().to_vec();
-    let held: Vec<Vec3> = body.positions().to_vec();
-    for (i, ((p, w), f)) in body
-        .positions_mut()
-        .iter_mut()
-        .zip(x)
-        .zip(&fixed)
-        .enumerate()
-    {
+fn load_state(target: &mut Precise, x: &[Vec3], v: &[Vec3], turned: UnitQuaternion<f64>) {
+    let nodes = target.body_mut().nodes_mut();
+    for i in 0..nodes.x.len() {
         for a in 0..3 {
-            p[a] = if f[a] { held[i][a] } else { w[a] };
-        }
-    }
-    for ((u, w), f) in body.velocities_mut().iter_mut().zip(v).zip(&fixed) {
-        for a in 0..3 {
-            u[a] = if f[a] { 0.0 } else { w[a] };
+            if !nodes.fixed[i][a] {
+                nodes.x[i][a] = x[i][a];
+                nodes.v[i][a] = v[i][a];
+            } else {
+                nodes.v[i][a] = 0.0;
+            }
         }
     }
     if let Precise::Fem(b) = target {
-        b.sync_rotations();
+        b.sync_rotations_from(turned);
     }
 }
 

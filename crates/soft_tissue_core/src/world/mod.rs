@@ -25,6 +25,7 @@ mod contact_stages;
 mod scene;
 mod script;
 
+pub use crate::timing::StageTimes;
 pub use contact_stages::{ContactState, collide, detect_contacts};
 pub use scene::{SceneBody, body_settings, load_mesh, placed_mesh, scene_bodies};
 pub use script::{Script, ScriptAction, ScriptError, ScriptEvent, Waypoint};
@@ -122,8 +123,11 @@ pub struct BodyDiagnostics {
     pub level: Level,
     /// Name of the method now running: `cage`, `fem` or `msd`.
     pub method: &'static str,
-    /// Wall time of this body's solver step (level and heat), microseconds.
+    /// Wall time of this body's solver step (level and heat, a down-switch included),
+    /// microseconds.
     pub step_us: f64,
+    /// Wall time of this body's up-switch in the switch stage, microseconds (0 without one).
+    pub switch_us: f64,
     /// Contacts (tool triangles and vertex-triangle pairs) found this step.
     pub contacts: u32,
     /// Whether the body counted as touched this step.
@@ -141,35 +145,6 @@ pub struct BodyDiagnostics {
     /// Distance of the cage level from its shadow precise simulation after this step
     /// (`None` unless [`SimBody::set_shadow`] turned it on and the body is at its cage).
     pub shadow: Option<ShadowError>,
-}
-
-/// Wall time of each stage of the last step, microseconds.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct StageTimes {
-    /// [`prepare`].
-    pub prepare_us: f64,
-    /// [`detect_contacts`].
-    pub detect_us: f64,
-    /// [`switch_precision`].
-    pub switch_us: f64,
-    /// [`step_solvers`].
-    pub solve_us: f64,
-    /// [`collide`].
-    pub collide_us: f64,
-    /// [`writeback`].
-    pub writeback_us: f64,
-}
-
-impl StageTimes {
-    /// Sum of the stages.
-    pub fn total_us(&self) -> f64 {
-        self.prepare_us
-            + self.detect_us
-            + self.switch_us
-            + self.solve_us
-            + self.collide_us
-            + self.writeback_us
-    }
 }
 
 /// Most precise steps [`SimBody::new`] spends settling a body under gravity.
@@ -246,6 +221,7 @@ impl SimBody {
                 level: Level::Cage,
                 method: "cage",
                 step_us: 0.0,
+                switch_us: 0.0,
                 contacts: 0,
                 touched: false,
                 switch_count: 0,
@@ -406,6 +382,7 @@ impl SimBody {
         self.contacts = 0;
         self.diagnostics.switched = None;
         self.diagnostics.step_us = 0.0;
+        self.diagnostics.switch_us = 0.0;
         self.diagnostics.contacts = 0;
         self.diagnostics.touched = false;
         self.written_asleep = false;
@@ -444,12 +421,15 @@ pub fn switch_precision<B: BorrowMut<SimBody>>(bodies: &mut [B]) -> Result<(), W
     for b in bodies.iter_mut() {
         let b = b.borrow_mut();
         b.diagnostics.switched = None;
-        if b.touched {
+        b.diagnostics.switch_us = 0.0;
+        if b.touched && b.body.level() == Level::Cage {
+            let start = Instant::now();
             match b.body.raise() {
                 Ok(Some(r)) => b.diagnostics.switched = Some(r),
                 Ok(None) => {}
                 Err(e) => return Err(b.precision_err(e)),
             }
+            b.diagnostics.switch_us = start.elapsed().as_secs_f64() * 1e6;
         }
     }
     Ok(())

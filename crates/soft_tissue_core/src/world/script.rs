@@ -73,7 +73,9 @@ pub enum ScriptError {
         message: String,
     },
     /// No built-in script by that name.
-    #[error("no built-in script `{0}` (poke-a, push-a-into-b, poke-liver, cauterize-liver)")]
+    #[error(
+        "no built-in script `{0}` (poke-a, push-a-into-b, poke-liver, cauterize-liver, poke, poke:BODY)"
+    )]
     Unknown(String),
     /// The scene lacks a body the built-in script needs.
     #[error("script `{script}` needs a body named `{body}` in the scene")]
@@ -186,6 +188,9 @@ impl Script {
     /// - `poke-liver` (Table IV): a ball presses down on the top of the liver above the point
     ///   where it is closest to another organ, holds, withdraws at 3 s.
     /// - `cauterize-liver`: a capsule touches the liver's top and cauterizes at 30 W for 2 s.
+    /// - `poke` (any scene) and `poke:BODY`: a ball a tenth of the body's smallest dimension
+    ///   across presses down on the top of the first body (or the one named) near the middle
+    ///   of its footprint, 30 % of that dimension deep, holds, withdraws at 3 s.
     pub fn builtin(name: &str, world: &SoftTissueWorld) -> Result<Script, ScriptError> {
         match name {
             "poke-a" => {
@@ -320,6 +325,51 @@ impl Script {
                     },
                 ];
                 Ok(s)
+            }
+            poke if poke == "poke" || poke.starts_with("poke:") => {
+                // Any scene: press down (-y) on the top of a body (the first, or the one
+                // named after `poke:`) near the middle of its footprint, 30 % of its smallest
+                // dimension deep, then withdraw.
+                let target = match poke.strip_prefix("poke:") {
+                    Some(body) => body_box(world, name, body)?,
+                    None => {
+                        let first =
+                            world
+                                .bodies()
+                                .first()
+                                .ok_or_else(|| ScriptError::MissingBody {
+                                    script: name.into(),
+                                    body: "any body".into(),
+                                })?;
+                        body_box(world, name, first.name())?
+                    }
+                };
+                let points = world.bodies()[target.index].collider().positions();
+                let small = target.extent.min();
+                let middle = |x: &Vec3, reach: f64| {
+                    ((x - target.center).xz()).norm() <= reach * target.extent.xz().norm()
+                };
+                let top = [0.1, 0.25, 1.0]
+                    .into_iter()
+                    .find_map(|reach| {
+                        points
+                            .iter()
+                            .filter(|x| middle(x, reach))
+                            .copied()
+                            .reduce(|a, b| if b.y > a.y { b } else { a })
+                    })
+                    .unwrap_or(target.center);
+                let r = 0.1 * small;
+                let contact = top + Vec3::y() * r;
+                Ok(push_script(
+                    name,
+                    r,
+                    Vec3::y(),
+                    contact + Vec3::y() * 0.2 * small,
+                    contact,
+                    contact - Vec3::y() * 0.3 * small,
+                    [0.5, 2.0, 2.5, 3.0],
+                ))
             }
             other => Err(ScriptError::Unknown(other.into())),
         }
