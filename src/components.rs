@@ -184,12 +184,12 @@ pub struct GreenCage {
 pub struct FemState {
     /// Whether the model is corotational (otherwise linear).
     pub corotational: bool,
-    /// Kinetic energy at the precise level, J (scene units).
-    pub kinetic_energy: f64,
-    /// Elastic energy at the precise level.
-    pub elastic_energy: f64,
     /// Conjugate-gradient iterations of the last precise step (0 for the direct solve).
     pub cg_iterations: u32,
+    /// Final relative residual of that solve (0 for the direct solve).
+    pub cg_residual: f64,
+    /// Whether that solve met its tolerance within its iteration cap.
+    pub cg_converged: bool,
 }
 
 /// Read-out of an MSD body's solver (only on bodies whose precise method is MSD).
@@ -198,12 +198,13 @@ pub struct FemState {
 pub struct MsdState {
     /// The integrator.
     pub integrator: PreciseMethodKind,
-    /// Kinetic energy at the precise level.
-    pub kinetic_energy: f64,
-    /// Elastic (spring) energy at the precise level.
-    pub elastic_energy: f64,
     /// Substeps of the last precise step (explicit integrators).
     pub substeps: u32,
+    /// Conjugate-gradient iterations of the last precise step (implicit integrator; 0
+    /// otherwise).
+    pub cg_iterations: u32,
+    /// Whether that solve met its tolerance within its iteration cap (true without one).
+    pub cg_converged: bool,
 }
 
 /// Temperatures and thermal damage of a body with a heat field (only on those).
@@ -282,6 +283,15 @@ pub struct VisualMeshError(pub String);
 #[derive(Component, Reflect, Clone, Copy, Debug, Default)]
 #[reflect(Component)]
 pub struct ShadowSimulation;
+
+/// Energies of a body, computed when asked for ([`SimulatedBody::energies`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Energies {
+    /// Kinetic energy (scene units).
+    pub kinetic: f64,
+    /// Elastic (strain or spring) energy, anchors included.
+    pub elastic: f64,
+}
 
 /// The physics state of a built body: the core body the stage functions step.
 #[derive(Component)]

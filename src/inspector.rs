@@ -1,7 +1,8 @@
 //! The inspector (feature `inspector`, bevy_egui): every body's level, precise method
 //! (switchable), step time, switches, last jump, temperature range and shadow error; the
-//! simulation's rate, stage times, pause / single step / reset; and a live plot of each body's
-//! step time over the last seconds, like the paper's figures.
+//! simulation's rate, the last step's time and the median, 99th percentile and largest of
+//! the whole step and of each stage over the last steps, pause / single step / reset; and a
+//! live plot of each body's step time over the last seconds, like the paper's figures.
 
 use std::collections::VecDeque;
 
@@ -10,6 +11,7 @@ use bevy_egui::{EguiContexts, EguiPlugin, EguiPrimaryContextPass, egui};
 use egui_plot::{Legend, Line, Plot, PlotPoints};
 
 use crate::components::*;
+use crate::core::timing::StageTimes;
 use crate::physics::{ResetSimulation, SoftTissueConfig, SoftTissueStatus};
 
 /// Adds the panel (and `EguiPlugin` when the app has none).
@@ -92,17 +94,37 @@ fn inspector_panel(
         .show(ctx, |ui| {
             let t = status.times;
             ui.label(format!(
-                "physics {:.0} Hz (dt {} s), step {}: {:.0} us (detect {:.0}, switch {:.0}, solve {:.0}, collide {:.0}, writeback {:.0})",
+                "physics {:.0} Hz (dt {} s), step {}: {:.0} us",
                 1.0 / config.dt,
                 config.dt,
                 status.steps,
                 t.total_us(),
-                t.detect_us,
-                t.switch_us,
-                t.solve_us,
-                t.collide_us,
-                t.writeback_us
             ));
+            // Real time is decided by the worst step: the last one, and the median, 99th
+            // percentile and largest of the last steps, whole and per stage.
+            let stats = status.recent.summary();
+            egui::Grid::new("stages").striped(true).show(ui, |ui| {
+                for h in ["us", "last", "median", "p99", "max"] {
+                    ui.strong(h);
+                }
+                ui.end_row();
+                let last = t.values();
+                let rows = std::iter::once(("step", t.total_us(), &stats.step)).chain(
+                    StageTimes::NAMES
+                        .iter()
+                        .zip(last)
+                        .zip(&stats.stages)
+                        .map(|((n, l), s)| (*n, l, s)),
+                );
+                for (name, last, s) in rows {
+                    ui.label(name);
+                    for v in [last, s.median_us, s.p99_us, s.max_us] {
+                        ui.label(format!("{v:.0}"));
+                    }
+                    ui.end_row();
+                }
+            });
+            ui.label(format!("over the last {} steps", stats.step.count));
             ui.horizontal(|ui| {
                 let label = if status.paused { "Resume" } else { "Pause" };
                 if ui.button(label).clicked() {
@@ -121,7 +143,13 @@ fn inspector_panel(
             }
             egui::Grid::new("bodies").striped(true).show(ui, |ui| {
                 for h in [
-                    "body", "level", "method", "step us", "switches", "last jump %", "C",
+                    "body",
+                    "level",
+                    "method",
+                    "step us",
+                    "switches",
+                    "last jump %",
+                    "C",
                     "cage err %",
                 ] {
                     ui.strong(h);

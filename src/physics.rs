@@ -12,7 +12,7 @@ use soft_tissue_core::contact::{ContactConfig, Tool};
 use soft_tissue_core::heat::HeatBoundary;
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::precision::{Level, PreciseMethod};
-use soft_tissue_core::state::NodalBody;
+use soft_tissue_core::timing::StageRecorder;
 use soft_tissue_core::world::{
     ContactState, SimBody, StageTimes, WorldError, collide, detect_contacts, prepare, step_solvers,
     switch_precision, writeback,
@@ -69,7 +69,7 @@ impl Default for SoftTissueConfig {
 
 /// State of the simulation as a whole: pause, single step, counters, stage times and the
 /// last error.
-#[derive(Resource, Clone, Debug, Default)]
+#[derive(Resource, Clone, Debug)]
 pub struct SoftTissueStatus {
     /// No steps run while set (bodies and tools keep their state).
     pub paused: bool,
@@ -79,9 +79,28 @@ pub struct SoftTissueStatus {
     pub steps: u64,
     /// Wall time of each stage of the last step (this machine).
     pub times: StageTimes,
+    /// Stage times of the last [`STAGE_WINDOW`] steps: their median, 99th percentile and
+    /// largest on request ([`StageRecorder::summary`]), as the inspector shows them.
+    pub recent: StageRecorder,
     /// The last error of a step (a solver that failed, a NaN caught); the simulation pauses
     /// when one happens.
     pub error: Option<String>,
+}
+
+/// Steps [`SoftTissueStatus::recent`] keeps.
+pub const STAGE_WINDOW: usize = 1000;
+
+impl Default for SoftTissueStatus {
+    fn default() -> Self {
+        SoftTissueStatus {
+            paused: false,
+            step_once: false,
+            steps: 0,
+            times: StageTimes::default(),
+            recent: StageRecorder::windowed(STAGE_WINDOW),
+            error: None,
+        }
+    }
 }
 
 impl SoftTissueStatus {
@@ -212,9 +231,10 @@ fn reset_simulation(
         t.tool.reset();
         t.grabbing = false;
     }
-    contacts.0 = ContactState::default();
+    contacts.0.clear();
     status.steps = 0;
     status.error = None;
+    status.recent.clear();
 }
 
 fn fail(status: &mut SoftTissueStatus, message: String) {
@@ -585,8 +605,11 @@ fn writeback_stage(
                 contacts: d.contacts,
             });
         }
+        // Components change only when their contents do: the cage moves only at its own
+        // level (or is handed over at a switch), temperatures only while the field changes.
         let awake = !lb.is_asleep();
-        if awake || cage.vertices.is_empty() {
+        let cage_moved = d.level == Level::Cage && awake;
+        if cage_moved || d.switched.is_some() || cage.vertices.is_empty() {
             let c = lb.cage();
             cage.vertices.clear();
             cage.vertices.extend(c.cage_positions().iter().map(to_bevy));
@@ -595,31 +618,34 @@ fn writeback_stage(
             }
             cage.active = d.level == Level::Cage;
         }
-        *diag = SoftBodyDiagnostics {
-            step_us: d.step_us,
+        diag.set_if_neq(SoftBodyDiagnostics {
+            step_us: d.step_us + d.switch_us,
             contacts: d.contacts,
             max_displacement: d.max_displacement,
             shadow_error_ratio: d.shadow.map(|e| e.max_ratio),
-        };
+        });
+        let cg = d.cg;
         if let (Some(mut f), Some(fb)) = (fem, lb.fem()) {
-            let precise = d.level == Level::Precise;
-            *f = FemState {
+            f.set_if_neq(FemState {
                 corotational: fb.model() == soft_tissue_core::fem::FemModel::Corotational,
-                kinetic_energy: if precise { fb.kinetic_energy() } else { 0.0 },
-                elastic_energy: if precise { fb.elastic_energy() } else { 0.0 },
-                cg_iterations: fb.last_step().cg.iterations,
-            };
+                cg_iterations: cg.map_or(0, |c| c.iterations),
+                cg_residual: cg.map_or(0.0, |c| c.relative_residual),
+                cg_converged: cg.is_none_or(|c| c.converged),
+            });
         }
         if let (Some(mut m), Some(mb)) = (msd, lb.msd()) {
-            let precise = d.level == Level::Precise;
-            *m = MsdState {
+            m.set_if_neq(MsdState {
                 integrator: lb.settings().precise.into(),
-                kinetic_energy: if precise { mb.kinetic_energy() } else { 0.0 },
-                elastic_energy: if precise { mb.elastic_energy() } else { 0.0 },
                 substeps: mb.last_step().substeps,
-            };
+                cg_iterations: cg.map_or(0, |c| c.iterations),
+                cg_converged: cg.is_none_or(|c| c.converged),
+            });
         }
-        if let (Some(mut tc), Some(h)) = (temp, b.heat()) {
+        let mut heat_changed = false;
+        if let (Some(mut tc), Some(h)) = (temp, b.heat())
+            && (h.changed() || tc.surface.is_empty())
+        {
+            heat_changed = true;
             let nodes = b.surface_nodes();
             let temps = h.temperatures();
             tc.surface.clear();
@@ -631,7 +657,7 @@ fn writeback_stage(
             tc.min = temps.iter().copied().fold(f64::INFINITY, f64::min);
             tc.max = temps.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         }
-        if awake || d.switched.is_some() || b.heat().is_some() {
+        if awake || d.switched.is_some() || heat_changed {
             sim.dirty = true;
         }
     }
@@ -644,6 +670,8 @@ fn writeback_stage(
         };
     }
     status.times.writeback_us = lap(&mut t);
+    let times = status.times;
+    status.recent.push(&times);
     status.steps += 1;
     status.step_once = false;
 }

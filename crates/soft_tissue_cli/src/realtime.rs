@@ -14,6 +14,22 @@ struct BodyRecord {
     precise: Vec<f64>,
     up: Vec<f64>,
     down: Vec<f64>,
+    cg: CgSummary,
+}
+
+/// A body's iterative solves over a run (corotational FEM, implicit MSD).
+#[derive(Debug, Default, Clone, Copy, Serialize)]
+pub struct CgSummary {
+    /// Steps with an iterative solve.
+    pub solves: usize,
+    /// Most iterations of one solve.
+    pub max_iterations: u32,
+    /// Mean iterations.
+    pub mean_iterations: f64,
+    /// Solves that stopped at the iteration cap above their tolerance.
+    pub not_converged: usize,
+    /// Largest final relative residual.
+    pub worst_residual: f64,
 }
 
 /// Records every step of a run.
@@ -39,6 +55,8 @@ pub struct BodyCosts {
     pub down_switch: TimeStats,
     /// The costliest switch step over the median precise step (`None` without both).
     pub worst_switch_ratio: Option<f64>,
+    /// Its iterative solves.
+    pub cg: CgSummary,
 }
 
 /// A run's step costs (see the module docs).
@@ -85,6 +103,16 @@ impl RunRecorder {
         for (rec, b) in self.bodies.iter_mut().zip(world.bodies()) {
             let d = b.diagnostics();
             let cost = d.switch_us + d.step_us;
+            if let Some(cg) = d.cg {
+                let c = &mut rec.cg;
+                c.mean_iterations += f64::from(cg.iterations);
+                c.solves += 1;
+                c.max_iterations = c.max_iterations.max(cg.iterations);
+                c.not_converged += usize::from(!cg.converged);
+                if cg.relative_residual.is_nan() || cg.relative_residual > c.worst_residual {
+                    c.worst_residual = cg.relative_residual;
+                }
+            }
             match d.switched {
                 Some(s) if s.to == Level::Precise => {
                     rec.up.push(cost);
@@ -119,8 +147,11 @@ impl RunRecorder {
                 let up_switch = TimeStats::of(&r.up);
                 let down_switch = TimeStats::of(&r.down);
                 let worst = up_switch.max_us.max(down_switch.max_us);
+                let mut cg = r.cg;
+                cg.mean_iterations /= cg.solves.max(1) as f64;
                 BodyCosts {
                     name: name.to_owned(),
+                    cg,
                     worst_switch_ratio: (precise.count > 0
                         && up_switch.count + down_switch.count > 0)
                         .then(|| worst / precise.median_us),

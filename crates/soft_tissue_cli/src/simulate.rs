@@ -15,7 +15,8 @@ use soft_tissue_core::world::{Script, ScriptAction, SoftTissueWorld};
 
 #[derive(Args)]
 pub struct SimulateArgs {
-    /// `cylinders`, `organs` (the paper's scenes) or a scene RON file.
+    /// `cylinders`, `organs` (the paper's scenes), `organs-fine` (liver, stomach and spleen
+    /// generated at 2.8k-4.8k tetrahedra each) or a scene RON file.
     #[arg(long)]
     scene: String,
     /// Built-in script (`poke-a`, `push-a-into-b`, `poke-liver`, `cauterize-liver`) or a
@@ -88,6 +89,7 @@ pub(crate) fn load_scene(name: &str, assets: &Path) -> Result<Scene, String> {
             assets.join("scenes/organs.scene.ron"),
             Some(Scene::paper_organs()),
         ),
+        "organs-fine" => (PathBuf::new(), Some(Scene::fine_organs())),
         _ => (PathBuf::from(name), None),
     };
     match (std::fs::read_to_string(&path), builtin) {
@@ -236,6 +238,9 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                         "level": level_name(&world, i),
                         "step_us": d.step_us,
                         "switch_us": d.switch_us,
+                        "cg_iterations": d.cg.map(|c| c.iterations),
+                        "cg_residual": d.cg.map(|c| c.relative_residual),
+                        "cg_converged": d.cg.map(|c| c.converged),
                         "max_displacement": d.max_displacement,
                         "switch_jump": d.switched.map(|s| s.jump),
                         "switch_jump_ratio": d.switched.map(|s| s.jump_ratio),
@@ -297,6 +302,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "up_switch": c.up_switch,
                 "down_switch": c.down_switch,
                 "worst_switch_over_precise_median": c.worst_switch_ratio,
+                "cg": c.cg,
                 "worst_shadow_error_ratio": args.shadow.then_some(worst_shadow[i]),
                 "mean_shadow_error_ratio": args.shadow.then(|| {
                     shadow_sum[i].0 / shadow_sum[i].1.max(1) as f64
@@ -407,6 +413,12 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
         }
         if nb > 12 {
             println!("... {} more bodies", nb - 12);
+        }
+        for c in costs.bodies.iter().filter(|c| c.cg.not_converged > 0) {
+            println!(
+                "warning: {}: {} of {} iterative solves stopped at the iteration cap ({} iterations), worst relative residual {:.2e}",
+                c.name, c.cg.not_converged, c.cg.solves, c.cg.max_iterations, c.cg.worst_residual
+            );
         }
         if args.shadow {
             println!(

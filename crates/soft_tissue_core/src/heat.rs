@@ -213,6 +213,8 @@ pub struct HeatField {
     temperature: Vec<f64>,
     damage: Vec<f64>,
     capacity: Vec<f64>,
+    /// Whether the last step changed a temperature or a damage integral.
+    changed: bool,
     fixed: Vec<Option<f64>>,
     /// `(free node i, fixed node j, dt K_ij)`: the coupling of free rows to fixed values.
     coupling: Vec<(u32, u32, f64)>,
@@ -310,6 +312,7 @@ impl HeatField {
             power: vec![0.0; n],
             rhs: vec![0.0; n],
             time: 0.0,
+            changed: false,
         })
     }
 
@@ -392,6 +395,12 @@ impl HeatField {
         Ok(())
     }
 
+    /// Whether the last step changed any temperature or damage (a field at equilibrium with
+    /// no source does not: readers can skip it).
+    pub fn changed(&self) -> bool {
+        self.changed
+    }
+
     /// Power queued for the next step, W.
     pub fn queued_power(&self) -> f64 {
         self.power.iter().sum()
@@ -415,12 +424,14 @@ impl HeatField {
         if let Some(node) = self.rhs.iter().position(|t| !t.is_finite()) {
             return Err(HeatError::Diverged { node });
         }
+        self.changed = self.rhs != self.temperature;
         self.temperature.copy_from_slice(&self.rhs);
         self.power.fill(0.0);
         let p = &self.params;
         if p.damage_frequency > 0.0 {
             for (omega, &t) in self.damage.iter_mut().zip(&self.temperature) {
                 if t > p.damage_threshold {
+                    self.changed = true;
                     let kelvin = t + KELVIN_OFFSET;
                     let rate = p.damage_frequency
                         * (-p.damage_activation_energy / (GAS_CONSTANT * kelvin)).exp();
@@ -440,5 +451,6 @@ impl HeatField {
         self.damage.fill(0.0);
         self.power.fill(0.0);
         self.time = 0.0;
+        self.changed = true;
     }
 }

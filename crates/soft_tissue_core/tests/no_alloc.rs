@@ -180,3 +180,37 @@ fn cage_and_leveled_body_steps_do_not_allocate() {
         "precise-level steps allocated {at_precise} times"
     );
 }
+
+#[test]
+fn world_steps_do_not_allocate_once_warm() {
+    use soft_tissue_core::contact::Tool;
+    use soft_tissue_core::scenario::Scene;
+    use soft_tissue_core::world::{Script, SoftTissueWorld};
+    let assets = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets"));
+    let mut world = SoftTissueWorld::from_scene(&Scene::paper_organs(), assets).unwrap();
+    let script = Script::builtin("poke-liver", &world).unwrap();
+    let tool = world.add_tool(Tool::new("tool", script.tool).unwrap());
+    let dt = world.config().dt;
+    let step = |world: &mut SoftTissueWorld, k: usize| {
+        let (p, a) = script.pose_at((k + 1) as f64 * dt);
+        world.tools_mut()[tool].set_pose(p, a).unwrap();
+        world.step_fixed().unwrap();
+    };
+    // The first run sizes every workspace (contact lists, the pairs' candidates).
+    for k in 0..700 {
+        step(&mut world, k);
+    }
+    world.reset().unwrap();
+    // The same interaction again: contact, solvers, switches up and down, heat, writeback.
+    let mut switches = 0;
+    for k in 0..700 {
+        let n = allocations(|| step(&mut world, k));
+        assert_eq!(n, 0, "step {k} allocated {n} times");
+        switches += world
+            .bodies()
+            .iter()
+            .filter(|b| b.diagnostics().switched.is_some())
+            .count();
+    }
+    assert!(switches >= 4, "{switches} switches");
+}

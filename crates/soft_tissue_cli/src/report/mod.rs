@@ -5,6 +5,7 @@
 //! Every number comes from running the scenes headless with the built-in scripts and loads;
 //! nothing is copied. Goals are checked and a missed goal is reported as missed.
 
+mod budget;
 mod peer;
 mod plots;
 mod sweep;
@@ -29,7 +30,7 @@ use plots::{Axis, Series, chart};
 
 use crate::simulate::{add_resting_copies, drive_tool, load_scene};
 
-type Res<T> = Result<T, Box<dyn std::error::Error>>;
+pub(crate) type Res<T> = Result<T, Box<dyn std::error::Error>>;
 
 #[derive(Args)]
 pub struct ReportArgs {
@@ -271,7 +272,7 @@ fn today() -> String {
     format!("{y:04}-{m:02}-{d:02}")
 }
 
-fn write_file(dir: &Path, name: &str, text: &str) -> Res<()> {
+pub(crate) fn write_file(dir: &Path, name: &str, text: &str) -> Res<()> {
     let path = dir.join(name);
     std::fs::write(&path, text).map_err(|e| format!("{}: {e}", path.display()))?;
     Ok(())
@@ -332,7 +333,8 @@ pub fn report(args: &ReportArgs) -> Res<()> {
             + sweep_configs.len()
             + 1
             + cases.len()
-            + peers.len(),
+            + peers.len()
+            + 4,
         start: Instant::now(),
     };
     let machine = crate::machine();
@@ -682,6 +684,7 @@ pub fn report(args: &ReportArgs) -> Res<()> {
         ),
     );
     let mut step = |what: &str| progress.step(what);
+    let budget = budget::budget_section(&mut md, &mut js, &args.out, assets, quick, &mut step)?;
     mesh_size_section(&mut md, &mut js, &args.out, &resolutions, quick, &mut step)?;
     let sweep_points = speed_error_section(
         &mut md,
@@ -736,6 +739,46 @@ pub fn report(args: &ReportArgs) -> Res<()> {
             verdict(last.1 < 2.0 * first.1)
         )?;
     }
+    for (scene, c) in &budget {
+        if scene.contains("all precise") {
+            let solve = c.stages.get("solve").map_or(0.0, |t| t.mean_us);
+            if solve > 0.0 {
+                let r = c.step.mean_us / solve;
+                writeln!(
+                    md,
+                    "- Organs all precise: whole step at most 1.4x the sum of the solver steps:                      {r:.2}x: {}.",
+                    verdict(r <= 1.4)
+                )?;
+            }
+            continue;
+        }
+        if let Some(r) = c.worst_over_precise_median {
+            writeln!(
+                md,
+                "- `{scene}`: largest whole step at most 3x the median of the steps with a                  precise body: {r:.2}x: {}.",
+                verdict(r <= 3.0)
+            )?;
+        }
+        if let Some(r) = c.contact_over_solve {
+            writeln!(
+                md,
+                "- `{scene}`: contact (detect + collide) at most a third of the solvers:                  {r:.3}: {}.",
+                verdict(r <= 0.33)
+            )?;
+        }
+        let worst = c
+            .bodies
+            .iter()
+            .filter_map(|b| b.worst_switch_ratio.map(|r| (r, b.name.as_str())))
+            .max_by(|a, b| a.0.total_cmp(&b.0));
+        if let Some((r, body)) = worst {
+            writeln!(
+                md,
+                "- `{scene}`: every switch step at most 2x the body's median precise step:                  worst {r:.2}x ({body}): {}.",
+                verdict(r <= 2.0)
+            )?;
+        }
+    }
     for r in &peer_rows {
         let faster = r.ours_median_us < r.rapier_median_us;
         let as_good = r.ours_error_pct <= r.rapier_error_pct;
@@ -777,7 +820,7 @@ pub fn report(args: &ReportArgs) -> Res<()> {
     Ok(())
 }
 
-type Json = serde_json::Map<String, serde_json::Value>;
+pub(crate) type Json = serde_json::Map<String, serde_json::Value>;
 
 /// Step time against mesh size: the generated liver at several resolutions.
 fn mesh_size_section(

@@ -528,6 +528,12 @@ impl PairCandidates {
         self.rebuilds += 1;
     }
 
+    /// Marks the lists stale (the next [`PairCandidates::update`] rebuilds them), keeping
+    /// their room.
+    pub fn invalidate(&mut self) {
+        self.valid = false;
+    }
+
     /// Candidate vertices of `a` near `b` (`side` 0) or of `b` near `a` (`side` 1).
     pub fn near(&self, side: usize) -> &[u32] {
         &self.near[side]

@@ -12,7 +12,8 @@
 //!   terms: one evaluation with the face terms' rate). A FEM body's element rotations start
 //!   from the ones it held at its last down-switch, turned by how far the cage turned since
 //!   (its best rigid fit), and are brought to the new state eight elements at a time.
-//! - **Down** ([`LeveledBody::lower`], or automatically at the end of a step): the cage is
+//! - **Down** ([`LeveledBody::lower`], or automatically at the start of a step, which is then
+//!   a cage step): the cage is
 //!   fitted so its coordinates reproduce the current surface in the least-squares sense
 //!   ([`crate::cage::fit`]: face terms refreshed by an Anderson-accelerated fixed point whose
 //!   iterations cost `O(cage vertices x cage faces)`, warm-started from the last fit), cage
@@ -23,7 +24,8 @@
 //! - Automatic down-switch ([`PrecisionPolicy`]): no contact, largest nodal speed and the cage
 //!   fit residual (the distance from a cage-reproducible shape) below thresholds for
 //!   `rest_steps` consecutive steps, and at least `min_precise_steps` steps at the precise
-//!   level (hysteresis: a body never flickers). The fit is computed once the body has been
+//!   level (hysteresis: a body never flickers). The speed is the one the last step left, after
+//!   its contact response: bodies resting against each other are at rest there. The fit is computed once the body has been
 //!   slow for `rest_steps` steps, not every step.
 //!
 //! - Error of the cage level: the fit residual at every down-switch ([`SwitchRecord`]) and,
@@ -42,6 +44,7 @@ use crate::cage::{
     CageBody, CageBodyConfig, CageError, FitOptions, FitReport, SurfaceFit, box_cage, fitted_cage,
 };
 use crate::fem::{FemBody, FemConfig, FemError, FemModel};
+use crate::linalg::CgStats;
 use crate::material::{FemParams, MsdParams, PAPER_CAGE_MSD};
 use crate::mesh::TetMesh;
 use crate::msd::{MsdBody, MsdConfig, MsdError, MsdIntegrator};
@@ -198,7 +201,8 @@ pub struct SwitchRecord {
 pub struct LevelStepStats {
     /// Level that was stepped.
     pub level: Level,
-    /// Switch at the end of the step, if any.
+    /// The down-switch made at the start of the step, if any (the step that followed it was
+    /// a cage step).
     pub switched: Option<SwitchRecord>,
 }
 
@@ -478,9 +482,9 @@ impl LeveledBody {
             .all(|(x, r)| (x - r).norm() < eps);
         let pending = msd.external_forces().iter().any(|f| *f != Vec3::zeros());
         if near && !pending && msd.max_speed() < eps {
-            let rest = self.cage.cage().vertices().to_vec();
+            self.cage_work.copy_from_slice(self.cage.cage().vertices());
             let msd = self.cage.msd_mut();
-            msd.positions_mut().copy_from_slice(&rest);
+            msd.positions_mut().copy_from_slice(&self.cage_work);
             msd.velocities_mut().fill(Vec3::zeros());
             self.cage.update_points()?;
             self.asleep = true;
@@ -581,6 +585,18 @@ impl LeveledBody {
             Precise::Msd(b) => b.set_cg(tolerance, max_iterations)?,
         }
         Ok(())
+    }
+
+    /// The iterative solve of the last precise step, for the methods that have one
+    /// (corotational FEM, implicit MSD).
+    pub fn precise_cg(&self) -> Option<CgStats> {
+        match &self.precise {
+            Precise::Fem(b) if b.model() == FemModel::Corotational => Some(b.last_step().cg),
+            Precise::Msd(b) if b.config().integrator == MsdIntegrator::ImplicitEuler => {
+                Some(b.last_step().cg)
+            }
+            _ => None,
+        }
     }
 
     /// The FEM body, when the precise method is FEM.
@@ -955,29 +971,13 @@ impl LeveledBody {
     /// the body from dropping; a body at rest at the precise level with no contact drops to
     /// its cage per the policy. On a solver error the state of that level is unchanged.
     pub fn step(&mut self, in_contact: bool) -> Result<LevelStepStats, PrecisionError> {
-        let level = self.level;
-        match level {
-            Level::Cage => {
-                if self.asleep && !in_contact {
-                    // At rest in its rest shape with no load: stepping would change nothing.
-                    self.step_shadow()?;
-                    self.steps += 1;
-                    self.steps_at_level += 1;
-                    return Ok(LevelStepStats {
-                        level,
-                        switched: None,
-                    });
-                }
-                self.cage.step()?;
-                self.try_sleep()?;
-                self.step_shadow()?;
-            }
-            Level::Precise => self.precise.step()?,
-        }
-        self.steps += 1;
-        self.steps_at_level += 1;
+        // Rest is judged on the state the last step left, after its contact response: a body
+        // pressed against another sits still there, though within a solver step alone the
+        // contact's push is missing and its nodes near the contact move (at about the contact
+        // force times the step over their mass, every step). So the down-switch is decided,
+        // and made, at the start of a step, on that state; the step is then a cage step.
         let mut switched = None;
-        if level == Level::Precise && self.pin.is_none() {
+        if self.level == Level::Precise && self.pin.is_none() {
             let p = self.settings.policy;
             let slow = self.precise.body().max_speed() <= p.rest_speed * self.smallest;
             self.slow_steps = if slow { self.slow_steps + 1 } else { 0 };
@@ -1001,6 +1001,22 @@ impl LeveledBody {
                 }
             }
         }
+        let level = self.level;
+        match level {
+            Level::Cage => {
+                if self.asleep && !in_contact {
+                    // At rest in its rest shape with no load: stepping would change nothing.
+                    self.step_shadow()?;
+                } else {
+                    self.cage.step()?;
+                    self.try_sleep()?;
+                    self.step_shadow()?;
+                }
+            }
+            Level::Precise => self.precise.step()?,
+        }
+        self.steps += 1;
+        self.steps_at_level += 1;
         Ok(LevelStepStats { level, switched })
     }
 

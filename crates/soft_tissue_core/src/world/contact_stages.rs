@@ -60,6 +60,17 @@ fn candidates_of(
 }
 
 impl ContactState {
+    /// Forgets the contacts and pairs of the last step and every pair's candidates, keeping
+    /// the room of every list.
+    pub fn clear(&mut self) {
+        self.pairs.clear();
+        self.tool_contacts.clear();
+        self.body_contacts.clear();
+        for (_, c) in &mut self.candidates {
+            c.invalidate();
+        }
+    }
+
     /// The candidate lists of pair `(i, j)`, if the pair was ever looked at.
     pub fn candidates(&self, i: u32, j: u32) -> Option<&PairCandidates> {
         self.candidates

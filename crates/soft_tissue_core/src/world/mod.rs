@@ -37,6 +37,7 @@ use std::time::Instant;
 use crate::Vec3;
 use crate::contact::{ContactConfig, ContactError, SurfaceCollider, Tool, ToolContact};
 use crate::heat::{HeatBoundary, HeatError, HeatField, HeatParams};
+use crate::linalg::CgStats;
 use crate::mesh::TetMesh;
 use crate::precision::{
     BodySettings, Level, LeveledBody, PrecisionError, ShadowError, SwitchRecord,
@@ -128,6 +129,10 @@ pub struct BodyDiagnostics {
     pub step_us: f64,
     /// Wall time of this body's up-switch in the switch stage, microseconds (0 without one).
     pub switch_us: f64,
+    /// The iterative solve of this step's precise step (corotational FEM, implicit MSD):
+    /// iterations, final relative residual and whether it met its tolerance within its
+    /// iteration cap. `None` at the cage level and for direct or explicit methods.
+    pub cg: Option<CgStats>,
     /// Contacts (tool triangles and vertex-triangle pairs) found this step.
     pub contacts: u32,
     /// Whether the body counted as touched this step.
@@ -222,6 +227,7 @@ impl SimBody {
                 method: "cage",
                 step_us: 0.0,
                 switch_us: 0.0,
+                cg: None,
                 contacts: 0,
                 touched: false,
                 switch_count: 0,
@@ -481,6 +487,11 @@ pub fn step_solvers<B: BorrowMut<SimBody>, T: Borrow<Tool>>(
         if let Some(r) = stats.switched {
             b.diagnostics.switched = Some(r);
         }
+        b.diagnostics.cg = if stats.level == Level::Precise {
+            b.body.precise_cg()
+        } else {
+            None
+        };
         b.diagnostics.step_us = start.elapsed().as_secs_f64() * 1e6;
     }
     Ok(())
@@ -674,7 +685,9 @@ impl SoftTissueWorld {
         for t in &mut self.tools {
             t.reset();
         }
-        self.contacts = ContactState::default();
+        // Cleared, not replaced: the workspaces keep their room, so a run after a reset does
+        // not allocate either.
+        self.contacts.clear();
         self.steps = 0;
         self.accumulator = 0.0;
         self.times = StageTimes::default();

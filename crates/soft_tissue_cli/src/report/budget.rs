@@ -1,0 +1,215 @@
+//! The report's real-time budget: per scene, the whole step's median, 99th percentile and
+//! largest, each stage, the up- and down-switch steps against each body's precise step, and
+//! the steps over a 1 ms and a 10 ms budget; and the organs all precise against the sum of
+//! their solver steps.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use serde_json::json;
+use soft_tissue_core::contact::Tool;
+use soft_tissue_core::precision::Level;
+use soft_tissue_core::scenario::Scene;
+use soft_tissue_core::world::{Script, SoftTissueWorld};
+
+use super::{Json, Res, write_file};
+use crate::realtime::{RunCosts, RunRecorder, triple};
+use crate::simulate::{drive_tool, load_scene};
+
+/// Runs `scene` under the built-in `script` `runs` times for `steps` steps each (every body
+/// pinned at `pin`, if given) and returns the costs of all the steps together, with the body
+/// names and tetrahedron counts.
+fn measure(
+    scene: &Scene,
+    script: &str,
+    steps: usize,
+    runs: usize,
+    pin: Option<Level>,
+    assets: &Path,
+) -> Res<(RunCosts, Vec<usize>)> {
+    let mut recorder = None;
+    let mut names = Vec::new();
+    let mut tets = Vec::new();
+    for _ in 0..runs {
+        let mut world = SoftTissueWorld::from_scene(scene, assets)?;
+        if let Some(level) = pin {
+            for b in world.bodies_mut() {
+                b.body_mut().pin(Some(level))?;
+            }
+        }
+        let s = Script::builtin(script, &world)?;
+        let ti = world.add_tool(Tool::new(s.name.clone(), s.tool)?);
+        let dt = world.config().dt;
+        let rec =
+            recorder.get_or_insert_with(|| RunRecorder::new(world.bodies().len(), steps * runs));
+        names = world.bodies().iter().map(|b| b.name().to_owned()).collect();
+        tets = world
+            .bodies()
+            .iter()
+            .map(|b| b.mesh().tet_count())
+            .collect();
+        for k in 0..steps {
+            let t = (k + 1) as f64 * dt;
+            drive_tool(&mut world, &s, ti, t, dt)?;
+            world.step_fixed()?;
+            rec.record(&world);
+        }
+    }
+    let rec = recorder.ok_or("no runs")?;
+    Ok((rec.costs(names.iter().map(String::as_str)), tets))
+}
+
+fn ratio(r: Option<f64>) -> String {
+    r.map_or("-".into(), |r| format!("{r:.2}"))
+}
+
+/// The section (see the module docs). Returns the organs' all-precise whole step over the sum
+/// of their solver steps.
+pub(super) fn budget_section(
+    md: &mut String,
+    js: &mut Json,
+    out: &Path,
+    assets: &Path,
+    quick: bool,
+    step: &mut dyn FnMut(&str),
+) -> Res<Vec<(String, RunCosts)>> {
+    let (steps, runs) = if quick { (300, 1) } else { (700, 3) };
+    let scenes: Vec<(String, Scene, &str)> = vec![
+        (
+            "cylinders".into(),
+            load_scene("cylinders", assets)?,
+            "poke-a",
+        ),
+        ("organs".into(), load_scene("organs", assets)?, "poke-liver"),
+        ("organs-fine".into(), Scene::fine_organs(), "poke-liver"),
+    ];
+    writeln!(
+        md,
+        "## Real-time budget\n\n\
+         Real time is decided by the worst step. Each scene runs its built-in script {runs} \
+         time(s) for {steps} steps (`soft-tissue simulate --scene S --script X --steps {steps}` \
+         runs one); all steps together: the whole step and each stage (median / 99th \
+         percentile / largest, us), the steps over a 1 ms and a 10 ms budget, contact (detect + \
+         collide) against the solvers (sums over the run), and the largest step against the \
+         median of the steps where some body is precise. `organs-fine` is the organs scene at \
+         real-mesh sizes (liver, stomach and spleen generated at 1.5, 2 and 2 times the \
+         paper's resolution).\n"
+    )?;
+    writeln!(
+        md,
+        "| scene (tetrahedra) | whole step | steps with a precise body | largest / their median \
+         | over 1 ms | over 10 ms | contact / solve |\n|---|---|---|---|---|---|---|"
+    )?;
+    let mut measured = Vec::new();
+    let mut csv = String::from("scene,stage,median_us,p99_us,max_us,mean_us\n");
+    for (name, scene, script) in &scenes {
+        step(&format!("real-time budget: {name}"));
+        let (costs, tets) = measure(scene, script, steps, runs, None, assets)?;
+        writeln!(
+            md,
+            "| {name} ({}) | {} | {} | {} | {} | {} | {} |",
+            tets.iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(" + "),
+            triple(&costs.step),
+            triple(&costs.precise_step),
+            ratio(costs.worst_over_precise_median),
+            costs.steps_over_1ms,
+            costs.steps_over_10ms,
+            ratio(costs.contact_over_solve),
+        )?;
+        writeln!(
+            csv,
+            "{name},step,{},{},{},{}",
+            costs.step.median_us, costs.step.p99_us, costs.step.max_us, costs.step.mean_us
+        )?;
+        for (stage, t) in &costs.stages {
+            writeln!(
+                csv,
+                "{name},{stage},{},{},{},{}",
+                t.median_us, t.p99_us, t.max_us, t.mean_us
+            )?;
+        }
+        measured.push((name.clone(), costs));
+    }
+    writeln!(
+        md,
+        "\nStages, median / p99 / largest us:\n\n| scene | prepare | detect | switch | solve | \
+         collide | writeback |\n|---|---|---|---|---|---|---|"
+    )?;
+    for (name, costs) in &measured {
+        let cell = |s: &str| costs.stages.get(s).map_or("-".into(), triple);
+        writeln!(
+            md,
+            "| {name} | {} | {} | {} | {} | {} | {} |",
+            cell("prepare"),
+            cell("detect"),
+            cell("switch"),
+            cell("solve"),
+            cell("collide"),
+            cell("writeback")
+        )?;
+    }
+    writeln!(
+        md,
+        "\nSwitch steps against each body's precise steps (a body's cost in the step: its \
+         up-switch in the switch stage plus its solver step), median / p99 / largest us; the \
+         ratio is the costliest switch step over the median precise step:\n\n\
+         | scene | body | precise steps | up-switch steps | down-switch steps | ratio | CG \
+         max iterations (stopped at the cap) |\n|---|---|---|---|---|---|---|"
+    )?;
+    for (name, costs) in &measured {
+        for b in costs.bodies.iter().filter(|b| b.precise.count > 0) {
+            writeln!(
+                md,
+                "| {name} | {} | {} | {} | {} | {} | {} ({}) |",
+                b.name,
+                triple(&b.precise),
+                triple(&b.up_switch),
+                triple(&b.down_switch),
+                ratio(b.worst_switch_ratio),
+                b.cg.max_iterations,
+                b.cg.not_converged
+            )?;
+        }
+    }
+    // The organs with every body held at its precise level: the whole step against the
+    // solvers' sum.
+    step("real-time budget: organs all precise");
+    let organs = &scenes[1].1;
+    let (precise, _) = measure(
+        organs,
+        "poke-liver",
+        steps,
+        runs,
+        Some(Level::Precise),
+        assets,
+    )?;
+    let solve = precise.stages.get("solve").map_or(0.0, |t| t.mean_us);
+    let over_solvers = (solve > 0.0).then(|| precise.step.mean_us / solve);
+    writeln!(
+        md,
+        "\nThe organs with every body held at its precise level (`simulate --level precise`): \
+         whole step {} us (mean {:.0}), solvers {:.0} us (mean), whole over solvers {}; \
+         contact / solve {}.\n",
+        triple(&precise.step),
+        precise.step.mean_us,
+        solve,
+        ratio(over_solvers),
+        ratio(precise.contact_over_solve),
+    )?;
+    write_file(out, "realtime_budget.csv", &csv)?;
+    js.insert(
+        "realtime_budget".into(),
+        json!({
+            "steps_per_run": steps,
+            "runs": runs,
+            "scenes": measured.iter().map(|(n, c)| json!({"scene": n, "costs": c})).collect::<Vec<_>>(),
+            "organs_all_precise": precise,
+            "organs_all_precise_over_solvers": over_solvers,
+        }),
+    );
+    measured.push(("organs (all precise)".into(), precise));
+    Ok(measured)
+}
