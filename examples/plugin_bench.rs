@@ -2,8 +2,10 @@
 //! tool script stepped by `SoftTissueWorld` and by the plugin in a `MinimalPlugins` app (one
 //! fixed step per update), runs alternating so that the machine's drift hits both alike. Prints
 //! one JSON object: the core's whole step, the plugin's whole physics step (from its `First` to
-//! its `Last` set), the plugin's whole frame (`App::update`, the render-mesh writes included),
-//! each stage of both (median, 99th percentile, largest, mean, microseconds) and the ratios.
+//! its `Last` set), the plugin's whole frame (`App::update` of `MinimalPlugins` and ours, the
+//! render-mesh writes included), each stage of both (median, 99th percentile, largest, mean,
+//! microseconds) and the ratios. The plugin's first step, which builds the bodies, is left
+//! out (the core world builds them before stepping).
 //!
 //! Run (release, no renderer needed):
 //! `cargo run --release --no-default-features --example plugin_bench -- [--scene organs]
@@ -158,8 +160,13 @@ fn run_plugin(
         dt,
     )));
     app.init_resource::<PhysicsClock>();
-    app.add_systems(FixedUpdate, clock_start.in_set(SoftTissueSystems::First));
-    app.add_systems(FixedUpdate, clock_stop.in_set(SoftTissueSystems::Last));
+    app.add_systems(
+        SoftTissueSchedule,
+        (
+            clock_start.in_set(SoftTissueSystems::First),
+            clock_stop.in_set(SoftTissueSystems::Last),
+        ),
+    );
     app.update();
     bevy_soft_tissue::spawn_scene(app.world_mut(), scene, &a.assets)?;
     let tool = app
@@ -190,7 +197,7 @@ fn run_plugin(
         }
         let start = Instant::now();
         app.update();
-        frames.push(start.elapsed().as_secs_f64() * 1e6);
+        let frame_us = start.elapsed().as_secs_f64() * 1e6;
         let status = app.world().resource::<SoftTissueStatus>();
         if let Some(e) = &status.error {
             return Err(format!("step {k}: {e}").into());
@@ -200,9 +207,31 @@ fn run_plugin(
         let mut times = status.times;
         let whole = app.world().resource::<PhysicsClock>().last_us;
         times.prepare_us += (whole - times.total_us()).max(0.0);
-        physics.push(&times);
+        // The first step builds the bodies (the core world builds them before its first
+        // step): not a step's cost.
+        if k > 1 {
+            physics.push(&times);
+            frames.push(frame_us);
+        }
     }
     Ok(())
+}
+
+/// Frames of a bare `MinimalPlugins` app (the same time settings, no soft tissue): what the
+/// engine costs per frame on this machine whatever runs in it.
+fn run_bare(dt: f64, steps: usize, frames: &mut Vec<f64>) {
+    let mut app = App::new();
+    app.add_plugins((MinimalPlugins, TransformPlugin));
+    app.insert_resource(Time::<Fixed>::from_seconds(dt));
+    app.insert_resource(TimeUpdateStrategy::ManualDuration(Duration::from_secs_f64(
+        dt,
+    )));
+    app.update();
+    for _ in 0..steps {
+        let start = Instant::now();
+        app.update();
+        frames.push(start.elapsed().as_secs_f64() * 1e6);
+    }
 }
 
 fn stats_json(s: &TimeStats) -> serde_json::Value {
@@ -232,12 +261,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut core = StageRecorder::with_capacity(a.steps * a.runs);
     let mut plugin = StageRecorder::with_capacity(a.steps * a.runs);
     let mut frames = Vec::with_capacity(a.steps * a.runs);
+    let mut bare = Vec::with_capacity(a.steps * a.runs);
     for _ in 0..a.runs {
         run_core(&scene, &script, &a, &mut core)?;
         run_plugin(&scene, &script, dt, &a, &mut plugin, &mut frames)?;
+        run_bare(dt, a.steps, &mut bare);
     }
     let (c, p) = (core.summary(), plugin.summary());
     let frame = TimeStats::of(&frames);
+    let bare = TimeStats::of(&bare);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let out = serde_json::json!({
         "scene": scene.name,
@@ -249,12 +281,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "core": recorder_json(&core),
         "plugin": recorder_json(&plugin),
         "plugin_frame": stats_json(&frame),
+        "bare_minimal_frame": stats_json(&bare),
         "plugin_over_core": {
             "median": p.step.median_us / c.step.median_us,
             "mean": p.step.mean_us / c.step.mean_us,
             "p99": p.step.p99_us / c.step.p99_us,
         },
         "frame_over_core_mean": frame.mean_us / c.step.mean_us,
+        "frame_beyond_bare_over_core_mean": (frame.mean_us - bare.mean_us) / c.step.mean_us,
     });
     println!("{}", serde_json::to_string_pretty(&out)?);
     Ok(())

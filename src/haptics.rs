@@ -22,7 +22,6 @@
 
 use std::sync::Arc;
 
-use bevy::ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
 use bevy::prelude::*;
 use soft_tissue_core::haptics::{
     ContactModel, HapticConfig, HapticDevice, HapticError, HapticShared, HapticThread, ToolSample,
@@ -30,34 +29,18 @@ use soft_tissue_core::haptics::{
 };
 
 use crate::components::{SoftTool, ToolState};
-use crate::physics::{SoftTissueContacts, SoftTissueStatus, SoftTissueSystems};
+use crate::physics::{SoftTissueContacts, SoftTissueSchedule, SoftTissueStatus, SoftTissueSystems};
 
 pub use soft_tissue_core::haptics::{CAUTERY_BUTTON, GRAB_BUTTON};
 
-/// Drives [`HapticTool`] entities in the physics schedule.
-pub struct SoftTissueHapticsPlugin {
-    schedule: InternedScheduleLabel,
-}
-
-impl SoftTissueHapticsPlugin {
-    /// With the physics in `schedule` (the same as the physics plugin's).
-    pub fn new(schedule: impl ScheduleLabel) -> Self {
-        SoftTissueHapticsPlugin {
-            schedule: schedule.intern(),
-        }
-    }
-}
-
-impl Default for SoftTissueHapticsPlugin {
-    fn default() -> Self {
-        Self::new(FixedUpdate)
-    }
-}
+/// Drives [`HapticTool`] entities in the simulation's schedule ([`SoftTissueSchedule`]).
+#[derive(Default)]
+pub struct SoftTissueHapticsPlugin;
 
 impl Plugin for SoftTissueHapticsPlugin {
     fn build(&self, app: &mut App) {
         app.add_systems(
-            self.schedule,
+            SoftTissueSchedule,
             (
                 drive_tools.in_set(SoftTissueSystems::First),
                 publish_models.in_set(SoftTissueSystems::Last),

@@ -71,7 +71,7 @@ pub use components::*;
 pub use messages::{BodyTouched, LevelChanged};
 pub use physics::{
     ResetSimulation, SoftBodyError, SoftTissueConfig, SoftTissueContacts, SoftTissuePhysicsPlugin,
-    SoftTissueStatus, SoftTissueSystems,
+    SoftTissueSchedule, SoftTissueStatus, SoftTissueStep, SoftTissueSystems,
 };
 pub use render::{EmbeddedVisual, SoftBodyMesh, SoftTissueMeshPlugin, SoftTissueMeshSystems};
 
@@ -81,13 +81,15 @@ pub mod prelude {
     pub use crate::core::precision::BodySettings;
     pub use crate::messages::{BodyTouched, LevelChanged};
     pub use crate::physics::{
-        ResetSimulation, SoftTissueConfig, SoftTissueStatus, SoftTissueSystems,
+        ResetSimulation, SoftTissueConfig, SoftTissueSchedule, SoftTissueStatus, SoftTissueStep,
+        SoftTissueSystems,
     };
     pub use crate::{SoftTissuePlugins, TetMeshAsset, spawn_scene};
 }
 
 /// Every plugin of the crate (each replaceable through `PluginGroupBuilder`): assets,
-/// physics (in `schedule`, `FixedUpdate` by default), render meshes, and with their features
+/// physics (its [`SoftTissueSchedule`] run from `schedule`, `FixedUpdate` by default), render
+/// meshes, and with their features
 /// the debug gizmos and the inspector.
 pub struct SoftTissuePlugins {
     schedule: InternedScheduleLabel,
@@ -119,7 +121,7 @@ impl PluginGroup for SoftTissuePlugins {
         #[cfg(feature = "inspector")]
         let group = group.add(inspector::SoftTissueInspectorPlugin);
         #[cfg(feature = "haptics")]
-        let group = group.add(haptics::SoftTissueHapticsPlugin::new(self.schedule));
+        let group = group.add(haptics::SoftTissueHapticsPlugin);
         group
     }
 }

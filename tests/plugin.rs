@@ -365,20 +365,21 @@ fn two_runs_are_bit_identical() {
 fn the_step_has_no_system_order_ambiguity() {
     let scene = cylinders_scene();
     let (mut app, _, _) = scene_app(&scene);
-    app.edit_schedule(FixedUpdate, |s| {
-        s.set_build_settings(ScheduleBuildSettings {
-            ambiguity_detection: LogLevel::Error,
-            ..default()
+    let labels = [
+        SoftTissueSchedule.intern(),
+        FixedUpdate.intern(),
+        PostUpdate.intern(),
+    ];
+    for label in labels {
+        app.edit_schedule(label, |s| {
+            s.set_build_settings(ScheduleBuildSettings {
+                ambiguity_detection: LogLevel::Error,
+                ..default()
+            });
         });
-    });
-    app.edit_schedule(PostUpdate, |s| {
-        s.set_build_settings(ScheduleBuildSettings {
-            ambiguity_detection: LogLevel::Error,
-            ..default()
-        });
-    });
+    }
     let world = app.world_mut();
-    for label in [FixedUpdate.intern(), PostUpdate.intern()] {
+    for label in labels {
         world.schedule_scope(label, |world, schedule| {
             schedule
                 .initialize(world)
@@ -605,7 +606,7 @@ fn a_haptic_device_pokes_through_the_haptic_thread_and_feels_the_tissue() {
     use bevy_soft_tissue::haptics::{HapticTool, SoftTissueHapticsPlugin};
     let scene = cylinders_scene();
     let (mut app, bodies, world) = scene_app(&scene);
-    app.add_plugins(SoftTissueHapticsPlugin::default());
+    app.add_plugins(SoftTissueHapticsPlugin);
     let a = bodies[0];
     let (lo, hi) = world.bodies()[0].collider().bounds();
     let y = 0.5 * (lo[1] + hi[1]);
@@ -656,4 +657,99 @@ fn a_haptic_device_pokes_through_the_haptic_thread_and_feels_the_tissue() {
     // Removing the component stops the thread and leaves the device with no force.
     app.world_mut().entity_mut(tool).remove::<HapticTool>();
     assert_eq!(handle.force(), bevy_soft_tissue::core::Vec3::zeros());
+}
+
+/// A mesh with the defects real meshes have (two cubes meeting along an edge only, so
+/// non-manifold boundary edges and vertices, and a node no tetrahedron uses) is built,
+/// drawn with a Loop-subdivided visual mesh, poked at its pinch, rises and comes back; the
+/// drawn mesh follows.
+#[test]
+fn a_non_manifold_mesh_simulates_and_draws_in_the_plugin() {
+    use bevy_soft_tissue::core::mesh::TetMesh;
+    use bevy_soft_tissue::core::mesh::generate::block;
+    use bevy_soft_tissue::core::{Vec3 as V, contact::ToolShape};
+    let a = block(V::zeros(), V::repeat(0.5), [3, 3, 3]).unwrap();
+    let b = block(V::new(0.5, 0.5, 0.0), V::new(1.0, 1.0, 0.5), [3, 3, 3]).unwrap();
+    let mut points: Vec<V> = Vec::new();
+    let mut tets = Vec::new();
+    for m in [&a, &b] {
+        let map: Vec<usize> = m
+            .positions()
+            .iter()
+            .map(|p| match points.iter().position(|q| q == p) {
+                Some(i) => i,
+                None => {
+                    points.push(*p);
+                    points.len() - 1
+                }
+            })
+            .collect();
+        tets.extend(m.tets().iter().map(|t| t.map(|i| map[i as usize])));
+    }
+    points.push(V::new(3.0, 3.0, 3.0));
+    let mesh = TetMesh::new(points, tets).unwrap();
+    let nodes = mesh.node_count();
+    let mut app = app(0.01);
+    let handle = app
+        .world_mut()
+        .resource_mut::<Assets<TetMeshAsset>>()
+        .add(TetMeshAsset::from(mesh));
+    let scene = Scene::paper_organs();
+    let (_, bodies) = bevy_soft_tissue::core::world::scene_bodies(&scene, assets()).unwrap();
+    let mut settings = bodies[0].settings.clone();
+    settings.boundary = bevy_soft_tissue::core::boundary::Boundary::anchored(nodes, 1.0);
+    {
+        let mut config = app.world_mut().resource_mut::<SoftTissueConfig>();
+        config.dt = 0.01;
+        config.contact = bevy_soft_tissue::core::contact::ContactConfig::for_scale(0.5);
+    }
+    let body = app
+        .world_mut()
+        .spawn((
+            SoftBody::new(handle, settings),
+            VisualMesh::Subdivided { levels: 1 },
+        ))
+        .id();
+    // A ball pressed into the notch where the two cubes meet.
+    let r = 0.08f32;
+    let dir = Vec3::new(1.0, -1.0, 0.0).normalize();
+    let start = Vec3::new(0.5 - r, 0.5 + r, 0.25) - dir * 0.1;
+    let tool = app
+        .world_mut()
+        .spawn((
+            SoftTool {
+                shape: ToolShape::Sphere { radius: r as f64 },
+                grab: false,
+                cautery_watts: 0.0,
+            },
+            Transform::from_translation(start),
+        ))
+        .id();
+    app.update();
+    app.update();
+    assert!(
+        app.world().get::<SoftBodyError>(body).is_none(),
+        "{:?}",
+        app.world().get::<SoftBodyError>(body)
+    );
+    assert_eq!(app.world().get::<VisualMeshError>(body), None);
+    let drawn = app.world().get::<Mesh3d>(body).unwrap().0.clone();
+    let initial = positions(&app, &drawn);
+    let (mut raised, mut moved) = (false, 0.0f32);
+    for k in 1..=400 {
+        let t = k as f32 * 0.01;
+        let depth = 0.15 * if t < 1.0 { t } else { (2.0 - t).max(0.0) };
+        app.world_mut()
+            .entity_mut(tool)
+            .get_mut::<Transform>()
+            .unwrap()
+            .translation = start + dir * depth;
+        app.update();
+        raised |= level(&app, body) == LevelKind::Precise;
+        moved = moved.max(max_distance(&positions(&app, &drawn), &initial));
+        assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
+    }
+    assert!(raised, "the poke did not raise the body");
+    assert!(moved > 0.01, "the drawn mesh did not follow ({moved})");
+    assert_eq!(level(&app, body), LevelKind::Cage, "it did not come back");
 }

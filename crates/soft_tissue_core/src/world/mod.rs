@@ -500,10 +500,17 @@ pub fn step_solvers<B: BorrowMut<SimBody>, T: Borrow<Tool>>(
 /// Writes the surfaces and diagnostics of every body.
 pub fn writeback<B: BorrowMut<SimBody>>(bodies: &mut [B]) {
     for b in bodies.iter_mut() {
-        let b = b.borrow_mut();
-        b.diagnostics.contacts = b.contacts;
-        b.diagnostics.touched = b.touched;
-        b.write_surface();
+        b.borrow_mut().writeback();
+    }
+}
+
+impl SimBody {
+    /// The writeback of this body alone (the stage does it for every body; the bodies are
+    /// independent, in any order).
+    pub fn writeback(&mut self) {
+        self.diagnostics.contacts = self.contacts;
+        self.diagnostics.touched = self.touched;
+        self.write_surface();
     }
 }
 
