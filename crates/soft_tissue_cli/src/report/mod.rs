@@ -746,7 +746,7 @@ pub fn report(args: &ReportArgs) -> Res<()> {
                 let r = c.step.mean_us / solve;
                 writeln!(
                     md,
-                    "- Organs all precise: whole step at most 1.4x the sum of the solver steps:                      {r:.2}x: {}.",
+                    "- Organs all precise: whole step at most 1.4x the sum of the solver steps: {r:.2}x: {}.",
                     verdict(r <= 1.4)
                 )?;
             }
@@ -755,14 +755,14 @@ pub fn report(args: &ReportArgs) -> Res<()> {
         if let Some(r) = c.worst_over_precise_median {
             writeln!(
                 md,
-                "- `{scene}`: largest whole step at most 3x the median of the steps with a                  precise body: {r:.2}x: {}.",
+                "- `{scene}`: largest whole step at most 3x the median of the steps with a precise body: {r:.2}x: {}.",
                 verdict(r <= 3.0)
             )?;
         }
         if let Some(r) = c.contact_over_solve {
             writeln!(
                 md,
-                "- `{scene}`: contact (detect + collide) at most a third of the solvers:                  {r:.3}: {}.",
+                "- `{scene}`: contact (detect + collide) at most a third of the solvers: {r:.3}: {}.",
                 verdict(r <= 0.33)
             )?;
         }
@@ -774,7 +774,7 @@ pub fn report(args: &ReportArgs) -> Res<()> {
         if let Some((r, body)) = worst {
             writeln!(
                 md,
-                "- `{scene}`: every switch step at most 2x the body's median precise step:                  worst {r:.2}x ({body}): {}.",
+                "- `{scene}`: every switch step at most 2x the body's median precise step: worst {r:.2}x ({body}): {}.",
                 verdict(r <= 2.0)
             )?;
         }

@@ -1120,7 +1120,10 @@ fn load_state(target: &mut Precise, x: &[Vec3], v: &[Vec3], turned: UnitQuaterni
             }
         }
     }
-    if let Precise::Fem(b) = target {
+    // Element rotations matter to the corotational model only (a switch to it syncs them).
+    if let Precise::Fem(b) = target
+        && b.model() == FemModel::Corotational
+    {
         b.sync_rotations_from(turned);
     }
 }
