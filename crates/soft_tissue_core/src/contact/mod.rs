@@ -561,22 +561,34 @@ pub fn detect_candidates(
     let reach = pair_reach(config, margin);
     for &v in candidates {
         let p = a.positions()[v as usize];
-        let Some(hit) = b.closest(&p, reach) else {
-            continue;
-        };
-        let depth = config.thickness - hit.distance;
-        if depth > -margin {
-            out.push(BodyContact {
-                a: ia,
-                vertex: v,
-                b: ib,
-                vertices: b.triangles()[hit.triangle as usize],
-                weights: hit.weights,
-                normal: hit.normal,
-                depth,
-            });
-        }
+        out.extend(vertex_contact(ia, v, &p, ib, b, config, reach, margin));
     }
+}
+
+/// Vertex `v` of body `ia` at `p` against the surface of `b` within `reach`: the contact when
+/// it is closer than `thickness + margin`.
+#[allow(clippy::too_many_arguments)]
+fn vertex_contact(
+    ia: u32,
+    v: u32,
+    p: &Vec3,
+    ib: u32,
+    b: &SurfaceCollider,
+    config: &ContactConfig,
+    reach: f64,
+    margin: f64,
+) -> Option<BodyContact> {
+    let hit = b.closest(p, reach)?;
+    let depth = config.thickness - hit.distance;
+    (depth > -margin).then(|| BodyContact {
+        a: ia,
+        vertex: v,
+        b: ib,
+        vertices: b.triangles()[hit.triangle as usize],
+        weights: hit.weights,
+        normal: hit.normal,
+        depth,
+    })
 }
 
 /// Every vertex of `a` against the surface of `b` (call both ways for a pair). Appends
@@ -599,21 +611,9 @@ pub fn detect_pair(
         if (0..3).any(|k| p[k] < lo[k] || p[k] > hi[k]) {
             continue;
         }
-        let Some(hit) = b.closest(p, reach) else {
-            continue;
-        };
-        let depth = config.thickness - hit.distance;
-        if depth > -margin {
-            out.push(BodyContact {
-                a: ia,
-                vertex: v as u32,
-                b: ib,
-                vertices: b.triangles()[hit.triangle as usize],
-                weights: hit.weights,
-                normal: hit.normal,
-                depth,
-            });
-        }
+        out.extend(vertex_contact(
+            ia, v as u32, p, ib, b, config, reach, margin,
+        ));
     }
 }
 

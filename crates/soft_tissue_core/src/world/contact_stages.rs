@@ -12,8 +12,8 @@ use std::borrow::BorrowMut;
 use super::{SimBody, WorldError};
 use crate::Vec3;
 use crate::contact::{
-    BodyContact, ContactConfig, PairCandidates, Tool, ToolContact, broad_phase, detect_candidates,
-    detect_tool, grab_vertices, pair_reach, tool_distance,
+    BodyContact, ContactConfig, PairCandidates, SurfaceCollider, Tool, ToolContact, broad_phase,
+    detect_candidates, detect_tool, grab_vertices, pair_reach, tool_distance,
 };
 use crate::precision::Level;
 
@@ -176,24 +176,14 @@ pub fn detect_contacts<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
         let before = state.body_contacts.len();
         let candidates = candidates_of(&mut state.candidates, (i, j));
         candidates.update(&bi.collider, &bj.collider, reach, slack);
-        detect_candidates(
-            i,
-            &bi.collider,
-            candidates.near(0),
-            j,
-            &bj.collider,
+        let (a, b) = (&bi.collider, &bj.collider);
+        let margin = config.body_margin;
+        both_ways(
+            candidates,
+            (i, a),
+            (j, b),
             config,
-            config.body_margin,
-            &mut state.body_contacts,
-        );
-        detect_candidates(
-            j,
-            &bj.collider,
-            candidates.near(1),
-            i,
-            &bi.collider,
-            config,
-            config.body_margin,
+            margin,
             &mut state.body_contacts,
         );
         let found = (state.body_contacts.len() - before) as u32;
@@ -208,6 +198,19 @@ pub fn detect_contacts<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
             bj.contacts += found;
         }
     }
+}
+
+/// The candidates of a pair against each other's surface, both ways.
+fn both_ways(
+    candidates: &PairCandidates,
+    (i, a): (u32, &SurfaceCollider),
+    (j, b): (u32, &SurfaceCollider),
+    config: &ContactConfig,
+    margin: f64,
+    out: &mut Vec<BodyContact>,
+) {
+    detect_candidates(i, a, candidates.near(0), j, b, config, margin, out);
+    detect_candidates(j, b, candidates.near(1), i, a, config, margin, out);
 }
 
 pub(super) fn pair_mut<B: BorrowMut<SimBody>>(
@@ -258,26 +261,8 @@ pub fn collide<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
         let candidates = candidates_of(&mut state.candidates, (i, j));
         candidates.update(&bi.collider, &bj.collider, reach, slack);
         state.scratch.clear();
-        detect_candidates(
-            i,
-            &bi.collider,
-            candidates.near(0),
-            j,
-            &bj.collider,
-            config,
-            0.0,
-            &mut state.scratch,
-        );
-        detect_candidates(
-            j,
-            &bj.collider,
-            candidates.near(1),
-            i,
-            &bi.collider,
-            config,
-            0.0,
-            &mut state.scratch,
-        );
+        let (a, b) = (&bi.collider, &bj.collider);
+        both_ways(candidates, (i, a), (j, b), config, 0.0, &mut state.scratch);
         for c in &state.scratch {
             let (a, b) = if c.a == i {
                 (&mut *bi, &mut *bj)
