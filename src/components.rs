@@ -13,6 +13,7 @@ use soft_tissue_core::fem::FemModel;
 use soft_tissue_core::heat::HeatParams;
 use soft_tissue_core::msd::MsdIntegrator;
 use soft_tissue_core::precision::{BodySettings, Level, PreciseMethod};
+use soft_tissue_core::state::NodalBody;
 use soft_tissue_core::world::SimBody;
 
 use crate::assets::TetMeshAsset;
@@ -315,6 +316,34 @@ impl SimulatedBody {
     /// (it maps the mesh file's coordinates to the simulation's).
     pub fn placement(&self) -> Transform {
         self.placement
+    }
+
+    /// Kinetic and elastic energy of the body now, computed on this call (nothing is
+    /// computed per step for them): at the precise level the solver's (strain energy of its
+    /// model plus its anchors), at the cage level the cage's own (its vertices' kinetic
+    /// energy and its springs').
+    pub fn energies(&self) -> Energies {
+        let b = self.body.body();
+        match b.level() {
+            Level::Precise => {
+                let elastic = match (b.fem(), b.msd()) {
+                    (Some(f), _) => f.elastic_energy(),
+                    (_, Some(m)) => m.elastic_energy(),
+                    _ => 0.0,
+                };
+                Energies {
+                    kinetic: b.precise().kinetic_energy(),
+                    elastic,
+                }
+            }
+            Level::Cage => {
+                let c = b.cage().msd();
+                Energies {
+                    kinetic: c.kinetic_energy(),
+                    elastic: c.elastic_energy(),
+                }
+            }
+        }
     }
 }
 

@@ -8,6 +8,7 @@ use std::time::Instant;
 use bevy::ecs::schedule::{InternedScheduleLabel, ScheduleLabel, SingleThreadedExecutor};
 use bevy::prelude::*;
 use bevy::transform::helper::TransformHelper;
+use smallvec::SmallVec;
 use soft_tissue_core::contact::{ContactConfig, Tool};
 use soft_tissue_core::heat::HeatBoundary;
 use soft_tissue_core::mesh::TetMesh;
@@ -483,12 +484,12 @@ fn in_order<'a, R>(
     tools: impl Iterator<Item = Mut<'a, ToolState>>,
     f: impl FnOnce(&mut [&mut SimBody], &mut [&mut Tool]) -> R,
 ) -> R {
-    let mut b: Vec<&mut SimulatedBody> = bodies.map(Mut::into_inner).collect();
+    let mut b: SmallVec<[&mut SimulatedBody; 16]> = bodies.map(Mut::into_inner).collect();
     b.sort_unstable_by_key(|b| b.order);
-    let mut b: Vec<&mut SimBody> = b.into_iter().map(|b| &mut b.body).collect();
-    let mut t: Vec<&mut ToolState> = tools.map(Mut::into_inner).collect();
+    let mut b: SmallVec<[&mut SimBody; 16]> = b.into_iter().map(|b| &mut b.body).collect();
+    let mut t: SmallVec<[&mut ToolState; 4]> = tools.map(Mut::into_inner).collect();
     t.sort_unstable_by_key(|t| t.order);
-    let mut t: Vec<&mut Tool> = t.into_iter().map(|t| &mut t.tool).collect();
+    let mut t: SmallVec<[&mut Tool; 4]> = t.into_iter().map(|t| &mut t.tool).collect();
     f(&mut b, &mut t)
 }
 

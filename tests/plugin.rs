@@ -735,7 +735,7 @@ fn a_non_manifold_mesh_simulates_and_draws_in_the_plugin() {
     assert_eq!(app.world().get::<VisualMeshError>(body), None);
     let drawn = app.world().get::<Mesh3d>(body).unwrap().0.clone();
     let initial = positions(&app, &drawn);
-    let (mut raised, mut moved) = (false, 0.0f32);
+    let (mut raised, mut moved, mut elastic) = (false, 0.0f32, 0.0f64);
     for k in 1..=400 {
         let t = k as f32 * 0.01;
         let depth = 0.15 * if t < 1.0 { t } else { (2.0 - t).max(0.0) };
@@ -747,9 +747,14 @@ fn a_non_manifold_mesh_simulates_and_draws_in_the_plugin() {
         app.update();
         raised |= level(&app, body) == LevelKind::Precise;
         moved = moved.max(max_distance(&positions(&app, &drawn), &initial));
+        // Energies on request: finite, and the pressed body stores elastic energy.
+        let e = app.world().get::<SimulatedBody>(body).unwrap().energies();
+        assert!(e.kinetic.is_finite() && e.kinetic >= 0.0 && e.elastic.is_finite());
+        elastic = elastic.max(e.elastic);
         assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
     }
     assert!(raised, "the poke did not raise the body");
     assert!(moved > 0.01, "the drawn mesh did not follow ({moved})");
+    assert!(elastic > 0.0, "no elastic energy while pressed");
     assert_eq!(level(&app, body), LevelKind::Cage, "it did not come back");
 }
