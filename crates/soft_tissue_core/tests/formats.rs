@@ -164,6 +164,18 @@ fn writers_round_trip_exactly() {
     let (node, ele) = io::write_tetgen_bytes(&m);
     let back = parse_tetgen(&node, "x.node", &ele, "x.ele").unwrap();
     assert_same(&back.mesh, &r, 0.0, "tetgen");
+    // A file whose extension names the other VTK form (real libraries have XML grids saved
+    // as `.vtk`): the content decides.
+    for (written, named) in [
+        (MeshFormat::Vtu, MeshFormat::VtkLegacy),
+        (MeshFormat::VtkLegacy, MeshFormat::Vtu),
+    ] {
+        let bytes =
+            io::write_tet_mesh_bytes(&m, written, WriteOptions { binary: false }, "x").unwrap();
+        let back = parse_tet_mesh(&bytes, named, "x")
+            .unwrap_or_else(|e| panic!("{written:?} named {named:?}: {e}"));
+        assert_same(&back.mesh, &r, 0.0, &format!("{written:?} named {named:?}"));
+    }
 
     // Through files, with the extension choosing the format.
     let dir = std::env::temp_dir().join(format!("st-formats-{}", std::process::id()));

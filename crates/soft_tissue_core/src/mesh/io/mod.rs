@@ -287,6 +287,17 @@ pub fn parse_tet_mesh(
     format: MeshFormat,
     name: &str,
 ) -> Result<LoadedMesh, FormatError> {
+    // Files whose extension does not match their content are common in mesh libraries (an
+    // XML unstructured grid saved as `.vtk`): the content decides between the two VTK forms.
+    let start = bytes
+        .iter()
+        .position(|b| !b.is_ascii_whitespace())
+        .map_or(&bytes[..0], |i| &bytes[i..]);
+    let format = match format {
+        MeshFormat::VtkLegacy if start.starts_with(b"<") => MeshFormat::Vtu,
+        MeshFormat::Vtu if start.starts_with(b"# vtk") => MeshFormat::VtkLegacy,
+        f => f,
+    };
     match format {
         MeshFormat::Gmsh => gmsh::parse(bytes, name),
         MeshFormat::VtkLegacy => vtk::parse_legacy(bytes, name),
