@@ -220,6 +220,9 @@ pub struct Temperature {
     pub min: f64,
     /// Highest node temperature, C.
     pub max: f64,
+    /// The heat field's version these values were read at (see `HeatField::version`).
+    #[reflect(ignore)]
+    pub(crate) version: Option<u64>,
 }
 
 /// Per-body timings and counts of the last fixed step.

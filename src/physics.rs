@@ -602,10 +602,14 @@ fn writeback_stage(
         }
         // A sleeping body nothing touched changes nothing but its (tiny) step time.
         let quiet = lb.is_asleep()
+            && !b.surface_written()
             && d.switched.is_none()
             && !d.touched
             && d.contacts == 0
-            && b.heat().is_none_or(|h| !h.changed())
+            && b.heat().is_none_or(|h| {
+                temp.as_ref()
+                    .is_some_and(|t| t.version == Some(h.version()))
+            })
             && !cage.vertices.is_empty();
         if quiet {
             if diag.step_us != d.step_us {
@@ -629,9 +633,10 @@ fn writeback_stage(
             });
         }
         // Components change only when their contents do: the cage moves only at its own
-        // level (or is handed over at a switch), temperatures only while the field changes.
+        // level (or is handed over at a switch, or put back by a reset), temperatures only
+        // while the field changes.
         let awake = !lb.is_asleep();
-        let cage_moved = d.level == Level::Cage && awake;
+        let cage_moved = d.level == Level::Cage && (awake || b.surface_written());
         if cage_moved || d.switched.is_some() || cage.vertices.is_empty() {
             let c = lb.cage();
             cage.vertices.clear();
@@ -666,9 +671,10 @@ fn writeback_stage(
         }
         let mut heat_changed = false;
         if let (Some(mut tc), Some(h)) = (temp, b.heat())
-            && (h.changed() || tc.surface.is_empty())
+            && tc.version != Some(h.version())
         {
             heat_changed = true;
+            tc.version = Some(h.version());
             let nodes = b.surface_nodes();
             let temps = h.temperatures();
             tc.surface.clear();
@@ -680,7 +686,7 @@ fn writeback_stage(
             tc.min = temps.iter().copied().fold(f64::INFINITY, f64::min);
             tc.max = temps.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         }
-        if awake || d.switched.is_some() || heat_changed {
+        if awake || b.surface_written() || d.switched.is_some() || heat_changed {
             sim.dirty = true;
         }
     }

@@ -428,6 +428,18 @@ fn pause_single_step_method_change_and_reset() {
     assert_eq!(steps(&app), 1, "reset, then one step");
     assert_eq!(level(&app, bodies[1]), LevelKind::Cage);
     assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
+    // The read-out components follow the reset though the body now sleeps: its cage is the
+    // active level again, at rest.
+    let cage = app.world().get::<GreenCage>(bodies[1]).unwrap();
+    assert!(
+        cage.active,
+        "the cage component still shows the precise level"
+    );
+    let sim = app.world().get::<SimulatedBody>(bodies[1]).unwrap().body();
+    let rest = sim.body().cage().cage().vertices();
+    for (v, r) in cage.vertices.iter().zip(rest) {
+        assert!((*v - bevy_soft_tissue::convert::to_bevy(r)).length() < 1e-5);
+    }
 }
 
 /// A finer cylinder than the simulation's (Bevy's primitive mesh, 48 around, axis y) of the

@@ -215,6 +215,8 @@ pub struct HeatField {
     capacity: Vec<f64>,
     /// Whether the last step changed a temperature or a damage integral.
     changed: bool,
+    /// Counts the changes of the temperatures or damage (steps that changed them, resets).
+    version: u64,
     fixed: Vec<Option<f64>>,
     /// `(free node i, fixed node j, dt K_ij)`: the coupling of free rows to fixed values.
     coupling: Vec<(u32, u32, f64)>,
@@ -313,6 +315,7 @@ impl HeatField {
             rhs: vec![0.0; n],
             time: 0.0,
             changed: false,
+            version: 0,
         })
     }
 
@@ -401,6 +404,12 @@ impl HeatField {
         self.changed
     }
 
+    /// A number that changes whenever the temperatures or the damage do (a step that changed
+    /// them, a reset): a reader that kept the last one it saw knows whether to read again.
+    pub fn version(&self) -> u64 {
+        self.version
+    }
+
     /// Power queued for the next step, W.
     pub fn queued_power(&self) -> f64 {
         self.power.iter().sum()
@@ -440,6 +449,9 @@ impl HeatField {
             }
         }
         self.time += dt;
+        if self.changed {
+            self.version += 1;
+        }
         Ok(())
     }
 
@@ -452,5 +464,6 @@ impl HeatField {
         self.power.fill(0.0);
         self.time = 0.0;
         self.changed = true;
+        self.version += 1;
     }
 }

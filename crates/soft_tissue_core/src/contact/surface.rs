@@ -365,6 +365,23 @@ impl SurfaceCollider {
         self.travel
     }
 
+    /// Forgets the travel and a past non-finite position, and rebuilds the leaf boxes around
+    /// `node_positions` (a body put back to its initial state).
+    pub fn reset_motion(&mut self, node_positions: &[Vec3]) {
+        self.finite = true;
+        self.travel = 0.0;
+        for (v, &i) in self.nodes.iter().enumerate() {
+            self.positions[v] = node_positions[i as usize];
+        }
+        self.anchors.copy_from_slice(&self.positions);
+        self.bounds = bounds_of(self.positions.iter().copied());
+        for t in 0..self.triangles.len() {
+            let leaf = self.leaf_box(t);
+            let _ = self.bvh.update_partially_if_present(leaf, t as u32, 0.0);
+        }
+        self.bvh.refit_without_opt();
+    }
+
     /// Whether every gathered position was finite.
     pub fn is_finite(&self) -> bool {
         self.finite

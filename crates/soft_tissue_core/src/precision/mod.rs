@@ -696,6 +696,9 @@ impl LeveledBody {
         }
         self.precise = next;
         self.settings = settings;
+        // The new solver's rotations are held at the rest orientation, not at the last
+        // down-switch's: an up-switch turns them by the cage's whole rotation.
+        self.lowered_rotation = UnitQuaternion::identity();
         if self.shadow.is_some() {
             self.shadow = Some(Box::new(build_precise(mesh, &self.settings)?));
             self.restart_shadow()?;

@@ -176,6 +176,8 @@ pub struct SimBody {
     corrected: Vec<u32>,
     /// The surface was last written while the body slept (nothing to write again).
     written_asleep: bool,
+    /// The last writeback wrote the surface (it changed, or may have).
+    surface_written: bool,
 }
 
 impl SimBody {
@@ -249,6 +251,7 @@ impl SimBody {
             weight: vec![0.0; n],
             corrected: Vec::with_capacity(n),
             written_asleep: false,
+            surface_written: false,
         };
         b.write_surface();
         Ok(b)
@@ -295,6 +298,12 @@ impl SimBody {
         &self.surface_out
     }
 
+    /// Whether the last writeback wrote the surface positions (false only for a body asleep
+    /// since an earlier writeback: nothing of its surface changed).
+    pub fn surface_written(&self) -> bool {
+        self.surface_written
+    }
+
     /// Mesh node of each entry of [`SimBody::surface_positions`].
     pub fn surface_nodes(&self) -> &[u32] {
         self.collider.nodes()
@@ -336,8 +345,10 @@ impl SimBody {
         if self.heat.is_none() && self.body.is_asleep() && self.written_asleep {
             // Asleep and already written: the surface has not changed.
             self.diagnostics.method = "cage";
+            self.surface_written = false;
             return;
         }
+        self.surface_written = true;
         self.written_asleep = self.body.is_asleep();
         let x = self.body.node_positions();
         let mut max_d: f64 = 0.0;
@@ -383,7 +394,7 @@ impl SimBody {
         if let Some(h) = &mut self.heat {
             h.reset();
         }
-        self.collider.gather(self.body.node_positions());
+        self.collider.reset_motion(self.body.node_positions());
         self.touched = false;
         self.contacts = 0;
         self.diagnostics.switched = None;
