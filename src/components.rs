@@ -68,6 +68,9 @@ pub enum PreciseMethodKind {
     /// Corotational tetrahedral FEM, implicit Euler (the default).
     #[default]
     CorotationalFem,
+    /// Corotational FEM with a constant prefactored system: a fixed, low cost per step on
+    /// large meshes, numerically damped in stiff, slow motion.
+    PrefactoredFem,
     /// Mass-spring-damper, RK4 (the paper).
     MsdRk4,
     /// Mass-spring-damper, symplectic Euler.
@@ -78,16 +81,17 @@ pub enum PreciseMethodKind {
 
 impl PreciseMethodKind {
     /// Every method, in display order.
-    pub const ALL: [PreciseMethodKind; 5] = [
+    pub const ALL: [PreciseMethodKind; 6] = [
         PreciseMethodKind::LinearFem,
         PreciseMethodKind::CorotationalFem,
+        PreciseMethodKind::PrefactoredFem,
         PreciseMethodKind::MsdRk4,
         PreciseMethodKind::MsdSymplectic,
         PreciseMethodKind::MsdImplicit,
     ];
 
-    /// Short name (`fem-linear`, `fem-corotational`, `msd-rk4`, `msd-symplectic`,
-    /// `msd-implicit`).
+    /// Short name (`fem-linear`, `fem-corotational`, `fem-corotational-prefactored`,
+    /// `msd-rk4`, `msd-symplectic`, `msd-implicit`).
     pub fn name(self) -> &'static str {
         PreciseMethod::from(self).name()
     }
@@ -98,6 +102,9 @@ impl From<PreciseMethod> for PreciseMethodKind {
         match m {
             PreciseMethod::Fem(FemModel::Linear) => PreciseMethodKind::LinearFem,
             PreciseMethod::Fem(FemModel::Corotational) => PreciseMethodKind::CorotationalFem,
+            PreciseMethod::Fem(FemModel::CorotationalPrefactored) => {
+                PreciseMethodKind::PrefactoredFem
+            }
             PreciseMethod::Msd(MsdIntegrator::Rk4) => PreciseMethodKind::MsdRk4,
             PreciseMethod::Msd(MsdIntegrator::SymplecticEuler) => PreciseMethodKind::MsdSymplectic,
             PreciseMethod::Msd(MsdIntegrator::ImplicitEuler) => PreciseMethodKind::MsdImplicit,
@@ -110,6 +117,9 @@ impl From<PreciseMethodKind> for PreciseMethod {
         match m {
             PreciseMethodKind::LinearFem => PreciseMethod::Fem(FemModel::Linear),
             PreciseMethodKind::CorotationalFem => PreciseMethod::Fem(FemModel::Corotational),
+            PreciseMethodKind::PrefactoredFem => {
+                PreciseMethod::Fem(FemModel::CorotationalPrefactored)
+            }
             PreciseMethodKind::MsdRk4 => PreciseMethod::Msd(MsdIntegrator::Rk4),
             PreciseMethodKind::MsdSymplectic => PreciseMethod::Msd(MsdIntegrator::SymplecticEuler),
             PreciseMethodKind::MsdImplicit => PreciseMethod::Msd(MsdIntegrator::ImplicitEuler),

@@ -655,7 +655,7 @@ fn writeback_stage(
         let cg = d.cg;
         if let (Some(mut f), Some(fb)) = (fem, lb.fem()) {
             f.set_if_neq(FemState {
-                corotational: fb.model() == soft_tissue_core::fem::FemModel::Corotational,
+                corotational: fb.model().is_corotational(),
                 cg_iterations: cg.map_or(0, |c| c.iterations),
                 cg_residual: cg.map_or(0.0, |c| c.relative_residual),
                 cg_converged: cg.is_none_or(|c| c.converged),

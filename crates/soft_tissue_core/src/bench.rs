@@ -33,6 +33,8 @@ pub enum BenchMethod {
     FemLinear,
     /// Corotational FEM, implicit Euler, warm-started PCG.
     FemCorotational,
+    /// Corotational FEM with a constant, prefactored, rotation-invariant system.
+    FemCorotationalPrefactored,
     /// MSD with RK4 (the paper).
     MsdRk4,
     /// MSD with symplectic Euler.
@@ -47,9 +49,10 @@ pub enum BenchMethod {
 
 impl BenchMethod {
     /// Every method.
-    pub const ALL: [BenchMethod; 7] = [
+    pub const ALL: [BenchMethod; 8] = [
         BenchMethod::FemLinear,
         BenchMethod::FemCorotational,
+        BenchMethod::FemCorotationalPrefactored,
         BenchMethod::MsdRk4,
         BenchMethod::MsdSymplectic,
         BenchMethod::MsdImplicit,
@@ -67,6 +70,7 @@ impl BenchMethod {
         match self {
             BenchMethod::FemLinear => "fem-linear",
             BenchMethod::FemCorotational => "fem-corotational",
+            BenchMethod::FemCorotationalPrefactored => "fem-corotational-prefactored",
             BenchMethod::MsdRk4 => "msd-rk4",
             BenchMethod::MsdSymplectic => "msd-symplectic",
             BenchMethod::MsdImplicit => "msd-implicit",
@@ -196,13 +200,15 @@ impl BenchBody {
             .filter(|&i| mesh.positions()[i].y >= hi - 0.05 * (hi - lo))
             .collect();
         let (solver, dt, total_force) = match method {
-            BenchMethod::FemLinear | BenchMethod::FemCorotational => {
+            BenchMethod::FemLinear
+            | BenchMethod::FemCorotational
+            | BenchMethod::FemCorotationalPrefactored => {
                 let mut c = FemConfig::paper(fem.0, fem.1);
                 c.gravity = gravity;
-                c.model = if method == BenchMethod::FemLinear {
-                    FemModel::Linear
-                } else {
-                    FemModel::Corotational
+                c.model = match method {
+                    BenchMethod::FemLinear => FemModel::Linear,
+                    BenchMethod::FemCorotational => FemModel::Corotational,
+                    _ => FemModel::CorotationalPrefactored,
                 };
                 let body = FemBody::new(mesh, c, &boundary)?;
                 let force = fem.0.young_modulus * size * size / 50.0;

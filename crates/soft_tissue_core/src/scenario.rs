@@ -19,6 +19,9 @@ pub enum PreciseMethod {
     LinearFem,
     /// Corotational tetrahedral FEM (correct under large rotations).
     CorotationalFem,
+    /// Corotational FEM with the constant prefactored system (a fixed, low cost per step on
+    /// large meshes; see `FemModel::CorotationalPrefactored`).
+    PrefactoredFem,
     /// Mass-spring-damper on the tetrahedra's edges.
     Msd,
 }
@@ -317,7 +320,9 @@ impl Scene {
             };
             let dt_ok = |dt: f64| dt.is_finite() && dt > 0.0;
             match b.precise {
-                PreciseMethod::LinearFem | PreciseMethod::CorotationalFem => {
+                PreciseMethod::LinearFem
+                | PreciseMethod::CorotationalFem
+                | PreciseMethod::PrefactoredFem => {
                     let f = b
                         .fem
                         .ok_or_else(|| err("a FEM precise method needs `fem` settings".into()))?;

@@ -92,7 +92,11 @@ impl HardCase {
     /// limit, substepped and refused.
     pub fn all() -> Vec<HardCase> {
         let mut v = Vec::new();
-        for m in [FemModel::Linear, FemModel::Corotational] {
+        for m in [
+            FemModel::Linear,
+            FemModel::Corotational,
+            FemModel::CorotationalPrefactored,
+        ] {
             let f = CaseMethod::Fem(m);
             v.push(HardCase {
                 poisson: Some(0.49),
@@ -156,6 +160,7 @@ impl HardCase {
         match self.method {
             CaseMethod::Fem(FemModel::Linear) => "FEM linear",
             CaseMethod::Fem(FemModel::Corotational) => "FEM corotational",
+            CaseMethod::Fem(FemModel::CorotationalPrefactored) => "FEM corotational prefactored",
             CaseMethod::Msd(MsdIntegrator::Rk4) => "MSD RK4",
             CaseMethod::Msd(MsdIntegrator::SymplecticEuler) => "MSD symplectic",
             CaseMethod::Msd(MsdIntegrator::ImplicitEuler) => "MSD implicit",

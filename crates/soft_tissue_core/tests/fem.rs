@@ -29,6 +29,7 @@ fn config(model: FemModel, young: f64, poisson: f64) -> FemConfig {
         cg_max_iterations: 200,
         rotation_iterations: 20,
         stiffness_update_angle: 0.0,
+        prefactored_iterations: 1,
     }
 }
 
@@ -66,7 +67,7 @@ fn patch_test_uniform_strain_is_reproduced_exactly() {
         // Corotational: the same strain seen through a quarter turn is still reproduced.
         let q = match model {
             FemModel::Linear => Matrix3::identity(),
-            FemModel::Corotational => quarter_turn(),
+            FemModel::Corotational | FemModel::CorotationalPrefactored => quarter_turn(),
         };
         let map = |p: &Vec3| q * (Matrix3::identity() + strain()) * p + Vec3::new(0.3, -0.2, 0.1);
         let fixed: Vec<usize> = (0..mesh.positions().len())
@@ -405,9 +406,13 @@ fn implicit_euler_never_gains_energy() {
         (FemModel::Linear, 0.0),
         (FemModel::Corotational, 0.0),
         (FemModel::Corotational, 0.01),
+        (FemModel::CorotationalPrefactored, 0.0),
     ];
     for (model, lag) in cases {
         for (alpha, beta) in [(0.0, 0.0), (0.5, 0.0), (0.0, 0.01)] {
+            if model == FemModel::CorotationalPrefactored && beta > 0.0 {
+                continue; // mass damping only
+            }
             let mut c = config(model, 1000.0, 0.3);
             c.mass_damping = alpha;
             c.stiffness_damping = beta;
@@ -423,8 +428,16 @@ fn implicit_euler_never_gains_energy() {
             for s in 0..200 {
                 body.step().unwrap();
                 let e = body.kinetic_energy() + body.elastic_energy();
+                // One quasi-Newton iteration a step (the prefactored model) is not exactly
+                // dissipative from one step to the next: allow 1e-4 of the initial energy
+                // (1.6e-5 measured), never above the start.
+                let slack = if model == FemModel::CorotationalPrefactored {
+                    1e-4
+                } else {
+                    1e-9
+                };
                 assert!(
-                    e <= prev + 1e-9 * e0,
+                    e <= prev + slack * e0 && e <= e0,
                     "{model:?} alpha {alpha} beta {beta}: step {s} energy {prev} -> {e}"
                 );
                 prev = e;
@@ -435,4 +448,191 @@ fn implicit_euler_never_gains_energy() {
             );
         }
     }
+}
+
+/// The inertial target `y` of a backward-Euler step and the residual of its optimality
+/// condition `c M (x - y) = f(x)` at the body's positions `x` (exact corotated forces with
+/// converged rotations, anchors included), over the free components, relative to the largest
+/// force. `x0`, `v0`: the state before the step.
+fn backward_euler_residual(body: &FemBody, x0: &[Vec3], v0: &[Vec3], c: &FemConfig) -> f64 {
+    let h = c.dt;
+    let damp = 1.0 + h * c.mass_damping;
+    let inertia = damp / (h * h);
+    let x = body.positions().to_vec();
+    let mut f = vec![Vec3::zeros(); x.len()];
+    body.forces_and_energy(&x, FemModel::Corotational, &mut f);
+    let (mut worst, mut scale) = (0.0f64, 0.0f64);
+    for i in 0..x.len() {
+        let m = body.masses()[i];
+        let y = x0[i] + (h / damp) * v0[i] + c.gravity / inertia;
+        let r = inertia * m * (x[i] - y) - f[i];
+        worst = worst.max(r.norm());
+        scale = scale.max(f[i].norm());
+    }
+    worst / scale
+}
+
+/// A twisted, stretched, moving free cube: one step of the prefactored model with enough
+/// iterations solves the backward-Euler step of the corotated energy (its optimality
+/// condition, with the finite-difference-checked forces of `forces_and_energy`, holds to
+/// round-off). With fewer iterations it is an approximation of that step, whose distance
+/// falls as iterations are added.
+#[test]
+fn prefactored_iterations_converge_to_the_backward_euler_step() {
+    let mesh = cube(3);
+    let twist = Rotation3::from_euler_angles(0.4, -0.8, 1.1);
+    let stretch = Matrix3::from_diagonal(&Vec3::new(1.15, 0.92, 1.05));
+    let run = |iterations: u32| {
+        let mut c = config(FemModel::CorotationalPrefactored, 1000.0, 0.3);
+        c.mass_damping = 0.5;
+        c.dt = 0.02;
+        c.gravity = Vec3::new(0.0, -9.81, 0.0);
+        c.rotation_iterations = 1;
+        c.prefactored_iterations = iterations;
+        let mut body = FemBody::new(&mesh, c, &Boundary::free()).unwrap();
+        for (i, (x, x0)) in body
+            .positions_mut()
+            .iter_mut()
+            .zip(mesh.positions())
+            .enumerate()
+        {
+            let s = i as f64;
+            *x = twist
+                * (stretch * x0 + 0.02 * Vec3::new(s.sin(), (1.3 * s).cos(), (0.7 * s).sin()));
+        }
+        for (i, v) in body.velocities_mut().iter_mut().enumerate() {
+            let s = i as f64;
+            *v = Vec3::new(0.3 * (0.9 * s).cos(), -0.2, 0.1 * s.sin());
+        }
+        body.sync_rotations();
+        let (x0, v0) = (body.positions().to_vec(), body.velocities().to_vec());
+        body.step().unwrap();
+        let r = backward_euler_residual(&body, &x0, &v0, &c);
+        let moved = body
+            .positions()
+            .iter()
+            .zip(&x0)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        (body.positions().to_vec(), r, moved)
+    };
+    let (exact, residual, moved) = run(400);
+    println!("400 iterations: relative residual {residual:.3e}, step moved {moved:.3e}");
+    assert!(residual < 1e-8, "converged residual {residual:e}");
+    let mut distances = Vec::new();
+    for iterations in [1, 2, 4, 16] {
+        let (x, _, _) = run(iterations);
+        let d = x
+            .iter()
+            .zip(&exact)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        println!("{iterations} iterations: {:.3e} of the step", d / moved);
+        distances.push(d / moved);
+    }
+    assert!(distances.windows(2).all(|w| w[1] < w[0]), "{distances:?}");
+    // Here (a stiff cube, h^2 k / m far above 1, released from a 15 % stretch) one iteration
+    // falls short of the converged step by a good part of the step's motion: an
+    // approximation, whose effect on whole runs the report's speed-against-error table
+    // measures. It must still move the body most of the right way.
+    assert!(distances[0] < 0.7, "{distances:?}");
+}
+
+/// A cantilever bending far under its own weight (tip deflection about half its length) and
+/// damped by mass: the prefactored model's steps come to rest on the static equilibrium of
+/// the corotated energy (the Newton static solve): its fixed point is exact.
+#[test]
+fn prefactored_comes_to_rest_on_the_corotational_static_equilibrium() {
+    let (len, a) = (4.0, 0.5);
+    let mesh = block(Vec3::zeros(), Vec3::new(len, a, a), [16, 2, 2]).unwrap();
+    let boundary = Boundary::fixed_below(mesh.positions(), 0, 0.0);
+    let mut c = config(FemModel::Corotational, 3000.0, 0.35);
+    c.gravity = Vec3::new(0.0, 0.0, -9.81);
+    let mut reference = FemBody::new(&mesh, c, &boundary).unwrap();
+    reference.solve_static(1e-12, 200).unwrap();
+    let tip = (0..mesh.positions().len())
+        .max_by(|&i, &j| mesh.positions()[i].x.total_cmp(&mesh.positions()[j].x))
+        .unwrap();
+    let deflection = (reference.positions()[tip] - mesh.positions()[tip]).norm();
+    assert!(deflection > 0.05 * len, "a visible bend: {deflection}");
+    c.model = FemModel::CorotationalPrefactored;
+    c.mass_damping = 1.0;
+    // Eight iterations a step: with one, this slender beam (large rotations along it, which
+    // the rotation-invariant matrix penalises) falls many times slower than backward Euler
+    // (numerical damping, measured: half the deflection still to go after 5 s); the fixed
+    // point is the same.
+    c.prefactored_iterations = 8;
+    c.rotation_iterations = 1;
+    let mut body = FemBody::new(&mesh, c, &boundary).unwrap();
+    for _ in 0..3000 {
+        body.step().unwrap();
+    }
+    assert!(
+        body.max_speed() < 1e-6 * len,
+        "at rest: {}",
+        body.max_speed()
+    );
+    let worst = body
+        .positions()
+        .iter()
+        .zip(reference.positions())
+        .map(|(p, q)| (p - q).norm())
+        .fold(0.0, f64::max);
+    println!("prefactored rest vs static: {worst:.3e} (deflection {deflection:.3})");
+    assert!(
+        worst < 1e-6 * deflection,
+        "off the static solution by {worst}"
+    );
+}
+
+/// A free body, no damping, no gravity: the prefactored step conserves linear momentum (the
+/// Laplacian's rows and every element's forces sum to zero), and a body turning rigidly
+/// keeps its shape (no elastic energy appears from the rotation alone).
+#[test]
+fn prefactored_conserves_momentum_and_turns_rigidly() {
+    let mesh = cube(3);
+    let c = config(FemModel::CorotationalPrefactored, 1000.0, 0.3);
+    let mut body = FemBody::new(&mesh, c, &Boundary::free()).unwrap();
+    let centre = Vec3::repeat(0.5);
+    let omega = Vec3::new(0.0, 0.0, 3.0);
+    for (v, x) in body.velocities_mut().iter_mut().zip(mesh.positions()) {
+        *v = Vec3::new(0.2, -0.1, 0.05) + omega.cross(&(x - centre));
+    }
+    let momentum = |b: &FemBody| -> Vec3 {
+        b.velocities()
+            .iter()
+            .zip(b.masses())
+            .map(|(v, m)| v * *m)
+            .sum()
+    };
+    let p0 = momentum(&body);
+    let e0 = body.kinetic_energy();
+    for _ in 0..100 {
+        body.step().unwrap();
+    }
+    let p1 = momentum(&body);
+    assert!((p1 - p0).norm() < 1e-9 * p0.norm(), "{p0:?} -> {p1:?}");
+    // A second of turning at 3 rad/s (about half a turn): the shape stays that of the rest
+    // state (elastic energy tiny against the kinetic energy).
+    let elastic = body.elastic_energy();
+    println!("elastic energy after half a turn: {elastic:.3e} (kinetic {e0:.3e})");
+    assert!(elastic < 1e-2 * e0, "elastic {elastic} vs kinetic {e0}");
+}
+
+/// The prefactored model refuses stiffness damping with an error naming the field, at build time
+/// and when switched to at run time (the body keeps its model).
+#[test]
+fn prefactored_refuses_stiffness_damping() {
+    let mesh = cube(2);
+    let mut c = config(FemModel::CorotationalPrefactored, 1000.0, 0.3);
+    c.stiffness_damping = 0.01;
+    let e = FemBody::new(&mesh, c, &Boundary::free()).unwrap_err();
+    assert!(e.to_string().contains("stiffness_damping"), "{e}");
+    c.model = FemModel::Corotational;
+    let mut body = FemBody::new(&mesh, c, &Boundary::free()).unwrap();
+    let e = body
+        .set_model(FemModel::CorotationalPrefactored)
+        .unwrap_err();
+    assert!(e.to_string().contains("stiffness_damping"), "{e}");
+    assert_eq!(body.model(), FemModel::Corotational);
 }

@@ -30,6 +30,7 @@
 
 pub mod element;
 mod packed;
+mod prefactored;
 pub mod rotation;
 
 use std::time::Instant;
@@ -75,9 +76,37 @@ pub enum FemModel {
     /// matrix. Wrong under large rotations (the body grows when it turns).
     Linear,
     /// Corotational: linear elasticity in each element's rotated frame; right under large
-    /// rotations. The default precise method.
+    /// rotations. The default precise method. Each step linearizes backward Euler at the
+    /// start of the step and solves the warped system by preconditioned conjugate gradients:
+    /// the reference corotational method, whose cost grows with the deformation.
     #[default]
     Corotational,
+    /// The same corotated material, backward Euler solved by iterations with a constant,
+    /// rotation-invariant, prefactored matrix that bounds the Hessian from above (see the
+    /// `prefactored` module): stable for any stiffness and step, exact at rest, a fixed cost
+    /// per step several times below [`FemModel::Corotational`]'s on large meshes; one
+    /// iteration by default, more converge to the backward-Euler step. No
+    /// stiffness-proportional damping.
+    CorotationalPrefactored,
+}
+
+impl FemModel {
+    /// Whether the model follows element rotations (both corotational models).
+    pub fn is_corotational(self) -> bool {
+        matches!(
+            self,
+            FemModel::Corotational | FemModel::CorotationalPrefactored
+        )
+    }
+
+    /// Short name: `linear`, `corotational`, `corotational-prefactored`.
+    pub fn name(self) -> &'static str {
+        match self {
+            FemModel::Linear => "linear",
+            FemModel::Corotational => "corotational",
+            FemModel::CorotationalPrefactored => "corotational-prefactored",
+        }
+    }
 }
 
 /// How the body's mass is given.
@@ -124,6 +153,14 @@ pub struct FemConfig {
     /// longest ago first), so a step never pays a whole re-assembly; under fast rotation of
     /// the whole body the rest follow within a few steps.
     pub stiffness_update_angle: f64,
+    /// Prefactored corotational model: iterations per step (each one element loop and three
+    /// scalar solves). Default 1.
+    #[serde(default = "default_prefactored_iterations")]
+    pub prefactored_iterations: u32,
+}
+
+fn default_prefactored_iterations() -> u32 {
+    1
 }
 
 impl FemConfig {
@@ -143,6 +180,7 @@ impl FemConfig {
             cg_max_iterations: 20,
             rotation_iterations: 1,
             stiffness_update_angle: 0.01,
+            prefactored_iterations: default_prefactored_iterations(),
         }
     }
 
@@ -202,6 +240,18 @@ impl FemConfig {
         }
         if self.cg_max_iterations == 0 {
             return bad("cg_max_iterations", "must be at least 1".into());
+        }
+        if self.prefactored_iterations == 0 {
+            return bad("prefactored_iterations", "must be at least 1".into());
+        }
+        if self.model == FemModel::CorotationalPrefactored && self.stiffness_damping != 0.0 {
+            return bad(
+                "stiffness_damping",
+                format!(
+                    "must be 0 for the corotational-prefactored model (it damps by mass only), found {}",
+                    self.stiffness_damping
+                ),
+            );
         }
         if !nonneg(self.stiffness_update_angle) {
             return bad(
@@ -316,6 +366,8 @@ pub struct FemBody {
     static_system: Option<ImplicitSystem>,
     /// The elements packed eight at a time for the corotational element loop.
     packed: packed::PackedElements,
+    /// The prefactored model's system, built when the model is first used.
+    prefactored: Option<prefactored::Prefactored>,
 }
 
 impl NodalBody for FemBody {
@@ -417,7 +469,7 @@ impl FemBody {
         let system = ImplicitSystem::new(body_matrix, fixed.clone())?;
         let packed = packed::PackedElements::new(&tets, &grads, &volumes, n);
         let tet_count = tets.len();
-        Ok(FemBody {
+        let mut body = FemBody {
             packed,
             config,
             lambda,
@@ -443,7 +495,12 @@ impl FemBody {
             backup_v: vec![Vec3::zeros(); n],
             stats: FemStepStats::default(),
             static_system: None,
-        })
+            prefactored: None,
+        };
+        if config.model == FemModel::CorotationalPrefactored {
+            body.prefactored = Some(prefactored::Prefactored::new(&body)?);
+        }
+        Ok(body)
     }
 
     /// The settings.
@@ -456,18 +513,27 @@ impl FemBody {
         self.config.model
     }
 
-    /// Switches between linear and corotational at run time (free: both share the rest
-    /// factorization).
-    pub fn set_model(&mut self, model: FemModel) {
+    /// Switches the elastic model at run time. Linear and corotational share the rest
+    /// factorization (free); the prefactored model factorizes its own system the first time
+    /// it is used. Fails (and keeps the model) when the configuration does not suit the new
+    /// model (the prefactored model takes no stiffness damping) or its factorization fails.
+    pub fn set_model(&mut self, model: FemModel) -> Result<(), FemError> {
         if model != self.config.model {
+            let mut c = self.config;
+            c.model = model;
+            c.validate()?;
+            if model == FemModel::CorotationalPrefactored && self.prefactored.is_none() {
+                self.prefactored = Some(prefactored::Prefactored::new(self)?);
+            }
             self.config.model = model;
             self.dv.fill(Vec3::zeros());
             // The linear model leaves the system matrix as it was: still the warped stiffness
             // of `quats_assembled`, updated element by element from the next step on.
-            if model == FemModel::Corotational {
+            if model.is_corotational() {
                 self.sync_rotations();
             }
         }
+        Ok(())
     }
 
     /// Recomputes every element rotation from the current positions, to convergence. Call
@@ -556,9 +622,26 @@ impl FemBody {
         self.tets.len()
     }
 
-    /// Stored entries of the Cholesky factor of the system matrix.
+    /// Stored entries of the Cholesky factor(s) the model in use solves with (the prefactored
+    /// model's scalar factors, the others' block system).
     pub fn factor_nnz(&self) -> usize {
-        self.system.factor_nnz()
+        match (&self.prefactored, self.config.model) {
+            (Some(s), FemModel::CorotationalPrefactored) => s.factor_nnz(),
+            _ => self.system.factor_nnz(),
+        }
+    }
+
+    /// Bytes held by the model in use for its matrices and factors (values and indices):
+    /// the block system matrix, the rest stiffness and the factor for linear and
+    /// corotational; the Laplacian and scalar factors for the prefactored model (the body
+    /// also keeps the rest system the others use).
+    pub fn matrix_bytes(&self) -> usize {
+        let blocks = self.system.matrix.stored_blocks() + self.k_rest.stored_blocks();
+        let block_bytes = blocks * (72 + 4) + self.system.factor_nnz() * 16;
+        match (&self.prefactored, self.config.model) {
+            (Some(s), FemModel::CorotationalPrefactored) => s.bytes(),
+            _ => block_bytes,
+        }
     }
 
     /// What the last step did.
@@ -576,7 +659,7 @@ impl FemBody {
             let def = element::deformation_gradient(&p, &self.grads[t]);
             let s = match self.config.model {
                 FemModel::Linear => def,
-                FemModel::Corotational => {
+                FemModel::Corotational | FemModel::CorotationalPrefactored => {
                     let (mut q, mut r) = (self.quats[t], self.rots[t]);
                     rotation::extract_rotation(&def, &mut q, &mut r, 50, 1e-12);
                     r.transpose() * def
@@ -619,7 +702,7 @@ impl FemBody {
             let p = tet.map(|i| x[i as usize]);
             let r = match model {
                 FemModel::Linear => Matrix3::identity(),
-                FemModel::Corotational => {
+                FemModel::Corotational | FemModel::CorotationalPrefactored => {
                     rotation::rotation_of(&element::deformation_gradient(&p, &self.grads[t]))
                 }
             };
@@ -653,7 +736,7 @@ impl FemBody {
         let rots: Vec<Matrix3<f64>> = (0..self.tets.len())
             .map(|t| match model {
                 FemModel::Linear => Matrix3::identity(),
-                FemModel::Corotational => {
+                FemModel::Corotational | FemModel::CorotationalPrefactored => {
                     let p = self.tets[t].map(|i| x[i as usize]);
                     rotation::rotation_of(&element::deformation_gradient(&p, &self.grads[t]))
                 }
@@ -726,6 +809,12 @@ impl FemBody {
                     self.config.cg_max_iterations,
                 )?;
                 stats.solve_us = start.elapsed().as_secs_f64() * 1e6;
+            }
+            FemModel::CorotationalPrefactored => {
+                let (worst, loops_us, solve_us) = self.prefactored_step()?;
+                stats.rotation_iterations = worst;
+                stats.forces_us = loops_us;
+                stats.solve_us = solve_us;
             }
         }
         for i in 0..self.nodes.x.len() {
@@ -957,7 +1046,7 @@ impl FemBody {
             dx.fill(Vec3::zeros());
             match model {
                 FemModel::Linear => sys.solve_direct(&f, &mut dx)?,
-                FemModel::Corotational => {
+                FemModel::Corotational | FemModel::CorotationalPrefactored => {
                     for (t, r) in rots.iter_mut().enumerate() {
                         let p = self.tets[t].map(|i| self.nodes.x[i as usize]);
                         *r = rotation::rotation_of(&element::deformation_gradient(

@@ -340,6 +340,11 @@ impl ScalarCholesky {
         self.llt.dim
     }
 
+    /// Number of stored entries of the factor `L`.
+    pub fn factor_nnz(&self) -> usize {
+        self.llt.l_values.len()
+    }
+
     /// Solves `A x = rhs` in place (no allocation).
     ///
     /// # Panics

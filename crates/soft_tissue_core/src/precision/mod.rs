@@ -70,12 +70,13 @@ pub enum PreciseMethod {
 }
 
 impl PreciseMethod {
-    /// Short name: `fem-linear`, `fem-corotational`, `msd-rk4`, `msd-symplectic`,
-    /// `msd-implicit`.
+    /// Short name: `fem-linear`, `fem-corotational`, `fem-corotational-prefactored`, `msd-rk4`,
+    /// `msd-symplectic`, `msd-implicit`.
     pub fn name(self) -> &'static str {
         match self {
             PreciseMethod::Fem(FemModel::Linear) => "fem-linear",
             PreciseMethod::Fem(FemModel::Corotational) => "fem-corotational",
+            PreciseMethod::Fem(FemModel::CorotationalPrefactored) => "fem-corotational-prefactored",
             PreciseMethod::Msd(MsdIntegrator::Rk4) => "msd-rk4",
             PreciseMethod::Msd(MsdIntegrator::SymplecticEuler) => "msd-symplectic",
             PreciseMethod::Msd(MsdIntegrator::ImplicitEuler) => "msd-implicit",
@@ -673,11 +674,11 @@ impl LeveledBody {
         if method == self.settings.precise {
             return Ok(());
         }
-        // Linear <-> corotational: same FEM body.
+        // Between FEM models: same FEM body.
         if let (Precise::Fem(b), PreciseMethod::Fem(model)) = (&mut self.precise, method) {
-            b.set_model(model);
+            b.set_model(model)?;
             if let Some(Precise::Fem(s)) = self.shadow.as_deref_mut() {
-                s.set_model(model);
+                s.set_model(model)?;
             }
             self.settings.precise = method;
             return Ok(());
@@ -1125,7 +1126,7 @@ fn load_state(target: &mut Precise, x: &[Vec3], v: &[Vec3], turned: UnitQuaterni
     }
     // Element rotations matter to the corotational model only (a switch to it syncs them).
     if let Precise::Fem(b) = target
-        && b.model() == FemModel::Corotational
+        && b.model().is_corotational()
     {
         b.sync_rotations_from(turned);
     }

@@ -68,14 +68,16 @@ pub fn body_settings(
         message: message.into(),
     };
     let (method, dt) = match spec.precise {
-        PreciseMethod::LinearFem | PreciseMethod::CorotationalFem => {
+        PreciseMethod::LinearFem
+        | PreciseMethod::CorotationalFem
+        | PreciseMethod::PrefactoredFem => {
             let fem = spec
                 .fem
                 .ok_or_else(|| bad("a FEM precise method needs `fem` settings"))?;
-            let model = if spec.precise == PreciseMethod::LinearFem {
-                FemModel::Linear
-            } else {
-                FemModel::Corotational
+            let model = match spec.precise {
+                PreciseMethod::LinearFem => FemModel::Linear,
+                PreciseMethod::PrefactoredFem => FemModel::CorotationalPrefactored,
+                _ => FemModel::Corotational,
             };
             (LevelMethod::Fem(model), fem.dt)
         }
