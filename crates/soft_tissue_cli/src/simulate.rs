@@ -342,6 +342,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "contact_over_solve": costs.contact_over_solve,
                 "steps_over_1ms": costs.steps_over_1ms,
                 "steps_over_10ms": costs.steps_over_10ms,
+                "state_hash": format!("{:016x}", world.state_hash()),
                 "bodies": bodies,
             })
         );
@@ -355,6 +356,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
             args.steps,
             dt
         );
+        println!("state_hash {:016x}", world.state_hash());
         println!(
             "step time (wall clock, this machine), median / p99 / max us: {} (mean {:.1}); steps with a precise body {}; worst step / their median {}",
             triple(&costs.step),

@@ -249,6 +249,7 @@ fn method_name(m: PreciseMethod) -> &'static str {
     match m {
         PreciseMethod::LinearFem => "FEM linear",
         PreciseMethod::CorotationalFem => "FEM corotational",
+        PreciseMethod::PrefactoredFem => "FEM corotational prefactored",
         PreciseMethod::Msd => "MSD (RK4)",
     }
 }
@@ -316,7 +317,7 @@ pub fn report(args: &ReportArgs) -> Res<()> {
     let resolutions: Vec<f64> = if quick {
         vec![0.5, 1.0]
     } else {
-        vec![0.5, 0.75, 1.0, 1.5, 2.0]
+        vec![0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0]
     };
     let cases = HardCase::all();
     let peers: [(&str, _, f64); 2] = [
@@ -868,6 +869,18 @@ fn mesh_size_section(
         )?;
     }
     write_file(out, "mesh_size.csv", &csv)?;
+    let exponents: Vec<Option<f64>> = (0..names.len())
+        .map(|k| sweep::growth_exponent(&rows, k))
+        .collect();
+    writeln!(
+        md,
+        "| growth exponent (fit of time = a tets^p) | | | | {} |",
+        exponents
+            .iter()
+            .map(|e| e.map_or("-".into(), |p| format!("{p:.2}")))
+            .collect::<Vec<_>>()
+            .join(" | ")
+    )?;
     let series: Vec<Series> = names
         .iter()
         .enumerate()
@@ -895,6 +908,16 @@ fn mesh_size_section(
         &series,
     )?;
     writeln!(md, "\n![step time against mesh size](mesh_size.png)\n")?;
+    js.insert(
+        "mesh_size_growth_exponent".into(),
+        json!(
+            names
+                .iter()
+                .zip(&exponents)
+                .map(|(n, e)| ((*n).to_string(), json!(e)))
+                .collect::<serde_json::Map<_, _>>()
+        ),
+    );
     js.insert(
         "mesh_size".into(),
         json!(

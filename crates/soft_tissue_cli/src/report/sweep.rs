@@ -82,12 +82,14 @@ pub(super) fn configs(quick: bool, dt: f64) -> Vec<Config> {
         dt,
     };
     let co = Method::Fem(FemModel::Corotational);
+    let pf = Method::Fem(FemModel::CorotationalPrefactored);
     let li = Method::Fem(FemModel::Linear);
     let rk4 = Method::Msd(MsdIntegrator::Rk4);
     let implicit = Method::Msd(MsdIntegrator::ImplicitEuler);
     if quick {
         return vec![
             precise(co, "FEM corotational", dt),
+            precise(pf, "FEM corotational prefactored", dt),
             precise(li, "FEM linear", dt),
             precise(implicit, "MSD implicit", dt),
             cage(CageKind::BoundingBox, "box", dt),
@@ -96,6 +98,9 @@ pub(super) fn configs(quick: bool, dt: f64) -> Vec<Config> {
     let mut v = Vec::new();
     for s in [1.0, 2.0, 4.0] {
         v.push(precise(co, "FEM corotational", dt * s));
+    }
+    for s in [1.0, 2.0] {
+        v.push(precise(pf, "FEM corotational prefactored", dt * s));
     }
     for s in [1.0, 2.0] {
         v.push(precise(li, "FEM linear", dt * s));
@@ -238,13 +243,38 @@ pub(super) struct SizeRow {
 }
 
 /// The methods of the mesh-size scaling.
-pub(super) const SIZE_METHODS: [BenchMethod; 5] = [
+pub(super) const SIZE_METHODS: [BenchMethod; 6] = [
     BenchMethod::FemLinear,
     BenchMethod::FemCorotational,
+    BenchMethod::FemCorotationalPrefactored,
     BenchMethod::MsdImplicit,
     BenchMethod::CageBox,
     BenchMethod::CageFitted,
 ];
+
+/// The exponent `p` of the least-squares fit `time = a tets^p` (log-log) over the rows where
+/// the method ran; `None` with fewer than two.
+pub(super) fn growth_exponent(rows: &[SizeRow], method: usize) -> Option<f64> {
+    let pts: Vec<(f64, f64)> = rows
+        .iter()
+        .filter_map(|r| {
+            r.median_us[method]
+                .filter(|t| *t > 0.0)
+                .map(|t| ((r.tets as f64).ln(), t.ln()))
+        })
+        .collect();
+    if pts.len() < 2 {
+        return None;
+    }
+    let n = pts.len() as f64;
+    let (mx, my) = (
+        pts.iter().map(|p| p.0).sum::<f64>() / n,
+        pts.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    (sxx > 0.0).then(|| sxy / sxx)
+}
 
 /// Step time against mesh size: the generated liver at several resolutions under the bench
 /// load (`soft-tissue bench`'s swinging force, organ FEM parameters), median of `steps` steps.

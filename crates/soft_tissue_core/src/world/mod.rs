@@ -596,6 +596,24 @@ impl SoftTissueWorld {
         &self.bodies
     }
 
+    /// A 64-bit hash (FNV-1a) of the bits of every node position of every body, in body and
+    /// node order: equal states give equal hashes, so replays (and runs with other settings
+    /// that must not change the result) can be compared by one number.
+    pub fn state_hash(&self) -> u64 {
+        let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
+        for b in &self.bodies {
+            for p in b.body().node_positions() {
+                for c in p.iter() {
+                    for byte in c.to_bits().to_le_bytes() {
+                        hash ^= u64::from(byte);
+                        hash = hash.wrapping_mul(0x0100_0000_01b3);
+                    }
+                }
+            }
+        }
+        hash
+    }
+
     /// Bodies, to change.
     pub fn bodies_mut(&mut self) -> &mut [SimBody] {
         &mut self.bodies
