@@ -71,7 +71,7 @@ pub use components::*;
 pub use messages::{BodyTouched, LevelChanged};
 pub use physics::{
     ResetSimulation, SoftBodyError, SoftTissueConfig, SoftTissueContacts, SoftTissuePhysicsPlugin,
-    SoftTissueSchedule, SoftTissueStatus, SoftTissueStep, SoftTissueSystems,
+    SoftTissueSchedule, SoftTissueStatus, SoftTissueStep, SoftTissueSystems, SoftTissueThreads,
 };
 pub use render::{EmbeddedVisual, SoftBodyMesh, SoftTissueMeshPlugin, SoftTissueMeshSystems};
 
@@ -135,9 +135,13 @@ pub fn spawn_scene(
     assets_dir: &Path,
 ) -> Result<Vec<Entity>, core::world::WorldError> {
     let (config, bodies) = core::world::scene_bodies(scene, assets_dir)?;
+    let threads = world
+        .get_resource::<SoftTissueConfig>()
+        .map_or(0, |c| c.threads);
     world.insert_resource(SoftTissueConfig {
         dt: config.dt,
         contact: config.contact,
+        threads,
     });
     let mut entities = Vec::with_capacity(bodies.len());
     for b in bodies {

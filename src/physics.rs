@@ -71,6 +71,11 @@ pub struct SoftTissueConfig {
     /// Contact settings (thickness, search radius, margins, scene units; default for bodies
     /// about 1 unit across).
     pub contact: ContactConfig,
+    /// Threads the solver stage runs on: 0 (the default) every available core, 1 the
+    /// schedule's own thread. Independent bodies step side by side and large bodies split
+    /// their element loop; the result is bit-identical for every count. Changing it takes
+    /// effect at the next step (a new pool is started).
+    pub threads: usize,
 }
 
 impl Default for SoftTissueConfig {
@@ -78,7 +83,22 @@ impl Default for SoftTissueConfig {
         SoftTissueConfig {
             dt: 0.02,
             contact: ContactConfig::for_scale(1.0),
+            threads: 0,
         }
+    }
+}
+
+/// The thread pool of the solver stage, and the [`SoftTissueConfig::threads`] it was
+/// started for.
+#[derive(Resource, Debug, Default)]
+pub struct SoftTissueThreads {
+    threads: Option<(usize, soft_tissue_core::parallel::Threads)>,
+}
+
+impl SoftTissueThreads {
+    /// Threads in use (1 before the first step).
+    pub fn count(&self) -> usize {
+        self.threads.as_ref().map_or(1, |(_, t)| t.count())
     }
 }
 
@@ -161,6 +181,7 @@ impl Plugin for SoftTissuePhysicsPlugin {
     fn build(&self, app: &mut App) {
         use SoftTissueSystems as S;
         app.init_resource::<SoftTissueConfig>()
+            .init_resource::<SoftTissueThreads>()
             .init_resource::<SoftTissueStatus>()
             .init_resource::<SoftTissueContacts>()
             .add_message::<LevelChanged>()
@@ -536,11 +557,25 @@ fn solve_stage(
     mut bodies: Query<&mut SimulatedBody>,
     mut tools: Query<&mut ToolState>,
     contacts: Res<SoftTissueContacts>,
+    config: Res<SoftTissueConfig>,
+    mut pool: ResMut<SoftTissueThreads>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let mut t = Instant::now();
+    if pool.threads.as_ref().map(|(asked, _)| *asked) != Some(config.threads) {
+        let threads =
+            soft_tissue_core::parallel::Threads::new(config.threads).unwrap_or_else(|e| {
+                fail(
+                    &mut status,
+                    format!("thread pool: {e}; stepping on one thread"),
+                );
+                soft_tissue_core::parallel::Threads::single()
+            });
+        pool.threads = Some((config.threads, threads));
+    }
+    let threads = &pool.threads.as_ref().expect("set above").1;
     let r = in_order(bodies.iter_mut(), tools.iter_mut(), |b, tl| {
-        step_solvers(b, tl, &contacts.0)
+        threads.run(|| step_solvers(b, tl, &contacts.0))
     });
     report(&mut status, "stepping the solvers", r);
     status.times.solve_us = lap(&mut t);

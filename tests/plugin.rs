@@ -15,8 +15,8 @@ use bevy_soft_tissue::core::scenario::{PreciseMethod, Scene};
 use bevy_soft_tissue::core::world::{Script, ScriptAction, SoftTissueWorld};
 use bevy_soft_tissue::prelude::*;
 use bevy_soft_tissue::{
-    SimulatedBody, SoftBodyError, SoftTissueAssetPlugin, SoftTissueMeshPlugin,
-    SoftTissuePhysicsPlugin,
+    SimulatedBody, SoftBodyError, SoftTissueAssetPlugin, SoftTissueConfig, SoftTissueMeshPlugin,
+    SoftTissuePhysicsPlugin, SoftTissueThreads,
 };
 
 fn assets() -> &'static Path {
@@ -285,7 +285,20 @@ fn surfaces(app: &App, bodies: &[Entity]) -> Vec<Vec<[f32; 3]>> {
 }
 
 fn run_plugin(scene: &Scene, script_name: &str, steps: usize) -> Vec<Vec<Vec<[f32; 3]>>> {
+    run_plugin_on(scene, script_name, steps, None)
+}
+
+/// [`run_plugin`] with `SoftTissueConfig::threads` set (`None`: the default).
+fn run_plugin_on(
+    scene: &Scene,
+    script_name: &str,
+    steps: usize,
+    threads: Option<usize>,
+) -> Vec<Vec<Vec<[f32; 3]>>> {
     let (mut app, bodies, world) = scene_app(scene);
+    if let Some(n) = threads {
+        app.world_mut().resource_mut::<SoftTissueConfig>().threads = n;
+    }
     let script = Script::builtin(script_name, &world).unwrap();
     let dt = world.config().dt;
     let tool = spawn_tool(&mut app, &script);
@@ -359,6 +372,22 @@ fn two_runs_are_bit_identical() {
     let a = run_plugin(&scene, "poke-a", 300);
     let b = run_plugin(&scene, "poke-a", 300);
     assert_eq!(a, b);
+}
+
+/// The organs under a poke of the liver, every body at its precise level most of the time:
+/// the same surfaces at every step on one thread and on two (and the pool is used).
+#[test]
+fn one_and_two_threads_give_bit_identical_states() {
+    let scene = Scene::paper_organs();
+    let one = run_plugin_on(&scene, "poke-liver", 200, Some(1));
+    let two = run_plugin_on(&scene, "poke-liver", 200, Some(2));
+    assert_eq!(one.len(), 200);
+    assert_eq!(one, two);
+    let (mut app, _, _) = scene_app(&scene);
+    app.world_mut().resource_mut::<SoftTissueConfig>().threads = 2;
+    app.update();
+    app.update();
+    assert_eq!(app.world().resource::<SoftTissueThreads>().count(), 2);
 }
 
 #[test]

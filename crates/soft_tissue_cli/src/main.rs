@@ -137,6 +137,10 @@ struct BenchArgs {
     /// Print one JSON object (an array with --method all).
     #[arg(long)]
     json: bool,
+    /// Threads the steps run on (0: every available core; 1, the default: one thread). Large
+    /// bodies split their element loop over them; results are identical for every count.
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
 }
 
 #[derive(Subcommand)]
@@ -407,7 +411,9 @@ fn bench(args: &BenchArgs) -> Res {
         }
     }
     methods.dedup();
-    let machine = machine();
+    let threads = soft_tissue_core::parallel::Threads::new(args.threads)?;
+    let mut machine = machine();
+    machine["threads_used"] = serde_json::json!(threads.count());
     // Each method runs on its own; one that fails (for example an explicit integrator refusing
     // a step above its stability limit) is reported in its row and makes the exit status
     // non-zero, without hiding the others.
@@ -430,7 +436,7 @@ fn bench(args: &BenchArgs) -> Res {
                 args.cg_max_iterations.unwrap_or(cap),
             )?;
         }
-        Ok(body.run(method, &mesh, args.warmup, args.steps)?)
+        Ok(threads.run(|| body.run(method, &mesh, args.warmup, args.steps))?)
     };
     let results: Vec<(BenchMethod, Result<BenchReport, String>)> = methods
         .into_iter()
@@ -458,13 +464,14 @@ fn bench(args: &BenchArgs) -> Res {
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
         println!(
-            "{name}: {} nodes, {} tets; {} params; machine: {}, {} cores, {} build, 1 thread",
+            "{name}: {} nodes, {} tets; {} params; machine: {}, {} cores, {} build, {} thread(s)",
             mesh.node_count(),
             mesh.tet_count(),
             params,
             machine["cpu"].as_str().unwrap_or("?"),
             machine["cores"],
-            machine["profile"].as_str().unwrap_or("?")
+            machine["profile"].as_str().unwrap_or("?"),
+            threads.count()
         );
         println!(
             "{:<18} {:>7} {:>10} {:>10} {:>10} {:>10} {:>10} {:>8} {:>9} {:>8}",

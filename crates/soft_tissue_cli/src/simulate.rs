@@ -49,6 +49,10 @@ pub struct SimulateArgs {
     /// cage level's error, on any scene).
     #[arg(long, value_enum, default_value_t = LevelArg::Auto)]
     level: LevelArg,
+    /// Threads the world steps on (0: every available core). The final state (its
+    /// `state_hash`) is the same for every count.
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
 }
 
 /// `--level`.
@@ -161,6 +165,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     let mut scene = load_scene(&args.scene, &args.assets)?;
     let build_start = Instant::now();
     let mut world = SoftTissueWorld::from_scene(&scene, &args.assets)?;
+    world.set_threads(args.threads)?;
     if args.resting > 0 {
         add_resting_copies(&mut scene, args.resting, &world);
         world = SoftTissueWorld::from_scene(&scene, &args.assets)?;
@@ -343,6 +348,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "steps_over_1ms": costs.steps_over_1ms,
                 "steps_over_10ms": costs.steps_over_10ms,
                 "state_hash": format!("{:016x}", world.state_hash()),
+                "threads": world.threads().count(),
                 "bodies": bodies,
             })
         );
@@ -356,7 +362,11 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
             args.steps,
             dt
         );
-        println!("state_hash {:016x}", world.state_hash());
+        println!(
+            "threads {}, state_hash {:016x}",
+            world.threads().count(),
+            world.state_hash()
+        );
         println!(
             "step time (wall clock, this machine), median / p99 / max us: {} (mean {:.1}); steps with a precise body {}; worst step / their median {}",
             triple(&costs.step),

@@ -37,6 +37,7 @@ pub mod linalg;
 pub mod material;
 pub mod mesh;
 pub mod msd;
+pub mod parallel;
 pub mod precision;
 pub mod scenario;
 pub mod stability;

@@ -13,6 +13,7 @@
 //! has a fixed order.
 
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion};
+use rayon::prelude::*;
 
 use super::rotation;
 use crate::Vec3;
@@ -20,6 +21,13 @@ use crate::linalg::madd;
 
 /// Elements per pack.
 pub(super) const LANES: usize = 8;
+
+/// Packs per parallel part of the element loop (a fixed partition: the parts' results are
+/// put together in part order, so the thread count never changes a result).
+const CHUNK_PACKS: usize = 32;
+
+/// Nodes per parallel part of the corner sums.
+const CHUNK_NODES: usize = 1024;
 
 type Lanes = [f64; LANES];
 
@@ -43,6 +51,9 @@ pub(super) struct PackedElements {
     /// For node `i`, its corners are `corners[corner_start[i] .. corner_start[i + 1]]`.
     corner_start: Vec<u32>,
     corners: Vec<u32>,
+    /// Per part of a parallel element loop: its stale elements and its statistics.
+    chunk_stale: Vec<Vec<u32>>,
+    chunk_stats: Vec<LoopStats>,
 }
 
 /// What the element loop reports.
@@ -122,8 +133,13 @@ impl PackedElements {
                 }
             }
         }
+        let chunks = packs.len().div_ceil(CHUNK_PACKS);
         PackedElements {
             corner_force: vec![Vec3::zeros(); packs.len() * 4 * LANES],
+            chunk_stale: (0..chunks)
+                .map(|_| Vec::with_capacity(CHUNK_PACKS * LANES))
+                .collect(),
+            chunk_stats: vec![LoopStats::default(); chunks],
             packs,
             corner_start,
             corners,
@@ -156,7 +172,26 @@ impl PackedElements {
         };
         let mut stats = LoopStats::default();
         self.dispatch::<true>(&args, state, &mut stats);
-        for (i, r) in rhs.iter_mut().enumerate() {
+        self.sum_corners(rhs);
+        stats
+    }
+
+    /// Adds every node's corner forces to `rhs`, in the fixed corner order (node ranges in
+    /// parallel inside a pool, the same sums).
+    fn sum_corners(&self, rhs: &mut [Vec3]) {
+        if crate::parallel::in_pool() && rhs.len() >= 2 * CHUNK_NODES {
+            rhs.par_chunks_mut(CHUNK_NODES)
+                .enumerate()
+                .for_each(|(k, part)| self.sum_corners_from(k * CHUNK_NODES, part));
+        } else {
+            self.sum_corners_from(0, rhs);
+        }
+    }
+
+    /// [`PackedElements::sum_corners`] for the nodes `first..first + rhs.len()`.
+    fn sum_corners_from(&self, first: usize, rhs: &mut [Vec3]) {
+        for (k, r) in rhs.iter_mut().enumerate() {
+            let i = first + k;
             let (s, e) = (
                 self.corner_start[i] as usize,
                 self.corner_start[i + 1] as usize,
@@ -167,7 +202,6 @@ impl PackedElements {
             }
             *r = f;
         }
-        stats
     }
 
     /// Brings every element's rotation to the rotation of its deformation gradient at `x`,
@@ -194,39 +228,80 @@ impl PackedElements {
         stats
     }
 
-    /// Runs the element loop with the widest kernel this CPU has.
-    #[allow(unsafe_code)]
+    /// Runs the element loop: in parallel parts of [`CHUNK_PACKS`] packs inside a pool (when
+    /// there are at least two), otherwise in one pass; the same per-element arithmetic and
+    /// the stale list in element order either way.
     fn dispatch<const FORCES: bool>(
         &mut self,
         args: &Args,
         state: RotationState,
         stats: &mut LoopStats,
     ) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("fma") {
-                // SAFETY: the CPU has the features `packs_avx512` is compiled for.
-                unsafe {
-                    packs_avx512::<FORCES>(&self.packs, args, state, &mut self.corner_force, stats)
-                };
-            } else if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
-                // SAFETY: the CPU has the features `packs_avx2` is compiled for.
-                unsafe {
-                    packs_avx2::<FORCES>(&self.packs, args, state, &mut self.corner_force, stats)
-                };
-            } else {
-                packs_loop::<false, FORCES>(
-                    &self.packs,
-                    args,
-                    state,
-                    &mut self.corner_force,
-                    stats,
-                );
-            }
+        state.stale.clear();
+        if !(crate::parallel::in_pool() && self.packs.len() >= 2 * CHUNK_PACKS) {
+            kernel::<FORCES>(&self.packs, args, state, &mut self.corner_force, stats, 0);
+            return;
         }
-        #[cfg(not(target_arch = "x86_64"))]
-        packs_loop::<false, FORCES>(&self.packs, args, state, &mut self.corner_force, stats);
+        let RotationState {
+            quats,
+            rots,
+            assembled,
+            stale,
+        } = state;
+        let elements = CHUNK_PACKS * LANES;
+        self.packs
+            .par_chunks(CHUNK_PACKS)
+            .zip(self.corner_force.par_chunks_mut(CHUNK_PACKS * 4 * LANES))
+            .zip(quats.par_chunks_mut(elements))
+            .zip(rots.par_chunks_mut(elements))
+            .zip(assembled.par_chunks(elements))
+            .zip(self.chunk_stale.par_iter_mut())
+            .zip(self.chunk_stats.par_iter_mut())
+            .enumerate()
+            .for_each(|(k, ((((((packs, out), q), r), a), st), ss))| {
+                st.clear();
+                *ss = LoopStats::default();
+                let part = RotationState {
+                    quats: q,
+                    rots: r,
+                    assembled: a,
+                    stale: st,
+                };
+                kernel::<FORCES>(packs, args, part, out, ss, (k * elements) as u32);
+            });
+        for (st, ss) in self.chunk_stale.iter().zip(&self.chunk_stats) {
+            stale.extend_from_slice(st);
+            stats.worst_iterations = stats.worst_iterations.max(ss.worst_iterations);
+            stats.stale |= ss.stale;
+        }
     }
+}
+
+/// The element loop over `packs` with the widest kernel this CPU has; stale elements are
+/// listed with `offset` added (the index of the first element of `packs`).
+#[allow(unsafe_code)]
+fn kernel<const FORCES: bool>(
+    packs: &[Pack],
+    args: &Args,
+    state: RotationState,
+    out: &mut [Vec3],
+    stats: &mut LoopStats,
+    offset: u32,
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("fma") {
+            // SAFETY: the CPU has the features `packs_avx512` is compiled for.
+            unsafe { packs_avx512::<FORCES>(packs, args, state, out, stats, offset) };
+        } else if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
+            // SAFETY: the CPU has the features `packs_avx2` is compiled for.
+            unsafe { packs_avx2::<FORCES>(packs, args, state, out, stats, offset) };
+        } else {
+            packs_loop::<false, FORCES>(packs, args, state, out, stats, offset);
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    packs_loop::<false, FORCES>(packs, args, state, out, stats, offset);
 }
 
 struct Args<'a> {
@@ -246,8 +321,9 @@ fn packs_avx512<const FORCES: bool>(
     state: RotationState,
     out: &mut [Vec3],
     stats: &mut LoopStats,
+    offset: u32,
 ) {
-    packs_loop::<true, FORCES>(packs, args, state, out, stats)
+    packs_loop::<true, FORCES>(packs, args, state, out, stats, offset)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -258,8 +334,9 @@ fn packs_avx2<const FORCES: bool>(
     state: RotationState,
     out: &mut [Vec3],
     stats: &mut LoopStats,
+    offset: u32,
 ) {
-    packs_loop::<true, FORCES>(packs, args, state, out, stats)
+    packs_loop::<true, FORCES>(packs, args, state, out, stats, offset)
 }
 
 /// Rotation matrix (`r[i][j]`, row `i`, column `j`) of the unit quaternion `(w, x, y, z)`.
@@ -282,6 +359,7 @@ fn packs_loop<const FMA: bool, const FORCES: bool>(
     state: RotationState,
     out: &mut [Vec3],
     stats: &mut LoopStats,
+    offset: u32,
 ) {
     let RotationState {
         quats,
@@ -289,7 +367,6 @@ fn packs_loop<const FMA: bool, const FORCES: bool>(
         assembled,
         stale,
     } = state;
-    stale.clear();
     let x = args.x;
     let tol2 = args.tolerance * args.tolerance;
     for (p, pack) in packs.iter().enumerate() {
@@ -440,7 +517,7 @@ fn packs_loop<const FMA: bool, const FORCES: bool>(
                 let d = a[3] * q[0][l] + a[0] * q[1][l] + a[1] * q[2][l] + a[2] * q[3][l];
                 if d.abs() < args.cos_half {
                     stats.stale = true;
-                    stale.push(t as u32);
+                    stale.push(offset + t as u32);
                 }
             } else {
                 // A hand-over: a rotation in a saddle (a half turn away from the best one)

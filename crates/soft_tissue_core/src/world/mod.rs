@@ -34,6 +34,8 @@ use std::borrow::{Borrow, BorrowMut};
 use std::sync::Arc;
 use std::time::Instant;
 
+use rayon::prelude::*;
+
 use crate::Vec3;
 use crate::contact::{ContactConfig, ContactError, SurfaceCollider, Tool, ToolContact};
 use crate::heat::{HeatBoundary, HeatError, HeatField, HeatParams};
@@ -85,6 +87,9 @@ pub enum WorldError {
     /// A time step is not usable.
     #[error("time step: {0}")]
     TimeStep(String),
+    /// The world's thread pool could not be started.
+    #[error(transparent)]
+    Threads(#[from] crate::parallel::ThreadsError),
     /// Two bodies share a name.
     #[error("a body named `{0}` already exists")]
     DuplicateName(String),
@@ -178,6 +183,9 @@ pub struct SimBody {
     written_asleep: bool,
     /// The last writeback wrote the surface (it changed, or may have).
     surface_written: bool,
+    /// This step's solver failure, when the bodies stepped in parallel (reported in body
+    /// order after all of them ran).
+    step_error: Option<WorldError>,
 }
 
 impl SimBody {
@@ -252,6 +260,7 @@ impl SimBody {
             corrected: Vec::with_capacity(n),
             written_asleep: false,
             surface_written: false,
+            step_error: None,
         };
         b.write_surface();
         Ok(b)
@@ -453,7 +462,7 @@ pub fn switch_precision<B: BorrowMut<SimBody>>(bodies: &mut [B]) -> Result<(), W
 }
 
 /// Cautery power into the heat fields, then every body's heat and level step.
-pub fn step_solvers<B: BorrowMut<SimBody>, T: Borrow<Tool>>(
+pub fn step_solvers<B: BorrowMut<SimBody> + Send, T: Borrow<Tool>>(
     bodies: &mut [B],
     tools: &[T],
     state: &ContactState,
@@ -485,27 +494,59 @@ pub fn step_solvers<B: BorrowMut<SimBody>, T: Borrow<Tool>>(
             }
         }
     }
-    for b in bodies.iter_mut() {
-        let b = b.borrow_mut();
+    if crate::parallel::in_pool() && bodies.len() > 1 {
+        // Each body's step is the same sequential computation on whichever thread runs it,
+        // so the result does not depend on the thread count. One task per body: a thread
+        // busy with a large body leaves the small ones to the others.
+        bodies.par_iter_mut().with_max_len(1).for_each(|b| {
+            let b = b.borrow_mut();
+            b.step_error = b.step_solver().err();
+        });
+        for b in bodies.iter_mut() {
+            if let Some(e) = b.borrow_mut().step_error.take() {
+                return Err(e);
+            }
+        }
+    } else {
+        for b in bodies.iter_mut() {
+            b.borrow_mut().step_solver()?;
+        }
+    }
+    Ok(())
+}
+
+impl SimBody {
+    /// This body's heat and level step, timed into its diagnostics.
+    fn step_solver(&mut self) -> Result<(), WorldError> {
         let start = Instant::now();
-        if let Some(h) = b.heat.as_mut() {
-            h.step().map_err(|source| WorldError::Heat {
-                body: b.name.clone(),
-                source,
-            })?;
-        }
-        let stats = b.body.step(b.touched).map_err(|e| b.precision_err(e))?;
+        // The heat field and the mechanics do not read each other within a step: in a pool
+        // they run side by side.
+        let (heat, mechanics) = match self.heat.as_mut() {
+            Some(h) if crate::parallel::in_pool() => {
+                rayon::join(|| h.step(), || self.body.step(self.touched))
+            }
+            Some(h) => {
+                let heat = h.step();
+                (heat, self.body.step(self.touched))
+            }
+            None => (Ok(()), self.body.step(self.touched)),
+        };
+        heat.map_err(|source| WorldError::Heat {
+            body: self.name.clone(),
+            source,
+        })?;
+        let stats = mechanics.map_err(|e| self.precision_err(e))?;
         if let Some(r) = stats.switched {
-            b.diagnostics.switched = Some(r);
+            self.diagnostics.switched = Some(r);
         }
-        b.diagnostics.cg = if stats.level == Level::Precise {
-            b.body.precise_cg()
+        self.diagnostics.cg = if stats.level == Level::Precise {
+            self.body.precise_cg()
         } else {
             None
         };
-        b.diagnostics.step_us = start.elapsed().as_secs_f64() * 1e6;
+        self.diagnostics.step_us = start.elapsed().as_secs_f64() * 1e6;
+        Ok(())
     }
-    Ok(())
 }
 
 /// Writes the surfaces and diagnostics of every body.
@@ -535,6 +576,7 @@ pub struct SoftTissueWorld {
     steps: u64,
     accumulator: f64,
     times: StageTimes,
+    threads: crate::parallel::Threads,
 }
 
 impl SoftTissueWorld {
@@ -561,6 +603,7 @@ impl SoftTissueWorld {
             steps: 0,
             accumulator: 0.0,
             times: StageTimes::default(),
+            threads: crate::parallel::Threads::new(0)?,
         })
     }
 
@@ -679,8 +722,26 @@ impl SoftTissueWorld {
         Ok(n)
     }
 
-    /// Runs exactly one fixed step through every stage.
+    /// The threads steps run on.
+    pub fn threads(&self) -> &crate::parallel::Threads {
+        &self.threads
+    }
+
+    /// Sets the number of threads steps run on (0: every available core, the default; 1:
+    /// the caller's thread only). The results do not depend on it: the same inputs give
+    /// bit-identical states for every count.
+    pub fn set_threads(&mut self, count: usize) -> Result<(), WorldError> {
+        self.threads = crate::parallel::Threads::new(count)?;
+        Ok(())
+    }
+
+    /// Runs exactly one fixed step through every stage (in the world's thread pool).
     pub fn step_fixed(&mut self) -> Result<(), WorldError> {
+        let threads = self.threads.clone();
+        threads.run(|| self.step_stages())
+    }
+
+    fn step_stages(&mut self) -> Result<(), WorldError> {
         let dt = self.config.dt;
         let c = self.config.contact;
         let mut t = Instant::now();
