@@ -137,9 +137,9 @@ struct BenchArgs {
     /// Print one JSON object (an array with --method all).
     #[arg(long)]
     json: bool,
-    /// Threads the steps run on (0: every available core; 1, the default: one thread). Large
-    /// bodies split their element loop over them; results are identical for every count.
-    #[arg(long, default_value_t = 1)]
+    /// Threads the steps run on (0, the default: every available core). Large bodies split
+    /// their element loop over them; results are identical for every count.
+    #[arg(long, default_value_t = 0)]
     threads: usize,
 }
 

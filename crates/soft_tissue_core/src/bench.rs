@@ -342,6 +342,15 @@ impl BenchBody {
             .fold(0.0, f64::max)
     }
 
+    /// Bytes of the FEM body's matrices and factors for the model in use (values and
+    /// indices; see [`FemBody::matrix_bytes`]); `None` for the other methods.
+    pub fn matrix_bytes(&self) -> Option<usize> {
+        match &self.solver {
+            Solver::Fem(b) => Some(b.matrix_bytes()),
+            _ => None,
+        }
+    }
+
     /// Runs `warmup` untimed steps, then times `steps` steps one by one.
     pub fn run(
         &mut self,

@@ -10,6 +10,21 @@
 //! the world's `state_hash` across counts.
 
 use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// Threads a new world starts with (0: every available core).
+static DEFAULT_THREADS: AtomicUsize = AtomicUsize::new(0);
+
+/// Sets the thread count new worlds start with (0, the initial value: every available core).
+/// Worlds already built keep theirs (`SoftTissueWorld::set_threads` changes one).
+pub fn set_default_threads(count: usize) {
+    DEFAULT_THREADS.store(count, Ordering::Relaxed);
+}
+
+/// The thread count new worlds start with (0: every available core).
+pub fn default_threads() -> usize {
+    DEFAULT_THREADS.load(Ordering::Relaxed)
+}
 
 /// The cores this process may use (1 when unknown).
 pub fn available_cores() -> usize {

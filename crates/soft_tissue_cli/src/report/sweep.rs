@@ -238,8 +238,13 @@ pub(super) struct SizeRow {
     pub nodes: usize,
     pub tets: usize,
     pub surface: usize,
-    /// Median step per method (same order as [`SIZE_METHODS`]), us; `None` where it failed.
+    /// Median step per method (same order as [`SIZE_METHODS`]), us, on one thread; `None`
+    /// where it failed.
     pub median_us: Vec<Option<f64>>,
+    /// The same on every available core (`None` on a one-core machine or where it failed).
+    pub median_all_us: Vec<Option<f64>>,
+    /// Matrix and factor bytes of the FEM methods (`None` for the others).
+    pub matrix_bytes: Vec<Option<usize>>,
 }
 
 /// The methods of the mesh-size scaling.
@@ -254,11 +259,12 @@ pub(super) const SIZE_METHODS: [BenchMethod; 6] = [
 
 /// The exponent `p` of the least-squares fit `time = a tets^p` (log-log) over the rows where
 /// the method ran; `None` with fewer than two.
-pub(super) fn growth_exponent(rows: &[SizeRow], method: usize) -> Option<f64> {
+pub(super) fn growth_exponent(rows: &[SizeRow], method: usize, all: bool) -> Option<f64> {
     let pts: Vec<(f64, f64)> = rows
         .iter()
         .filter_map(|r| {
-            r.median_us[method]
+            let times = if all { &r.median_all_us } else { &r.median_us };
+            times[method]
                 .filter(|t| *t > 0.0)
                 .map(|t| ((r.tets as f64).ln(), t.ln()))
         })
@@ -277,10 +283,12 @@ pub(super) fn growth_exponent(rows: &[SizeRow], method: usize) -> Option<f64> {
 }
 
 /// Step time against mesh size: the generated liver at several resolutions under the bench
-/// load (`soft-tissue bench`'s swinging force, organ FEM parameters), median of `steps` steps.
+/// load (`soft-tissue bench`'s swinging force, organ FEM parameters), median of `steps` steps,
+/// on one thread and in `threads` (when it has more than one).
 pub(super) fn mesh_size(
     resolutions: &[f64],
     steps: usize,
+    threads: &soft_tissue_core::parallel::Threads,
     progress: &mut dyn FnMut(&str),
 ) -> Res<Vec<SizeRow>> {
     let mut rows = Vec::with_capacity(resolutions.len());
@@ -293,18 +301,36 @@ pub(super) fn mesh_size(
             tets: mesh.tet_count(),
             surface: mesh.surface().vertices().len(),
             median_us: Vec::with_capacity(SIZE_METHODS.len()),
+            median_all_us: Vec::with_capacity(SIZE_METHODS.len()),
+            matrix_bytes: Vec::with_capacity(SIZE_METHODS.len()),
         };
         for m in SIZE_METHODS {
-            let measured = BenchBody::new(
-                &mesh,
-                m,
-                (&ORGAN_FEM.params, ORGAN_FEM.dt),
-                (&CYLINDER_MSD.params, CYLINDER_MSD.dt),
-                false,
-                64,
-            )
-            .and_then(|mut b| b.run(m, &mesh, steps / 10, steps));
+            let build = || {
+                BenchBody::new(
+                    &mesh,
+                    m,
+                    (&ORGAN_FEM.params, ORGAN_FEM.dt),
+                    (&CYLINDER_MSD.params, CYLINDER_MSD.dt),
+                    false,
+                    64,
+                )
+            };
+            let mut bytes = None;
+            let measured = build().and_then(|mut b| {
+                bytes = b.matrix_bytes();
+                b.run(m, &mesh, steps / 10, steps)
+            });
             row.median_us.push(measured.ok().map(|r| r.median_us));
+            row.matrix_bytes.push(bytes);
+            let all = if threads.count() > 1 {
+                build()
+                    .and_then(|mut b| threads.run(|| b.run(m, &mesh, steps / 10, steps)))
+                    .ok()
+                    .map(|r| r.median_us)
+            } else {
+                None
+            };
+            row.median_all_us.push(all);
         }
         rows.push(row);
     }

@@ -603,7 +603,7 @@ impl SoftTissueWorld {
             steps: 0,
             accumulator: 0.0,
             times: StageTimes::default(),
-            threads: crate::parallel::Threads::new(0)?,
+            threads: crate::parallel::Threads::new(crate::parallel::default_threads())?,
         })
     }
 
