@@ -2,7 +2,9 @@
 //! each other, gravity off, each at its cage level until the tool touches it. The liver has a
 //! temperature field: the electrocautery heats it and thermal damage shows on its surface.
 //!
-//! Run: `cargo run --release --example organs [-- --screenshot FILE --frames N]`
+//! Run: `cargo run --release --example organs [-- --screenshot FILE --frames N]`; add
+//! `--large` for the organs at segmentation sizes (`assets/scenes/organs-large.scene.ron`,
+//! 27k tetrahedra, the prefactored corotational model), or `--scene FILE` for any scene.
 //!
 //! Controls: right mouse drag orbits, shift + wheel zooms; the tool follows the mouse in the
 //! screen plane and the wheel moves it nearer or farther, poking what it meets; hold the left

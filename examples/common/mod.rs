@@ -44,16 +44,20 @@ pub struct ExampleOptions {
     pub smooth: u8,
     /// With `--screenshot`: the mouse drives the tool instead of the built-in script.
     pub mouse: bool,
+    /// `--scene FILE` (relative to the assets folder, or a path): a scene RON file shown
+    /// instead of the example's own; `--large` is `scenes/organs-large.scene.ron`.
+    pub scene: Option<PathBuf>,
 }
 
 impl ExampleOptions {
-    /// Parses `--screenshot FILE --frames N --smooth L`.
+    /// Parses `--screenshot FILE --frames N --smooth L --mouse --scene FILE --large`.
     pub fn from_args() -> Result<Self, String> {
         let mut o = ExampleOptions {
             screenshot: None,
             frames: 240,
             smooth: 2,
             mouse: false,
+            scene: None,
         };
         let mut args = std::env::args().skip(1);
         while let Some(a) = args.next() {
@@ -69,6 +73,8 @@ impl ExampleOptions {
                         .map_err(|e| format!("--frames: {e}"))?
                 }
                 "--mouse" => o.mouse = true,
+                "--scene" => o.scene = Some(args.next().ok_or("--scene needs a file")?.into()),
+                "--large" => o.scene = Some("scenes/organs-large.scene.ron".into()),
                 "--smooth" => {
                     o.smooth = args
                         .next()
@@ -81,7 +87,8 @@ impl ExampleOptions {
                 }
                 other => {
                     return Err(format!(
-                        "unknown option {other} (--screenshot FILE --frames N --smooth L --mouse)"
+                        "unknown option {other} (--screenshot FILE --frames N --smooth L --mouse \
+                         --scene FILE --large)"
                     ));
                 }
             }
@@ -145,7 +152,7 @@ fn assets_dir() -> PathBuf {
 }
 
 /// Builds and runs an example app.
-pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
+pub fn run(mut example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
     let options = match ExampleOptions::from_args() {
         Ok(o) => o,
         Err(e) => {
@@ -153,6 +160,21 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
             return AppExit::error();
         }
     };
+    if let Some(file) = &options.scene {
+        let path = assets_dir().join(file);
+        let loaded = std::fs::read_to_string(&path)
+            .map_err(|e| e.to_string())
+            .and_then(|text| {
+                Scene::from_ron(&text, &path.display().to_string()).map_err(|e| e.to_string())
+            });
+        match loaded {
+            Ok(scene) => example.scene = scene,
+            Err(e) => {
+                eprintln!("{}: {e}", path.display());
+                return AppExit::error();
+            }
+        }
+    }
     // The core world of the same scene places the built-in script around the bodies.
     let world = match SoftTissueWorld::from_scene(&example.scene, &assets_dir()) {
         Ok(w) => w,

@@ -338,6 +338,7 @@ fn export_scenes(out: &Path) -> Res {
     let scenes = [
         Scene::paper_cylinders(PreciseMethod::LinearFem, PreciseMethod::LinearFem),
         Scene::paper_organs(),
+        Scene::large_organs(),
     ];
     for s in scenes {
         let path = out.join(format!("{}.scene.ron", s.name));

@@ -16,7 +16,8 @@ use soft_tissue_core::world::{Script, ScriptAction, SoftTissueWorld};
 #[derive(Args)]
 pub struct SimulateArgs {
     /// `cylinders`, `organs` (the paper's scenes), `organs-fine` (liver, stomach and spleen
-    /// generated at 2.8k-4.8k tetrahedra each) or a scene RON file.
+    /// generated at 2.8k-4.8k tetrahedra each), `organs-large` (the four organs at 4.9k-8.3k
+    /// tetrahedra each, `assets/scenes/organs-large.scene.ron`) or a scene RON file.
     #[arg(long)]
     scene: String,
     /// Built-in script (`poke-a`, `push-a-into-b`, `poke-liver`, `cauterize-liver`) or a
@@ -94,6 +95,10 @@ pub(crate) fn load_scene(name: &str, assets: &Path) -> Result<Scene, String> {
             Some(Scene::paper_organs()),
         ),
         "organs-fine" => (PathBuf::new(), Some(Scene::fine_organs())),
+        "organs-large" => (
+            assets.join("scenes/organs-large.scene.ron"),
+            Some(Scene::large_organs()),
+        ),
         _ => (PathBuf::from(name), None),
     };
     match (std::fs::read_to_string(&path), builtin) {

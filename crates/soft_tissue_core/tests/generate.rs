@@ -222,6 +222,7 @@ fn generation_is_reproducible_and_assets_are_current() {
     for scene in [
         Scene::paper_cylinders(PreciseMethod::LinearFem, PreciseMethod::LinearFem),
         Scene::paper_organs(),
+        Scene::large_organs(),
     ] {
         let path = assets.join(format!("scenes/{}.scene.ron", scene.name));
         let text = std::fs::read_to_string(&path).unwrap();

@@ -27,11 +27,29 @@ fn measure(
     pin: Option<Level>,
     assets: &Path,
 ) -> Res<(RunCosts, Vec<usize>)> {
+    measure_on(scene, script, steps, runs, pin, assets, None).map(|(c, t, _)| (c, t))
+}
+
+/// [`measure`] on `threads` threads (`None`: the report's default), also returning the
+/// last run's `state_hash`.
+fn measure_on(
+    scene: &Scene,
+    script: &str,
+    steps: usize,
+    runs: usize,
+    pin: Option<Level>,
+    assets: &Path,
+    threads: Option<usize>,
+) -> Res<(RunCosts, Vec<usize>, u64)> {
     let mut recorder = None;
     let mut names = Vec::new();
     let mut tets = Vec::new();
+    let mut hash = 0;
     for _ in 0..runs {
         let mut world = SoftTissueWorld::from_scene(scene, assets)?;
+        if let Some(n) = threads {
+            world.set_threads(n)?;
+        }
         if let Some(level) = pin {
             for b in world.bodies_mut() {
                 b.body_mut().pin(Some(level))?;
@@ -54,9 +72,10 @@ fn measure(
             world.step_fixed()?;
             rec.record(&world);
         }
+        hash = world.state_hash();
     }
     let rec = recorder.ok_or("no runs")?;
-    Ok((rec.costs(names.iter().map(String::as_str)), tets))
+    Ok((rec.costs(names.iter().map(String::as_str)), tets, hash))
 }
 
 fn ratio(r: Option<f64>) -> String {
@@ -82,6 +101,11 @@ pub(super) fn budget_section(
         ),
         ("organs".into(), load_scene("organs", assets)?, "poke-liver"),
         ("organs-fine".into(), Scene::fine_organs(), "poke-liver"),
+        (
+            "organs-large".into(),
+            load_scene("organs-large", assets)?,
+            "poke-liver",
+        ),
     ];
     writeln!(
         md,
@@ -93,7 +117,8 @@ pub(super) fn budget_section(
          collide) against the solvers (sums over the run), and the largest step against the \
          median of the steps where some body is precise. `organs-fine` is the organs scene at \
          real-mesh sizes (liver, stomach and spleen generated at 1.5, 2 and 2 times the \
-         paper's resolution).\n"
+         paper's resolution); `organs-large` the four organs at segmentation sizes \
+         (`assets/scenes/organs-large.scene.ron`, the prefactored corotational model).\n"
     )?;
     writeln!(
         md,
@@ -199,6 +224,64 @@ pub(super) fn budget_section(
         ratio(over_solvers),
         ratio(precise.contact_over_solve),
     )?;
+    // The same runs on one thread and on every core: the speed-up and the final states.
+    let cores = soft_tissue_core::parallel::available_cores();
+    let mut threads_rows = Vec::new();
+    if cores > 1 {
+        writeln!(
+            md,
+            "One thread against {cores} (`simulate --level precise --threads 1` and \
+             `--threads {cores}`), every body held precise, the same script and steps; \
+             speed-up of the mean and the median whole step, and whether the final states' \
+             `state_hash` agree:\n\n\
+             | scene | 1 thread median / mean us | {cores} threads median / mean us | speed-up \
+             mean / median | same state |\n|---|---|---|---|---|"
+        )?;
+        for k in [1, 3] {
+            let (name, scene, script) = &scenes[k];
+            step(&format!(
+                "real-time budget: {name} on 1 and {cores} threads"
+            ));
+            let one = measure_on(
+                scene,
+                script,
+                steps,
+                runs,
+                Some(Level::Precise),
+                assets,
+                Some(1),
+            )?;
+            let all = measure_on(
+                scene,
+                script,
+                steps,
+                runs,
+                Some(Level::Precise),
+                assets,
+                Some(cores),
+            )?;
+            let mean = one.0.step.mean_us / all.0.step.mean_us;
+            let median = one.0.step.median_us / all.0.step.median_us;
+            writeln!(
+                md,
+                "| {name} | {:.0} / {:.0} | {:.0} / {:.0} | {mean:.2} / {median:.2} | {} ({:016x}) |",
+                one.0.step.median_us,
+                one.0.step.mean_us,
+                all.0.step.median_us,
+                all.0.step.mean_us,
+                if one.2 == all.2 { "yes" } else { "**no**" },
+                one.2
+            )?;
+            threads_rows.push(json!({
+                "scene": name, "threads": cores,
+                "one_thread": one.0.step, "all_threads": all.0.step,
+                "speedup_mean": mean, "speedup_median": median,
+                "same_state": one.2 == all.2,
+                "state_hash_one": format!("{:016x}", one.2),
+                "state_hash_all": format!("{:016x}", all.2),
+            }));
+        }
+    }
     write_file(out, "realtime_budget.csv", &csv)?;
     js.insert(
         "realtime_budget".into(),
@@ -208,6 +291,7 @@ pub(super) fn budget_section(
             "scenes": measured.iter().map(|(n, c)| json!({"scene": n, "costs": c})).collect::<Vec<_>>(),
             "organs_all_precise": precise,
             "organs_all_precise_over_solvers": over_solvers,
+            "threads": threads_rows,
         }),
     );
     measured.push(("organs (all precise)".into(), precise));

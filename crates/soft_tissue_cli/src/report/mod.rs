@@ -341,7 +341,7 @@ pub fn report(args: &ReportArgs) -> Res<()> {
             + 1
             + cases.len()
             + peers.len()
-            + 4,
+            + 7,
         start: Instant::now(),
     };
     let machine = crate::machine();
@@ -796,6 +796,30 @@ pub fn report(args: &ReportArgs) -> Res<()> {
             )?;
         }
     }
+    let thread_rows = js
+        .get("realtime_budget")
+        .and_then(|b| b.get("threads"))
+        .and_then(|t| t.as_array())
+        .cloned()
+        .unwrap_or_default();
+    for row in &thread_rows {
+        let (Some(scene), Some(n), Some(mean), Some(median), Some(same)) = (
+            row["scene"].as_str(),
+            row["threads"].as_u64(),
+            row["speedup_mean"].as_f64(),
+            row["speedup_median"].as_f64(),
+            row["same_state"].as_bool(),
+        ) else {
+            continue;
+        };
+        writeln!(
+            md,
+            "- `{scene}` all precise at least 1.5x faster on {n} threads than on one, same \
+             final state: mean {mean:.2}x, median {median:.2}x, state {}: {}.",
+            if same { "identical" } else { "different" },
+            verdict(same && mean >= 1.5)
+        )?;
+    }
     for r in &peer_rows {
         let faster = r.ours_median_us < r.rapier_median_us;
         let as_good = r.ours_error_pct <= r.rapier_error_pct;
@@ -939,7 +963,10 @@ fn mesh_size_section(
          rest stiffness and block Cholesky factor of linear and corotational FEM; the scalar \
          Laplacian and per-axis-pattern scalar factor of the prefactored model.\n\n\
          | resolution | tets | {} |\n|---|---|{}",
-        fem.iter().map(|&k| names[k]).collect::<Vec<_>>().join(" | "),
+        fem.iter()
+            .map(|&k| names[k])
+            .collect::<Vec<_>>()
+            .join(" | "),
         "---|".repeat(fem.len())
     )?;
     for r in &rows {
@@ -949,8 +976,10 @@ fn mesh_size_section(
             r.resolution,
             r.tets,
             fem.iter()
-                .map(|&k| r.matrix_bytes[k]
-                    .map_or("-".into(), |b| format!("{:.2}", b as f64 / (1024.0 * 1024.0))))
+                .map(|&k| r.matrix_bytes[k].map_or("-".into(), |b| format!(
+                    "{:.2}",
+                    b as f64 / (1024.0 * 1024.0)
+                )))
                 .collect::<Vec<_>>()
                 .join(" | ")
         )?;
