@@ -9,6 +9,8 @@
 
 use std::borrow::BorrowMut;
 
+use rayon::prelude::*;
+
 use super::{SimBody, WorldError};
 use crate::Vec3;
 use crate::contact::{
@@ -35,28 +37,68 @@ pub struct ContactState {
     pub tool_contacts: Vec<ToolContact>,
     /// Body contacts at the start of the step.
     pub body_contacts: Vec<BodyContact>,
-    /// Candidate vertices of every pair that ever overlapped, sorted by pair.
-    candidates: Vec<((u32, u32), PairCandidates)>,
+    /// Candidate vertices of every pair that ever overlapped, sorted by pair, with the
+    /// pair's contacts found by the last query (see [`query_pairs`]).
+    candidates: Vec<((u32, u32), PairCandidates, Vec<BodyContact>)>,
+    /// The pairs queried this stage, sorted.
+    queried: Vec<(u32, u32)>,
     bounds: Vec<(Vec3, Vec3)>,
     order: Vec<u32>,
-    scratch: Vec<BodyContact>,
     tool_scratch: Vec<ToolContact>,
     triangles: Vec<u32>,
 }
 
-/// The candidate lists of pair `key` in `list` (created empty, so stale, the first time).
-fn candidates_of(
-    list: &mut Vec<((u32, u32), PairCandidates)>,
-    key: (u32, u32),
-) -> &mut PairCandidates {
-    let k = match list.binary_search_by_key(&key, |c| c.0) {
-        Ok(k) => k,
-        Err(k) => {
-            list.insert(k, (key, PairCandidates::default()));
-            k
+/// Makes sure pair `key` has its entry in `list` (created empty, so stale, the first time).
+fn ensure_entry(list: &mut Vec<((u32, u32), PairCandidates, Vec<BodyContact>)>, key: (u32, u32)) {
+    if let Err(k) = list.binary_search_by_key(&key, |c| c.0) {
+        list.insert(k, (key, PairCandidates::default(), Vec::new()));
+    }
+}
+
+/// The contacts found for pair `key` by the last [`query_pairs`].
+fn found_of(state: &ContactState, key: (u32, u32)) -> &[BodyContact] {
+    state
+        .candidates
+        .binary_search_by_key(&key, |c| c.0)
+        .map_or(&[], |k| &state.candidates[k].2)
+}
+
+/// Contacts of every body pair in `state.queried` (their candidates refreshed first), both
+/// ways, each pair's into its own list; in a pool the pairs side by side. A pair's query
+/// only reads the two surfaces, so the lists do not depend on the thread count; the callers
+/// use them in pair order.
+fn query_pairs<B: BorrowMut<SimBody> + Sync>(
+    bodies: &[B],
+    state: &mut ContactState,
+    config: &ContactConfig,
+    margin: f64,
+) {
+    let (reach, slack) = reach_and_slack(config);
+    state.queried.sort_unstable();
+    for &key in &state.queried {
+        ensure_entry(&mut state.candidates, key);
+    }
+    let queried = &state.queried;
+    let query = |entry: &mut ((u32, u32), PairCandidates, Vec<BodyContact>)| {
+        let ((i, j), candidates, out) = entry;
+        out.clear();
+        if queried.binary_search(&(*i, *j)).is_err() {
+            return;
         }
+        let a = &bodies[*i as usize].borrow().collider;
+        let b = &bodies[*j as usize].borrow().collider;
+        candidates.update(a, b, reach, slack);
+        both_ways(candidates, (*i, a), (*j, b), config, margin, out);
     };
-    &mut list[k].1
+    if crate::parallel::in_pool() && queried.len() > 1 {
+        state
+            .candidates
+            .par_iter_mut()
+            .with_max_len(1)
+            .for_each(query);
+    } else {
+        state.candidates.iter_mut().for_each(query);
+    }
 }
 
 impl ContactState {
@@ -66,8 +108,9 @@ impl ContactState {
         self.pairs.clear();
         self.tool_contacts.clear();
         self.body_contacts.clear();
-        for (_, c) in &mut self.candidates {
+        for (_, c, found) in &mut self.candidates {
             c.invalidate();
+            found.clear();
         }
     }
 
@@ -88,7 +131,7 @@ fn reach_and_slack(config: &ContactConfig) -> (f64, f64) {
 
 /// Detect contacts on the positions at the start of the step (margins included) and resolve
 /// pending grabs; marks touched bodies.
-pub fn detect_contacts<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
+pub fn detect_contacts<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
     bodies: &mut [B],
     tools: &mut [T],
     config: &ContactConfig,
@@ -161,32 +204,34 @@ pub fn detect_contacts<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
             b.active = true;
         }
     }
-    // Body pairs.
-    let (reach, slack) = reach_and_slack(config);
+    // Body pairs: the pairs with a side above the cage level are queried (side by side in
+    // a pool), then their contacts are taken in pair order.
+    state.queried.clear();
+    for &(i, j) in &state.pairs {
+        let (bi, bj) = (bodies[i as usize].borrow(), bodies[j as usize].borrow());
+        // Resting cages have no contact response and do not wake each other: nothing to
+        // find, so a resting scene pays nothing here.
+        if !(bi.body.level() == Level::Cage && bj.body.level() == Level::Cage) {
+            state.queried.push((i, j));
+        }
+    }
+    query_pairs(bodies, state, config, config.body_margin);
     for p in 0..state.pairs.len() {
         let (i, j) = state.pairs[p];
         let (bi, bj) = pair_mut(bodies, i as usize, j as usize);
         if bi.body.level() == Level::Cage && bj.body.level() == Level::Cage {
-            // Resting cages have no contact response and do not wake each other: nothing to
-            // find, so a resting scene pays nothing here.
             continue;
         }
         bi.active = true;
         bj.active = true;
-        let before = state.body_contacts.len();
-        let candidates = candidates_of(&mut state.candidates, (i, j));
-        candidates.update(&bi.collider, &bj.collider, reach, slack);
-        let (a, b) = (&bi.collider, &bj.collider);
-        let margin = config.body_margin;
-        both_ways(
-            candidates,
-            (i, a),
-            (j, b),
-            config,
-            margin,
-            &mut state.body_contacts,
-        );
-        let found = (state.body_contacts.len() - before) as u32;
+        let k = state
+            .candidates
+            .binary_search_by_key(&(i, j), |c| c.0)
+            .expect("queried above");
+        let found = state.candidates[k].2.len() as u32;
+        state
+            .body_contacts
+            .extend_from_slice(&state.candidates[k].2);
         if found > 0 {
             // Bodies resting against each other (organs do, in the paper's scene) do not
             // count as touching: a pair counts while one side is precise and still moving.
@@ -236,7 +281,7 @@ fn inverse_mass(b: &SimBody, node: usize) -> f64 {
 }
 
 /// Contact response on the positions after the solvers, grips, reaction forces.
-pub fn collide<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
+pub fn collide<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
     bodies: &mut [B],
     tools: &mut [T],
     config: &ContactConfig,
@@ -250,20 +295,23 @@ pub fn collide<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
         }
     }
     // Body against body: Jacobi average of the mass-weighted splits, on the candidates of
-    // detection (checked still valid after the solvers moved the bodies).
-    let (reach, slack) = reach_and_slack(config);
+    // detection (checked still valid after the solvers moved the bodies); the pairs are
+    // queried side by side in a pool, the corrections added in pair order.
+    state.queried.clear();
+    state
+        .queried
+        .extend(state.pairs.iter().copied().filter(|&(i, j)| {
+            !(bodies[i as usize].borrow().body.level() == Level::Cage
+                && bodies[j as usize].borrow().body.level() == Level::Cage)
+        }));
+    query_pairs(bodies, state, config, 0.0);
     for p in 0..state.pairs.len() {
         let (i, j) = state.pairs[p];
         let (bi, bj) = pair_mut(bodies, i as usize, j as usize);
         if bi.body.level() == Level::Cage && bj.body.level() == Level::Cage {
             continue;
         }
-        let candidates = candidates_of(&mut state.candidates, (i, j));
-        candidates.update(&bi.collider, &bj.collider, reach, slack);
-        state.scratch.clear();
-        let (a, b) = (&bi.collider, &bj.collider);
-        both_ways(candidates, (i, a), (j, b), config, 0.0, &mut state.scratch);
-        for c in &state.scratch {
+        for c in found_of(state, (i, j)) {
             let (a, b) = if c.a == i {
                 (&mut *bi, &mut *bj)
             } else {
