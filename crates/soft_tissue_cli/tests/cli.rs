@@ -72,6 +72,22 @@ fn bad_input_exits_non_zero_with_the_error() {
         .output()
         .unwrap();
     assert!(!out.status.success());
+    // A resolution too fine for memory is refused by a message, not a panic (exit 101).
+    let generate = bin()
+        .args(["mesh", "generate", "liver", "--resolution", "1e19", "--out"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let bench = bin()
+        .args(["bench", "--generated", "liver", "--resolution", "1e30"])
+        .args(["--method", "fem-linear", "--steps", "1"])
+        .output()
+        .unwrap();
+    for out in [generate, bench] {
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains("lattice"), "{err}");
+    }
     std::fs::remove_dir_all(dir).ok();
 }
 

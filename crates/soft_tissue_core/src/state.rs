@@ -38,9 +38,19 @@ pub(crate) fn kinetic_energy(v: &[Vec3], mass: &[f64]) -> f64 {
         .sum::<f64>()
 }
 
-/// Largest speed.
+/// The larger of `a` and `b`, NaN when either is (`f64::max` drops a NaN, so a reduction
+/// over broken values would read as a good one).
+pub(crate) fn nan_max(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else {
+        a.max(b)
+    }
+}
+
+/// Largest speed; NaN when any velocity is (never "at rest").
 pub(crate) fn max_speed(v: &[Vec3]) -> f64 {
-    v.iter().map(|v| v.norm()).fold(0.0, f64::max)
+    v.iter().map(|v| v.norm()).fold(0.0, nan_max)
 }
 
 /// The per-node state every precise body keeps: rest and current positions, velocities, the
@@ -182,5 +192,25 @@ pub trait NodalBody {
     /// Largest node speed.
     fn max_speed(&self) -> f64 {
         max_speed(&self.nodes().v)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A NaN anywhere makes the largest speed NaN (a body with a NaN velocity is never taken
+    /// for one at rest); otherwise it is the plain maximum.
+    #[test]
+    fn reductions_keep_nan() {
+        let v = [Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 2.0, 0.0)];
+        assert_eq!(max_speed(&v), 2.0);
+        for k in 0..2 {
+            let mut w = v;
+            w[k].y = f64::NAN;
+            assert!(max_speed(&w).is_nan(), "NaN in velocity {k}");
+        }
+        assert!(nan_max(f64::NAN, 1.0).is_nan() && nan_max(1.0, f64::NAN).is_nan());
+        assert_eq!(nan_max(-1.0, 3.0), 3.0);
     }
 }

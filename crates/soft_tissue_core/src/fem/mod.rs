@@ -1109,7 +1109,7 @@ impl FemBody {
             for i in 0..self.nodes.x.len() {
                 self.nodes.x[i] += dx[i];
             }
-            update = dx.iter().map(|d| d.norm()).fold(0.0, f64::max) / size;
+            update = dx.iter().map(|d| d.norm()).fold(0.0, state::nan_max) / size;
             if !update.is_finite() {
                 self.nodes.x.copy_from_slice(&self.nodes.rest);
                 return Err(FemError::NonFinite {

@@ -223,14 +223,19 @@ pub fn stuff_fn(
     }
     let lo = bounds.0 - Vec3::repeat(1.5 * h);
     let size = bounds.1 - bounds.0 + Vec3::repeat(3.0 * h);
-    let n = size.map(|s| (s / h).ceil() as usize + 1);
-    let cells = n.x * n.y * n.z;
-    if cells >= MAX_LATTICE_VERTICES {
+    // Counted in floating point first: a tiny spacing (a huge resolution) would overflow the
+    // integer product.
+    let counts = size.map(|s| (s / h).ceil() + 1.0);
+    let cells = counts.x * counts.y * counts.z;
+    if !(cells.is_finite() && cells < MAX_LATTICE_VERTICES as f64) {
         return Err(GenerateError::Spacing {
             spacing: h,
-            reason: format!("the lattice would have {cells} cells"),
+            reason: format!(
+                "the lattice would have {cells:.3e} cells (at most {MAX_LATTICE_VERTICES})"
+            ),
         });
     }
+    let n = counts.map(|c| c as usize);
     let lat = Lattice { n, lo, h };
     let total = lat.corner_count() + lat.center_count();
     let mut pos: Vec<Vec3> = (0..total).map(|v| lat.position(v)).collect();

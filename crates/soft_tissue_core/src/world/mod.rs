@@ -418,7 +418,9 @@ impl SimBody {
 }
 
 fn max_of(v: &[f64]) -> f64 {
-    v.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+    v.iter()
+        .copied()
+        .fold(f64::NEG_INFINITY, crate::state::nan_max)
 }
 
 /// Prepare: tool velocities over `dt`, surfaces gathered from the bodies.
