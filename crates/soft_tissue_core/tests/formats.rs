@@ -508,7 +508,8 @@ fn real_world_meshes_from_shared_folder() {
     assert!(seen > 0);
 }
 
-/// Every parser must return (never panic) on truncated and corrupted copies of valid files.
+/// Every parser must return (never panic) on truncated and corrupted copies of valid files
+/// (TetGen's pair of files included), and on declared counts far beyond the data.
 #[test]
 fn no_panic_on_truncated_or_corrupted_input() {
     let mut inputs: Vec<(Vec<u8>, MeshFormat)> = Vec::new();
@@ -551,4 +552,55 @@ fn no_panic_on_truncated_or_corrupted_input() {
     for cut in (0..obj.len()).step_by(97) {
         let _ = parse_obj(&obj[..cut], "t");
     }
+    // TetGen (two files): truncate and corrupt each side, and declare huge counts.
+    let (node, ele) = io::write_tetgen_bytes(&sample_mesh());
+    for (k, whole) in [&node, &ele].into_iter().enumerate() {
+        for cut in (0..whole.len()).step_by((whole.len() / 97).max(1)) {
+            let part = &whole[..cut];
+            let _ = match k {
+                0 => parse_tetgen(part, "n", &ele, "e"),
+                _ => parse_tetgen(&node, "n", part, "e"),
+            };
+        }
+        for _ in 0..300 {
+            let mut b = whole.clone();
+            for _ in 0..1 + next() % 4 {
+                let i = (next() % b.len() as u64) as usize;
+                b[i] = match next() % 4 {
+                    0 => b'9',
+                    1 => b'\n',
+                    2 => b'-',
+                    _ => (next() & 0xff) as u8,
+                };
+            }
+            let _ = match k {
+                0 => parse_tetgen(&b, "n", &ele, "e"),
+                _ => parse_tetgen(&node, "n", &b, "e"),
+            };
+        }
+    }
+    let huge = usize::MAX.to_string();
+    for header in [
+        format!("3 3 {huge} 0\n"),
+        format!("3 3 0 {huge}\n"),
+        format!("{huge} 3 0 0\n"),
+    ] {
+        assert!(
+            parse_tetgen(header.as_bytes(), "n", &ele, "e").is_err(),
+            "{header}"
+        );
+    }
+    for header in [format!("1 4 {huge}\n"), format!("{huge} 4 0\n")] {
+        assert!(
+            parse_tetgen(&node, "n", header.as_bytes(), "e").is_err(),
+            "{header}"
+        );
+    }
+    // Gmsh: a tag count beyond the line (2.2), a node count beyond the line (1.0).
+    let tags = V22.replace("1 4 2 0 1 1 2 3 4", &format!("1 4 {huge} 0 1 1 2 3 4"));
+    assert!(parse_tet_mesh(tags.as_bytes(), MeshFormat::Gmsh, "t").is_err());
+    let v1 = format!(
+        "$NOD\n4\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n$ENDNOD\n$ELM\n1\n1 4 1 1 {huge} 1 2 3 4\n$ENDELM\n"
+    );
+    assert!(parse_tet_mesh(v1.as_bytes(), MeshFormat::Gmsh, "t").is_err());
 }

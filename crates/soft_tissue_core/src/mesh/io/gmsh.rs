@@ -561,7 +561,8 @@ fn elements_v12_ascii(c: &mut Cursor<'_>, version: Version) -> Res<Elements> {
                 "element line (number type reg-phys reg-elem number-of-nodes nodes...)",
             )?;
             let nn = f.usize(4, "number-of-nodes")?;
-            if f.len() != 5 + nn {
+            // (`need` above: at least 5 fields; compared without adding to a declared count.)
+            if f.len() - 5 != nn {
                 return Err(c.err_at(
                     at,
                     format!(
@@ -582,7 +583,7 @@ fn elements_v12_ascii(c: &mut Cursor<'_>, version: Version) -> Res<Elements> {
                 "element line (number type number-of-tags tags... nodes...)",
             )?;
             let nt = f.usize(2, "number-of-tags")?;
-            if f.len() < 3 + nt {
+            if f.len() - 3 < nt {
                 return Err(c.err_at(
                     at,
                     format!("element declares {nt} tags but the line is shorter"),
@@ -622,7 +623,7 @@ fn elements_v2_binary(c: &mut Cursor<'_>, h: Header) -> Res<Elements> {
                 format!("unknown element type {ty}: cannot skip it in binary data"),
             ));
         };
-        if follow == 0 || out.tag.len() + follow > n {
+        if follow == 0 || follow > n - out.tag.len() {
             return Err(b.c.err_byte(at, format!(
                 "element block of {follow} elements does not fit the declared total {n} ({} read)",
                 out.tag.len()

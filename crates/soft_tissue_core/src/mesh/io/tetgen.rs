@@ -62,6 +62,17 @@ pub(crate) fn parse(node: &[u8], node_name: &str, ele: &[u8], ele_name: &str) ->
     } else {
         0
     };
+    // Every attribute takes at least two bytes of a line: a count the file cannot hold is an
+    // error (and the field sums below cannot overflow).
+    if attrs > node.len() {
+        return Err(c.err_at(
+            at,
+            format!(
+                "attribute count {attrs} cannot fit in a {} byte file",
+                node.len()
+            ),
+        ));
+    }
     let per_line = 4 + attrs + usize::from(markers != 0);
     let mut raw = RawMesh {
         origin_label: "tetrahedron",
@@ -115,6 +126,15 @@ pub(crate) fn parse(node: &[u8], node_name: &str, ele: &[u8], ele_name: &str) ->
     } else {
         0
     };
+    if eattrs > ele.len() {
+        return Err(c.err_at(
+            at,
+            format!(
+                "attribute count {eattrs} cannot fit in a {} byte file",
+                ele.len()
+            ),
+        ));
+    }
     raw.tets.reserve(m.min(ele.len() / 8 + 1));
     for i in 0..m {
         let (at, line) = expect(&mut c, "tetrahedra", m, i)?;

@@ -545,7 +545,14 @@ pub(crate) fn parse_xml(data: &[u8], name: &str) -> Res<LoadedMesh> {
                 ));
             }
             prev = off;
-            offsets.push(start + off);
+            let Some(at) = start.checked_add(off) else {
+                return Err(FormatError::parse(
+                    name,
+                    super::Location::File,
+                    format!("piece {pi}: offset {off} is out of range"),
+                ));
+            };
+            offsets.push(at);
         }
         conn.extend(c.into_iter().map(|v| v.saturating_add(base)));
         types.extend(piece.cells.types.iter().map(|&t| t as u64));
