@@ -54,6 +54,9 @@ pub struct SimulateArgs {
     /// `state_hash`) is the same for every count.
     #[arg(long, default_value_t = 0)]
     threads: usize,
+    /// Let the scene's mesh paths leave the assets folder (absolute paths, `..`).
+    #[arg(long)]
+    allow_outside_assets: bool,
 }
 
 /// `--level`.
@@ -169,12 +172,15 @@ pub(crate) fn drive_tool(
 pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     let mut scene = load_scene(&args.scene, &args.assets)?;
     let build_start = Instant::now();
-    let mut world = SoftTissueWorld::from_scene(&scene, &args.assets)?;
-    world.set_threads(args.threads)?;
+    let options = soft_tissue_core::world::SceneOptions {
+        allow_outside_assets: args.allow_outside_assets,
+    };
+    let mut world = SoftTissueWorld::from_scene_with(&scene, &args.assets, options)?;
     if args.resting > 0 {
         add_resting_copies(&mut scene, args.resting, &world);
-        world = SoftTissueWorld::from_scene(&scene, &args.assets)?;
+        world = SoftTissueWorld::from_scene_with(&scene, &args.assets, options)?;
     }
+    world.set_threads(args.threads)?;
     if args.shadow {
         for b in world.bodies_mut() {
             b.set_shadow(true)?;

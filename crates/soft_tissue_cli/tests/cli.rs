@@ -355,3 +355,47 @@ fn simulate_ends_quietly_when_its_reader_stops() {
     assert!(out.status.success(), "{:?}: {err}", out.status);
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// A scene file naming a mesh outside the assets folder is refused (the body and the path
+/// named) unless `--allow-outside-assets` is given.
+#[test]
+fn simulate_keeps_mesh_paths_inside_the_assets_folder() {
+    let dir = tmp("outside");
+    let assets = root().join("assets");
+    let text = std::fs::read_to_string(assets.join("scenes/organs.scene.ron")).unwrap();
+    let liver = assets.join("meshes/liver.vtk").canonicalize().unwrap();
+    let scene = dir.join("outside.scene.ron");
+    std::fs::write(
+        &scene,
+        text.replace(
+            "\"meshes/liver.vtk\"",
+            &format!("{:?}", liver.display().to_string()),
+        ),
+    )
+    .unwrap();
+    let run = |allow: bool| {
+        let mut cmd = bin();
+        cmd.args(["simulate", "--steps", "2", "--threads", "1", "--scene"])
+            .arg(&scene)
+            .arg("--assets")
+            .arg(&assets);
+        if allow {
+            cmd.arg("--allow-outside-assets");
+        }
+        cmd.output().unwrap()
+    };
+    let refused = run(false);
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("Liver") && err.contains("assets folder"),
+        "{err}"
+    );
+    let allowed = run(true);
+    assert!(
+        allowed.status.success(),
+        "{}",
+        String::from_utf8_lossy(&allowed.stderr)
+    );
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -654,3 +654,37 @@ fn one_and_several_threads_end_in_the_same_state_hash() {
         assert_eq!(one, end(3), "{model:?}: three threads");
     }
 }
+
+/// A scene's mesh paths stay inside the assets folder unless the caller allows otherwise: an
+/// absolute path and a `..` path are errors naming the body and the path; allowed, they load.
+#[test]
+fn mesh_paths_stay_inside_the_assets_folder_unless_allowed() {
+    use soft_tissue_core::scenario::MeshSource;
+    use soft_tissue_core::world::SceneOptions;
+    let inside = Scene::paper_organs();
+    let absolute = assets().join("meshes/liver.vtk").canonicalize().unwrap();
+    let climbing = format!(
+        "../{}/meshes/liver.vtk",
+        assets()
+            .canonicalize()
+            .unwrap()
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+    );
+    for path in [absolute.display().to_string(), climbing] {
+        let mut scene = inside.clone();
+        scene.bodies[0].mesh = MeshSource::File(path.clone());
+        let e = SoftTissueWorld::from_scene(&scene, assets()).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            text.contains("Liver") && text.contains(&path) && text.contains("assets folder"),
+            "{text}"
+        );
+        let allowed = SceneOptions {
+            allow_outside_assets: true,
+        };
+        let w = SoftTissueWorld::from_scene_with(&scene, assets(), allowed).unwrap();
+        assert_eq!(w.bodies()[0].mesh().tet_count(), 1561);
+    }
+}

@@ -27,7 +27,10 @@ mod script;
 
 pub use crate::timing::StageTimes;
 pub use contact_stages::{ContactState, collide, detect_contacts};
-pub use scene::{SceneBody, body_settings, load_mesh, placed_mesh, scene_bodies};
+pub use scene::{
+    SceneBody, SceneOptions, body_settings, load_mesh, load_mesh_with, placed_mesh, scene_bodies,
+    scene_bodies_with,
+};
 pub use script::{Script, ScriptAction, ScriptError, ScriptEvent, Waypoint};
 
 use std::borrow::{Borrow, BorrowMut};

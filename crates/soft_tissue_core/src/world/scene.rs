@@ -37,14 +37,47 @@ pub fn placed_mesh(mesh: &TetMesh, placement: &Placement) -> Result<TetMesh, Str
     TetMesh::new(positions, tets).map_err(|e| e.to_string())
 }
 
-/// Reads (relative to `assets`) or generates the body's mesh and places it.
+/// How a scene's files are found.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SceneOptions {
+    /// Let mesh paths leave the assets folder (absolute paths, `..`). Off by default: a scene
+    /// file from elsewhere reads only what lies under the folder it is given.
+    pub allow_outside_assets: bool,
+}
+
+/// Reads (relative to `assets`, and inside it) or generates the body's mesh and places it.
 pub fn load_mesh(spec: &BodySpec, assets: &Path) -> Result<TetMesh, WorldError> {
+    load_mesh_with(spec, assets, SceneOptions::default())
+}
+
+/// [`load_mesh`] with options: a mesh path that is absolute or climbs out with `..` is an
+/// error naming the body and the path unless `options` allow it.
+pub fn load_mesh_with(
+    spec: &BodySpec,
+    assets: &Path,
+    options: SceneOptions,
+) -> Result<TetMesh, WorldError> {
     let err = |message: String| WorldError::Mesh {
         body: spec.name.clone(),
         message,
     };
     let mesh = match &spec.mesh {
         MeshSource::File(file) => {
+            let leaves = Path::new(file).components().any(|c| {
+                matches!(
+                    c,
+                    std::path::Component::ParentDir
+                        | std::path::Component::RootDir
+                        | std::path::Component::Prefix(_)
+                )
+            });
+            if leaves && !options.allow_outside_assets {
+                return Err(err(format!(
+                    "mesh path `{file}` leaves the assets folder (absolute, or `..`); the \
+                     caller can allow it (`SceneOptions::allow_outside_assets`, `simulate \
+                     --allow-outside-assets`)"
+                )));
+            }
             let path = assets.join(file);
             read_tet_mesh(&path)
                 .map_err(|e| err(format!("{}: {e}", path.display())))?
@@ -124,11 +157,20 @@ pub fn scene_bodies(
     scene: &Scene,
     assets: &Path,
 ) -> Result<(WorldConfig, Vec<SceneBody>), WorldError> {
+    scene_bodies_with(scene, assets, SceneOptions::default())
+}
+
+/// [`scene_bodies`] with options (see [`SceneOptions`]).
+pub fn scene_bodies_with(
+    scene: &Scene,
+    assets: &Path,
+    options: SceneOptions,
+) -> Result<(WorldConfig, Vec<SceneBody>), WorldError> {
     scene.validate()?;
     let gravity = Vec3::from(scene.gravity);
     let mut built = Vec::with_capacity(scene.bodies.len());
     for spec in &scene.bodies {
-        let mesh = load_mesh(spec, assets)?;
+        let mesh = load_mesh_with(spec, assets, options)?;
         let settings = body_settings(spec, &mesh, gravity)?;
         built.push(SceneBody {
             name: spec.name.clone(),
@@ -155,7 +197,16 @@ pub fn scene_bodies(
 impl SoftTissueWorld {
     /// Builds the scene's bodies (see [`scene_bodies`]).
     pub fn from_scene(scene: &Scene, assets: &Path) -> Result<Self, WorldError> {
-        let (config, bodies) = scene_bodies(scene, assets)?;
+        Self::from_scene_with(scene, assets, SceneOptions::default())
+    }
+
+    /// [`SoftTissueWorld::from_scene`] with options (see [`SceneOptions`]).
+    pub fn from_scene_with(
+        scene: &Scene,
+        assets: &Path,
+        options: SceneOptions,
+    ) -> Result<Self, WorldError> {
+        let (config, bodies) = scene_bodies_with(scene, assets, options)?;
         let mut world = SoftTissueWorld::new(config)?;
         for b in bodies {
             let body = SimBody::new(b.name, Arc::new(b.mesh), b.settings, b.heat)?;
