@@ -524,28 +524,32 @@ fn no_panic_on_truncated_or_corrupted_input() {
     inputs.push((V22.as_bytes().to_vec(), MeshFormat::Gmsh));
     inputs.push((VTK.as_bytes().to_vec(), MeshFormat::VtkLegacy));
     let mut state = 0x9E37_79B9_7F4A_7C15u64;
-    let mut next = || {
+    let mut next = move || {
         state ^= state << 13;
         state ^= state >> 7;
         state ^= state << 17;
         state
+    };
+    // A copy of `bytes` with one to four bytes replaced (digits, line breaks, signs, noise).
+    let mut corrupt = move |bytes: &[u8]| {
+        let mut b = bytes.to_vec();
+        for _ in 0..1 + next() % 4 {
+            let i = (next() % b.len() as u64) as usize;
+            b[i] = match next() % 4 {
+                0 => b'9',
+                1 => b'\n',
+                2 => b'-',
+                _ => (next() & 0xff) as u8,
+            };
+        }
+        b
     };
     for (bytes, format) in &inputs {
         for cut in (0..bytes.len()).step_by((bytes.len() / 97).max(1)) {
             let _ = parse_tet_mesh(&bytes[..cut], *format, "t");
         }
         for _ in 0..300 {
-            let mut b = bytes.clone();
-            for _ in 0..1 + next() % 4 {
-                let i = (next() % b.len() as u64) as usize;
-                b[i] = match next() % 4 {
-                    0 => b'9',
-                    1 => b'\n',
-                    2 => b'-',
-                    _ => (next() & 0xff) as u8,
-                };
-            }
-            let _ = parse_tet_mesh(&b, *format, "t");
+            let _ = parse_tet_mesh(&corrupt(bytes), *format, "t");
         }
     }
     let obj = write_obj(&SurfaceMesh::boundary_of(&sample_mesh()));
@@ -563,16 +567,7 @@ fn no_panic_on_truncated_or_corrupted_input() {
             };
         }
         for _ in 0..300 {
-            let mut b = whole.clone();
-            for _ in 0..1 + next() % 4 {
-                let i = (next() % b.len() as u64) as usize;
-                b[i] = match next() % 4 {
-                    0 => b'9',
-                    1 => b'\n',
-                    2 => b'-',
-                    _ => (next() & 0xff) as u8,
-                };
-            }
+            let b = corrupt(whole);
             let _ = match k {
                 0 => parse_tetgen(&b, "n", &ele, "e"),
                 _ => parse_tetgen(&node, "n", &b, "e"),
