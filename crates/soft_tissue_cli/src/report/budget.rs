@@ -16,23 +16,10 @@ use super::{Json, Res, write_file};
 use crate::realtime::{RunCosts, RunRecorder, triple};
 use crate::simulate::{drive_tool, load_scene};
 
-/// Runs `scene` under the built-in `script` `runs` times for `steps` steps each (every body
-/// pinned at `pin`, if given) and returns the costs of all the steps together, with the body
-/// names and tetrahedron counts.
+/// Runs `scene` under the built-in `script` `runs` times for `steps` steps (every body pinned to `pin`
+/// if given) on `threads` threads (`None`: the report's default): the costs of all steps,
+/// the bodies' tetrahedra and the last run's `state_hash`.
 fn measure(
-    scene: &Scene,
-    script: &str,
-    steps: usize,
-    runs: usize,
-    pin: Option<Level>,
-    assets: &Path,
-) -> Res<(RunCosts, Vec<usize>)> {
-    measure_on(scene, script, steps, runs, pin, assets, None).map(|(c, t, _)| (c, t))
-}
-
-/// [`measure`] on `threads` threads (`None`: the report's default), also returning the
-/// last run's `state_hash`.
-fn measure_on(
     scene: &Scene,
     script: &str,
     steps: usize,
@@ -129,7 +116,7 @@ pub(super) fn budget_section(
     let mut csv = String::from("scene,stage,median_us,p99_us,max_us,mean_us\n");
     for (name, scene, script) in &scenes {
         step(&format!("real-time budget: {name}"));
-        let (costs, tets) = measure(scene, script, steps, runs, None, assets)?;
+        let (costs, tets, _) = measure(scene, script, steps, runs, None, assets, None)?;
         writeln!(
             md,
             "| {name} ({}) | {} | {} | {} | {} | {} | {} |",
@@ -203,13 +190,14 @@ pub(super) fn budget_section(
     // solvers' sum.
     step("real-time budget: organs all precise");
     let organs = &scenes[1].1;
-    let (precise, _) = measure(
+    let (precise, _, _) = measure(
         organs,
         "poke-liver",
         steps,
         runs,
         Some(Level::Precise),
         assets,
+        None,
     )?;
     let solve = precise.stages.get("solve").map_or(0.0, |t| t.mean_us);
     let over_solvers = (solve > 0.0).then(|| precise.step.mean_us / solve);
@@ -251,7 +239,7 @@ pub(super) fn budget_section(
             let (mut one_step, mut all_step, mut same) = (None, None, true);
             let mut hash = 0;
             for _ in 0..runs.max(3) {
-                let one = measure_on(
+                let one = measure(
                     scene,
                     script,
                     steps,
@@ -260,7 +248,7 @@ pub(super) fn budget_section(
                     assets,
                     Some(1),
                 )?;
-                let all = measure_on(
+                let all = measure(
                     scene,
                     script,
                     steps,

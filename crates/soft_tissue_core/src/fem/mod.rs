@@ -786,16 +786,17 @@ impl FemBody {
         self.backup_v.copy_from_slice(&self.nodes.v);
         let h = self.config.dt;
         let alpha = self.config.mass_damping;
-        self.fill_common_rhs();
         let mut stats = FemStepStats::default();
         match self.config.model {
             FemModel::Linear => {
+                self.fill_common_rhs();
                 let start = Instant::now();
                 let with_product = !self.fixed_at_rest();
                 self.linear_dv(with_product)?;
                 stats.solve_us = start.elapsed().as_secs_f64() * 1e6;
             }
             FemModel::Corotational => {
+                self.fill_common_rhs();
                 (
                     stats.rotation_iterations,
                     stats.assembled,

@@ -9,6 +9,18 @@ use crate::mesh::TetMesh;
 use std::collections::HashMap;
 use std::fmt::Write as _;
 
+/// Every attribute takes at least two bytes of a line: a declared count the file cannot
+/// hold is an error (so the per-line field sums cannot overflow).
+fn fits(c: &Cursor<'_>, at: usize, attrs: usize, bytes: usize) -> Res<()> {
+    if attrs > bytes {
+        return Err(c.err_at(
+            at,
+            format!("attribute count {attrs} cannot fit in a {bytes} byte file"),
+        ));
+    }
+    Ok(())
+}
+
 /// Next non-empty line with any `#` comment removed.
 fn content_line<'a>(c: &mut Cursor<'a>) -> Option<(usize, &'a [u8])> {
     loop {
@@ -62,17 +74,7 @@ pub(crate) fn parse(node: &[u8], node_name: &str, ele: &[u8], ele_name: &str) ->
     } else {
         0
     };
-    // Every attribute takes at least two bytes of a line: a count the file cannot hold is an
-    // error (and the field sums below cannot overflow).
-    if attrs > node.len() {
-        return Err(c.err_at(
-            at,
-            format!(
-                "attribute count {attrs} cannot fit in a {} byte file",
-                node.len()
-            ),
-        ));
-    }
+    fits(&c, at, attrs, node.len())?;
     let per_line = 4 + attrs + usize::from(markers != 0);
     let mut raw = RawMesh {
         origin_label: "tetrahedron",
@@ -126,15 +128,7 @@ pub(crate) fn parse(node: &[u8], node_name: &str, ele: &[u8], ele_name: &str) ->
     } else {
         0
     };
-    if eattrs > ele.len() {
-        return Err(c.err_at(
-            at,
-            format!(
-                "attribute count {eattrs} cannot fit in a {} byte file",
-                ele.len()
-            ),
-        ));
-    }
+    fits(&c, at, eattrs, ele.len())?;
     raw.tets.reserve(m.min(ele.len() / 8 + 1));
     for i in 0..m {
         let (at, line) = expect(&mut c, "tetrahedra", m, i)?;
