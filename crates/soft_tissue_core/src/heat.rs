@@ -80,7 +80,8 @@ impl HeatParams {
         self.conductivity / (self.density * self.specific_heat)
     }
 
-    fn validate(&self) -> Result<(), HeatError> {
+    /// Checks every field; the error names it.
+    pub fn validate(&self) -> Result<(), HeatError> {
         let positive = [
             ("conductivity", self.conductivity),
             ("density", self.density),
@@ -418,6 +419,15 @@ impl HeatField {
     /// One implicit Euler step of `dt`, then damage accumulation; clears the queued power. On
     /// error the temperatures are unchanged.
     pub fn step(&mut self) -> Result<(), HeatError> {
+        self.solve_next()?;
+        self.commit();
+        Ok(())
+    }
+
+    /// Solves the next step's temperatures without taking them (see
+    /// [`HeatField::commit`]): a caller whose other part of the step failed can drop them,
+    /// leaving the field as it was.
+    pub fn solve_next(&mut self) -> Result<(), HeatError> {
         let dt = self.dt;
         for (i, r) in self.rhs.iter_mut().enumerate() {
             *r = match self.fixed[i] {
@@ -433,6 +443,13 @@ impl HeatField {
         if let Some(node) = self.rhs.iter().position(|t| !t.is_finite()) {
             return Err(HeatError::Diverged { node });
         }
+        Ok(())
+    }
+
+    /// Takes the temperatures [`HeatField::solve_next`] solved: damage, time and version
+    /// advance, the queued power is spent.
+    pub fn commit(&mut self) {
+        let dt = self.dt;
         self.changed = self.rhs != self.temperature;
         self.temperature.copy_from_slice(&self.rhs);
         self.power.fill(0.0);
@@ -452,7 +469,6 @@ impl HeatField {
         if self.changed {
             self.version += 1;
         }
-        Ok(())
     }
 
     /// Back to the initial temperature with no damage and no queued power.

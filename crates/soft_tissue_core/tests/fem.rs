@@ -30,6 +30,7 @@ fn config(model: FemModel, young: f64, poisson: f64) -> FemConfig {
         rotation_iterations: 20,
         stiffness_update_angle: 0.0,
         prefactored_iterations: 1,
+        cg_must_converge: false,
     }
 }
 

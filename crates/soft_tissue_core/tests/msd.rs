@@ -23,6 +23,7 @@ fn config(integrator: MsdIntegrator, dt: f64, damping: f64) -> MsdConfig {
         explicit_limit: ExplicitLimit::Refuse,
         cg_tolerance: 1e-12,
         cg_max_iterations: 100,
+        cg_must_converge: false,
     }
 }
 

@@ -375,6 +375,11 @@ impl Tool {
         self.reaction += force;
     }
 
+    /// Drops the reaction force summed so far this step (a failed contact stage).
+    pub fn clear_reaction(&mut self) {
+        self.reaction = Vec3::zeros();
+    }
+
     /// Counts touched triangles.
     pub fn add_contacts(&mut self, n: u32) {
         self.contacts += n;

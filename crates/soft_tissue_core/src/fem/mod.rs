@@ -147,6 +147,13 @@ pub struct FemConfig {
     pub cg_tolerance: f64,
     /// Iteration cap of the corotational CG. Default 20.
     pub cg_max_iterations: u32,
+    /// What a corotational CG that reaches its cap without meeting its tolerance does.
+    /// `false` (the default, for real time): the step goes on with the last iterate (an
+    /// inexact implicit step, still stable) and says so ([`FemStepStats::cg`]'s `converged`
+    /// is false; the world counts it in `BodyDiagnostics::unconverged_solves`). `true`: the
+    /// step fails with [`FemError::NotConverged`] and leaves the state unchanged.
+    #[serde(default)]
+    pub cg_must_converge: bool,
     /// Iteration cap of the per-element rotation extraction (warm-started). Default 1.
     pub rotation_iterations: u32,
     /// Corotational: an element's warped stiffness in the implicit system is updated when it
@@ -183,6 +190,7 @@ impl FemConfig {
             gravity: Vec3::zeros(),
             cg_tolerance: 1e-4,
             cg_max_iterations: 20,
+            cg_must_converge: false,
             rotation_iterations: 1,
             stiffness_update_angle: 0.01,
             prefactored_iterations: default_prefactored_iterations(),
@@ -299,6 +307,19 @@ pub enum FemError {
         what: &'static str,
         /// The node.
         node: usize,
+    },
+    /// The step's CG reached its cap above its tolerance while
+    /// [`FemConfig::cg_must_converge`] asks for convergence (the state is unchanged).
+    #[error(
+        "the implicit solve did not converge: relative residual {residual:e} after {iterations} iterations (tolerance {tolerance:e})"
+    )]
+    NotConverged {
+        /// Iterations taken (the cap).
+        iterations: u32,
+        /// Final relative residual.
+        residual: f64,
+        /// The tolerance asked for.
+        tolerance: f64,
     },
     /// A static solve needs fixed nodes or anchors to remove rigid motions.
     #[error("static solve needs fixed nodes or anchors: the body is free to move rigidly")]
@@ -611,6 +632,11 @@ impl FemBody {
         Ok(())
     }
 
+    /// Sets [`FemConfig::cg_must_converge`].
+    pub fn set_cg_must_converge(&mut self, on: bool) {
+        self.config.cg_must_converge = on;
+    }
+
     fn refactor_rest(&mut self) -> Result<(), FemError> {
         // The rest system is the warped system at the identity rotations.
         self.quats_assembled.fill(UnitQuaternion::identity());
@@ -818,6 +844,14 @@ impl FemBody {
                     self.config.cg_tolerance,
                     self.config.cg_max_iterations,
                 )?;
+                if self.config.cg_must_converge && !stats.cg.converged {
+                    self.dv.fill(Vec3::zeros());
+                    return Err(FemError::NotConverged {
+                        iterations: stats.cg.iterations,
+                        residual: stats.cg.relative_residual,
+                        tolerance: self.config.cg_tolerance,
+                    });
+                }
                 stats.solve_us = start.elapsed().as_secs_f64() * 1e6;
             }
             FemModel::CorotationalPrefactored => {

@@ -96,6 +96,12 @@ pub struct MsdConfig {
     pub cg_tolerance: f64,
     /// Iteration cap of the implicit CG. Default 50.
     pub cg_max_iterations: u32,
+    /// What an implicit CG that reaches its cap above its tolerance does: `false` (the
+    /// default) the step goes on with the last iterate and says so (its stats'
+    /// `cg.converged` is false); `true` the step fails with [`MsdError::NotConverged`] and
+    /// leaves the state unchanged.
+    #[serde(default)]
+    pub cg_must_converge: bool,
 }
 
 impl MsdConfig {
@@ -113,6 +119,7 @@ impl MsdConfig {
             explicit_limit: ExplicitLimit::default(),
             cg_tolerance: 1e-6,
             cg_max_iterations: 50,
+            cg_must_converge: false,
         }
     }
 
@@ -227,6 +234,19 @@ pub enum MsdError {
     /// A linear solve failed (implicit integrator).
     #[error("MSD linear solve failed: {0}")]
     Linalg(#[from] LinalgError),
+    /// The implicit CG reached its cap above its tolerance while
+    /// [`MsdConfig::cg_must_converge`] asks for convergence (the state is unchanged).
+    #[error(
+        "the implicit solve did not converge: relative residual {residual:e} after {iterations} iterations (tolerance {tolerance:e})"
+    )]
+    NotConverged {
+        /// Iterations taken (the cap).
+        iterations: u32,
+        /// Final relative residual.
+        residual: f64,
+        /// The tolerance asked for.
+        tolerance: f64,
+    },
     /// A value given, or produced by a step, is NaN or infinite; a step that produces one is
     /// rolled back.
     #[error("{what} of node {node} is not finite")]
@@ -740,6 +760,11 @@ impl MsdBody {
         Ok(())
     }
 
+    /// Sets [`MsdConfig::cg_must_converge`].
+    pub fn set_cg_must_converge(&mut self, on: bool) {
+        self.config.cg_must_converge = on;
+    }
+
     /// Changes gravity.
     pub fn set_gravity(&mut self, gravity: Vec3) -> Result<(), MsdError> {
         let mut c = self.config;
@@ -1041,6 +1066,16 @@ impl MsdBody {
             self.config.cg_tolerance,
             self.config.cg_max_iterations,
         );
+        let stats = match stats {
+            Ok(c) if self.config.cg_must_converge && !c.converged => {
+                Err(MsdError::NotConverged {
+                    iterations: c.iterations,
+                    residual: c.relative_residual,
+                    tolerance: self.config.cg_tolerance,
+                })
+            }
+            other => other.map_err(MsdError::from),
+        };
         if stats.is_ok() {
             for i in 0..self.nodes.x.len() {
                 for a in 0..3 {
@@ -1054,7 +1089,7 @@ impl MsdBody {
             }
         }
         self.implicit = Some(imp);
-        Ok(stats?)
+        stats
     }
 }
 

@@ -51,6 +51,9 @@ use crate::msd::{MsdBody, MsdConfig, MsdError, MsdIntegrator};
 use crate::scenario::CageKind;
 use crate::state::NodalBody;
 
+mod undo;
+pub use undo::LevelSnapshot;
+
 /// The level a body runs at.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Level {
@@ -177,6 +180,16 @@ pub enum PrecisionError {
     /// The cage fit could not be solved.
     #[error("the cage fit is singular")]
     SingularFit,
+    /// A switch met a non-finite state (the level is left as it was).
+    #[error("switch from the {from:?} level: non-finite {what} at node {node}")]
+    NonFiniteSwitch {
+        /// The level the switch started from.
+        from: Level,
+        /// "position" or "velocity".
+        what: &'static str,
+        /// Node of the precise mesh (from the cage) or cage vertex (from the precise level).
+        node: usize,
+    },
 }
 
 /// One level switch.
@@ -269,6 +282,8 @@ pub struct LeveledBody {
     residual: f64,
     shadow: Option<Box<Precise>>,
     shadow_error: Option<ShadowError>,
+    /// See [`LeveledBody::set_precise_cg_must_converge`].
+    cg_must_converge: bool,
     // Workspaces of the transfers.
     nodes_work: Vec<Vec3>,
     nodes_work2: Vec<Vec3>,
@@ -438,6 +453,7 @@ impl LeveledBody {
             last_switch: None,
             residual: 0.0,
             shadow: None,
+            cg_must_converge: false,
             shadow_error: None,
             nodes_work: vec![Vec3::zeros(); n],
             nodes_work2: vec![Vec3::zeros(); n],
@@ -588,6 +604,18 @@ impl LeveledBody {
         Ok(())
     }
 
+    /// Whether the precise method's iterative solve must converge (see
+    /// [`FemConfig::cg_must_converge`], [`MsdConfig::cg_must_converge`]); kept across
+    /// changes of method. A step whose solve does not then fails and leaves the body as it
+    /// was ([`PrecisionError::Fem`] holding [`FemError::NotConverged`], or the MSD's).
+    pub fn set_precise_cg_must_converge(&mut self, on: bool) {
+        self.cg_must_converge = on;
+        match &mut self.precise {
+            Precise::Fem(b) => b.set_cg_must_converge(on),
+            Precise::Msd(b) => b.set_cg_must_converge(on),
+        }
+    }
+
     /// The iterative solve of the last precise step, for the methods that have one
     /// (corotational FEM, implicit MSD).
     pub fn precise_cg(&self) -> Option<CgStats> {
@@ -696,6 +724,9 @@ impl LeveledBody {
             }
         }
         self.precise = next;
+        if self.cg_must_converge {
+            self.set_precise_cg_must_converge(true);
+        }
         self.settings = settings;
         // The new solver's rotations are held at the rest orientation, not at the last
         // down-switch's: an up-switch turns them by the cage's whole rotation.
@@ -753,8 +784,17 @@ impl LeveledBody {
         if self.level == Level::Precise || self.pin == Some(Level::Cage) {
             return Ok(None);
         }
-        self.snapshot_surface();
         self.cage_state()?;
+        if let Some((what, node)) =
+            crate::state::first_non_finite_state(&self.nodes_work, &self.nodes_work2)
+        {
+            return Err(PrecisionError::NonFiniteSwitch {
+                from: Level::Cage,
+                what,
+                node,
+            });
+        }
+        self.snapshot_surface();
         let turned =
             self.cage_rotation(self.cage.cage_positions()) * self.lowered_rotation.inverse();
         load_state(
@@ -955,9 +995,18 @@ impl LeveledBody {
 
     /// The down-switch onto the converged fit (`residual` its error).
     fn lower_fitted(&mut self, residual: f64) -> Result<SwitchRecord, PrecisionError> {
+        self.fit_velocities(MAX_FIT_ITERATIONS);
+        if let Some((what, node)) =
+            crate::state::first_non_finite_state(&self.fit_cage, &self.fit_velocity)
+        {
+            return Err(PrecisionError::NonFiniteSwitch {
+                from: Level::Precise,
+                what,
+                node,
+            });
+        }
         self.snapshot_surface();
         self.residual = residual;
-        self.fit_velocities(MAX_FIT_ITERATIONS);
         self.lowered_rotation = self.cage_rotation(&self.fit_cage);
         let msd = self.cage.msd_mut();
         msd.positions_mut().copy_from_slice(&self.fit_cage);

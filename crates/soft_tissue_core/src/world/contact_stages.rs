@@ -281,7 +281,71 @@ fn inverse_mass(b: &SimBody, node: usize) -> f64 {
 }
 
 /// Contact response on the positions after the solvers, grips, reaction forces.
+///
+/// All or nothing: the stage refuses bodies whose surface is not finite, and when it fails
+/// (a correction, an impulse or a force that is not finite, a state it leaves that is not
+/// finite) every body it changed is put back as it was before the stage, pending corrections
+/// are dropped, and the error names the body and node. Tools' reaction forces of the failed
+/// stage are not kept either (they are cleared).
 pub fn collide<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
+    bodies: &mut [B],
+    tools: &mut [T],
+    config: &ContactConfig,
+    state: &mut ContactState,
+    dt: f64,
+) -> Result<(), WorldError> {
+    let mut result = collide_all(bodies, tools, config, state, dt);
+    // What the stage changed must be finite.
+    for b in bodies.iter_mut() {
+        let b = b.borrow();
+        if result.is_ok()
+            && b.undo.is_saved()
+            && let Some((what, node)) = b.body.first_non_finite_level_state()
+        {
+            result = Err(WorldError::NonFinite {
+                body: b.name.clone(),
+                node,
+                stage: if what == "position" {
+                    "collide"
+                } else {
+                    "collide (velocity or force)"
+                },
+            });
+        }
+    }
+    for b in bodies.iter_mut() {
+        let b = b.borrow_mut();
+        if result.is_err() {
+            for &i in &b.corrected {
+                b.correction[i as usize] = Vec3::zeros();
+                b.weight[i as usize] = 0.0;
+            }
+            b.corrected.clear();
+            if b.undo.is_saved() && b.body.restore_level_state(&b.undo) {
+                b.collider.gather(b.body.node_positions());
+            }
+        }
+        b.undo.clear();
+    }
+    if result.is_err() {
+        for t in tools.iter_mut() {
+            t.borrow_mut().clear_reaction();
+        }
+    }
+    result
+}
+
+impl SimBody {
+    /// Saves this body's level state before the contact response first changes it this
+    /// step (see [`collide`]).
+    fn before_change(&mut self) {
+        if !self.undo.is_saved() {
+            self.body.save_level_state(&mut self.undo);
+        }
+    }
+}
+
+fn collide_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
     bodies: &mut [B],
     tools: &mut [T],
     config: &ContactConfig,
@@ -292,6 +356,13 @@ pub fn collide<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
         let b = b.borrow_mut();
         if b.active {
             b.collider.gather(b.body.node_positions());
+            if let Some(v) = b.collider.positions().iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+                return Err(WorldError::NonFinite {
+                    body: b.name.clone(),
+                    node: b.collider.nodes()[v] as usize,
+                    stage: "collide (its input)",
+                });
+            }
         }
     }
     // Body against body: Jacobi average of the mass-weighted splits, on the candidates of
@@ -436,6 +507,8 @@ fn resolve_body_contact(a: &mut SimBody, b: &mut SimBody, c: &BodyContact, dt: f
         // Two cages resting against each other: the cheap level has no contact response.
         return;
     }
+    a.before_change();
+    b.before_change();
     if wa + wb <= 0.0 {
         // Both sides immovable here (cage level or fixed): push the cages apart instead.
         let k = 0.5 / (dt * dt);
@@ -517,6 +590,7 @@ fn apply_corrections(
     if b.corrected.is_empty() {
         return Ok(force);
     }
+    b.before_change();
     let mut result = Ok(());
     match b.body.level() {
         Level::Precise => {

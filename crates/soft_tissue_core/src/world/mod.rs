@@ -28,8 +28,8 @@ mod script;
 pub use crate::timing::StageTimes;
 pub use contact_stages::{ContactState, collide, detect_contacts};
 pub use scene::{
-    SceneBody, SceneOptions, body_settings, load_mesh, load_mesh_with, placed_mesh, scene_bodies,
-    scene_bodies_with,
+    SceneBody, SceneOptions, body_settings, check_mesh_path, load_mesh, load_mesh_with, placed_mesh,
+    scene_bodies, scene_bodies_with,
 };
 pub use script::{Script, ScriptAction, ScriptError, ScriptEvent, Waypoint};
 
@@ -45,7 +45,7 @@ use crate::heat::{HeatBoundary, HeatError, HeatField, HeatParams};
 use crate::linalg::CgStats;
 use crate::mesh::TetMesh;
 use crate::precision::{
-    BodySettings, Level, LeveledBody, PrecisionError, ShadowError, SwitchRecord,
+    BodySettings, Level, LeveledBody, LevelSnapshot, PrecisionError, ShadowError, SwitchRecord,
 };
 use crate::scenario::SceneError;
 
@@ -104,7 +104,11 @@ pub enum WorldError {
         /// Name or index asked for.
         name: String,
     },
-    /// A step left a non-finite position (the state of that body is not trusted).
+    /// An earlier step failed (its error is the text); the world steps again after
+    /// [`SoftTissueWorld::resume`] or [`SoftTissueWorld::reset`].
+    #[error("stopped after a failed step ({0}); resume() or reset() the world to step again")]
+    Halted(String),
+    /// A stage met or would have left a non-finite value (the stage left the state as it was).
     #[error("body `{body}`: non-finite position at node {node} after {stage}")]
     NonFinite {
         /// Body name.
@@ -141,6 +145,10 @@ pub struct BodyDiagnostics {
     /// iterations, final relative residual and whether it met its tolerance within its
     /// iteration cap. `None` at the cage level and for direct or explicit methods.
     pub cg: Option<CgStats>,
+    /// Precise steps since the body was built (or reset) whose iterative solve stopped at its
+    /// iteration cap above its tolerance (each went on with its last iterate; see
+    /// [`LeveledBody::set_precise_cg_must_converge`] to make that an error).
+    pub unconverged_solves: u64,
     /// Contacts (tool triangles and vertex-triangle pairs) found this step.
     pub contacts: u32,
     /// Whether the body counted as touched this step.
@@ -189,6 +197,9 @@ pub struct SimBody {
     /// This step's solver failure, when the bodies stepped in parallel (reported in body
     /// order after all of them ran).
     step_error: Option<WorldError>,
+    /// This body's state before the contact response first changed it this step (put back
+    /// when the stage fails).
+    undo: LevelSnapshot,
 }
 
 impl SimBody {
@@ -241,6 +252,7 @@ impl SimBody {
                 step_us: 0.0,
                 switch_us: 0.0,
                 cg: None,
+                unconverged_solves: 0,
                 contacts: 0,
                 touched: false,
                 switch_count: 0,
@@ -264,8 +276,9 @@ impl SimBody {
             written_asleep: false,
             surface_written: false,
             step_error: None,
+            undo: LevelSnapshot::default(),
         };
-        b.write_surface();
+        b.write_surface()?;
         Ok(b)
     }
 
@@ -345,7 +358,9 @@ impl SimBody {
         Ok(())
     }
 
-    fn write_surface(&mut self) {
+    /// Writes the surface positions and the diagnostics. A non-finite surface position is
+    /// never written: the surface keeps its last positions and the error names the node.
+    fn write_surface(&mut self) -> Result<(), WorldError> {
         self.diagnostics.level = self.body.level();
         self.diagnostics.shadow = if self.body.level() == Level::Cage {
             self.body.shadow_error()
@@ -358,11 +373,25 @@ impl SimBody {
             // Asleep and already written: the surface has not changed.
             self.diagnostics.method = "cage";
             self.surface_written = false;
-            return;
+            return Ok(());
+        }
+        let x = self.body.node_positions();
+        if let Some(&node) = self
+            .collider
+            .nodes()
+            .iter()
+            .find(|&&i| !x[i as usize].iter().all(|c| c.is_finite()))
+        {
+            self.surface_written = false;
+            self.diagnostics.max_displacement = f64::NAN;
+            return Err(WorldError::NonFinite {
+                body: self.name.clone(),
+                node: node as usize,
+                stage: "writeback",
+            });
         }
         self.surface_written = true;
         self.written_asleep = self.body.is_asleep();
-        let x = self.body.node_positions();
         let mut max_d: f64 = 0.0;
         for ((o, &i), r) in self
             .surface_out
@@ -372,7 +401,7 @@ impl SimBody {
         {
             let p = x[i as usize];
             *o = [p.x as f32, p.y as f32, p.z as f32];
-            max_d = max_d.max((p - r).norm());
+            max_d = crate::state::nan_max(max_d, (p - r).norm());
         }
         self.diagnostics.max_displacement = max_d;
         self.diagnostics.level = self.body.level();
@@ -386,6 +415,7 @@ impl SimBody {
         self.diagnostics.switch_count = self.body.switch_count();
         self.diagnostics.last_switch = self.body.last_switch();
         self.diagnostics.max_temperature = self.heat.as_ref().map(|h| max_of(h.temperatures()));
+        Ok(())
     }
 
     /// At the precise level and not yet slow for the policy's rest steps.
@@ -414,9 +444,9 @@ impl SimBody {
         self.diagnostics.switch_us = 0.0;
         self.diagnostics.contacts = 0;
         self.diagnostics.touched = false;
+        self.diagnostics.unconverged_solves = 0;
         self.written_asleep = false;
-        self.write_surface();
-        Ok(())
+        self.write_surface()
     }
 }
 
@@ -526,12 +556,14 @@ impl SimBody {
         let start = Instant::now();
         // The heat field and the mechanics do not read each other within a step: in a pool
         // they run side by side.
+        // The heat field's new temperatures are taken only when the mechanics stepped too,
+        // so a body whose mechanics fail is left as it was.
         let (heat, mechanics) = match self.heat.as_mut() {
             Some(h) if crate::parallel::in_pool() => {
-                rayon::join(|| h.step(), || self.body.step(self.touched))
+                rayon::join(|| h.solve_next(), || self.body.step(self.touched))
             }
             Some(h) => {
-                let heat = h.step();
+                let heat = h.solve_next();
                 (heat, self.body.step(self.touched))
             }
             None => (Ok(()), self.body.step(self.touched)),
@@ -541,6 +573,9 @@ impl SimBody {
             source,
         })?;
         let stats = mechanics.map_err(|e| self.precision_err(e))?;
+        if let Some(h) = self.heat.as_mut() {
+            h.commit();
+        }
         if let Some(r) = stats.switched {
             self.diagnostics.switched = Some(r);
         }
@@ -549,25 +584,35 @@ impl SimBody {
         } else {
             None
         };
+        if self.diagnostics.cg.is_some_and(|c| !c.converged) {
+            self.diagnostics.unconverged_solves += 1;
+        }
         self.diagnostics.step_us = start.elapsed().as_secs_f64() * 1e6;
         Ok(())
     }
 }
 
-/// Writes the surfaces and diagnostics of every body.
-pub fn writeback<B: BorrowMut<SimBody>>(bodies: &mut [B]) {
+/// Writes the surfaces and diagnostics of every body. A body whose surface is not finite
+/// keeps its last written surface; the first such body is the error (every body is
+/// written either way).
+pub fn writeback<B: BorrowMut<SimBody>>(bodies: &mut [B]) -> Result<(), WorldError> {
+    let mut result = Ok(());
     for b in bodies.iter_mut() {
-        b.borrow_mut().writeback();
+        let r = b.borrow_mut().writeback();
+        if result.is_ok() {
+            result = r;
+        }
     }
+    result
 }
 
 impl SimBody {
     /// The writeback of this body alone (the stage does it for every body; the bodies are
     /// independent, in any order).
-    pub fn writeback(&mut self) {
+    pub fn writeback(&mut self) -> Result<(), WorldError> {
         self.diagnostics.contacts = self.contacts;
         self.diagnostics.touched = self.touched;
-        self.write_surface();
+        self.write_surface()
     }
 }
 
@@ -582,6 +627,8 @@ pub struct SoftTissueWorld {
     accumulator: f64,
     times: StageTimes,
     threads: crate::parallel::Threads,
+    /// The error of the step that failed, until `resume` or `reset`.
+    halted: Option<String>,
 }
 
 impl SoftTissueWorld {
@@ -609,6 +656,7 @@ impl SoftTissueWorld {
             accumulator: 0.0,
             times: StageTimes::default(),
             threads: crate::parallel::Threads::new(crate::parallel::default_threads())?,
+            halted: None,
         })
     }
 
@@ -741,9 +789,34 @@ impl SoftTissueWorld {
     }
 
     /// Runs exactly one fixed step through every stage (in the world's thread pool).
+    ///
+    /// A stage that fails stops the step there (the later stages do not run) and leaves the
+    /// bodies as it found them: a solver step that fails leaves its body unchanged (bodies
+    /// that finished their step before it keep it), the contact response is undone as a
+    /// whole, and no non-finite surface is written. The world then refuses to step
+    /// ([`WorldError::Halted`]) until [`SoftTissueWorld::resume`] (carry on from that state,
+    /// for instance after removing the cause) or [`SoftTissueWorld::reset`].
     pub fn step_fixed(&mut self) -> Result<(), WorldError> {
+        if let Some(cause) = &self.halted {
+            return Err(WorldError::Halted(cause.clone()));
+        }
         let threads = self.threads.clone();
-        threads.run(|| self.step_stages())
+        let result = threads.run(|| self.step_stages());
+        if let Err(e) = &result {
+            self.halted = Some(e.to_string());
+        }
+        result
+    }
+
+    /// The error of the failed step that stopped the world, if it is stopped.
+    pub fn halted(&self) -> Option<&str> {
+        self.halted.as_deref()
+    }
+
+    /// Lets a stopped world step again from the state its failed step left (see
+    /// [`SoftTissueWorld::step_fixed`]).
+    pub fn resume(&mut self) {
+        self.halted = None;
     }
 
     fn step_stages(&mut self) -> Result<(), WorldError> {
@@ -771,7 +844,7 @@ impl SoftTissueWorld {
             dt,
         )?;
         self.times.collide_us = lap(&mut t);
-        writeback(&mut self.bodies);
+        writeback(&mut self.bodies)?;
         self.times.writeback_us = lap(&mut t);
         self.steps += 1;
         Ok(())
@@ -793,6 +866,7 @@ impl SoftTissueWorld {
         self.steps = 0;
         self.accumulator = 0.0;
         self.times = StageTimes::default();
+        self.halted = None;
         Ok(())
     }
 }
