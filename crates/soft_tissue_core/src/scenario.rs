@@ -380,6 +380,23 @@ impl Scene {
                     "cage: a fitted cage needs at least 8 vertices, found {vertices}"
                 )));
             }
+            if let MeshSource::Generated { resolution, .. } = b.mesh
+                && !(resolution.is_finite() && resolution > 0.0)
+            {
+                return Err(err(format!(
+                    "mesh: resolution must be positive and finite, found {resolution}"
+                )));
+            }
+            let p = &b.placement;
+            if let Some(v) = p.translation.iter().find(|v| !v.is_finite()) {
+                return Err(err(format!("placement: translation must be finite, found {v}")));
+            }
+            if let Some(v) = p.rotation_deg.iter().find(|v| !v.is_finite()) {
+                return Err(err(format!("placement: rotation_deg must be finite, found {v}")));
+            }
+            if let Some(h) = &b.heat {
+                h.validate().map_err(|e| err(format!("heat: {e}")))?;
+            }
             match b.anchor {
                 Anchor::FixedBottom { fraction } if !(fraction > 0.0 && fraction < 1.0) => {
                     return Err(err(format!(

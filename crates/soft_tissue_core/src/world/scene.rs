@@ -61,23 +61,9 @@ pub fn load_mesh_with(
         body: spec.name.clone(),
         message,
     };
+    check_mesh_path(spec, options)?;
     let mesh = match &spec.mesh {
         MeshSource::File(file) => {
-            let leaves = Path::new(file).components().any(|c| {
-                matches!(
-                    c,
-                    std::path::Component::ParentDir
-                        | std::path::Component::RootDir
-                        | std::path::Component::Prefix(_)
-                )
-            });
-            if leaves && !options.allow_outside_assets {
-                return Err(err(format!(
-                    "mesh path `{file}` leaves the assets folder (absolute, or `..`); the \
-                     caller can allow it (`SceneOptions::allow_outside_assets`, `simulate \
-                     --allow-outside-assets`)"
-                )));
-            }
             let path = assets.join(file);
             read_tet_mesh(&path)
                 .map_err(|e| err(format!("{}: {e}", path.display())))?
@@ -85,9 +71,41 @@ pub fn load_mesh_with(
         }
         MeshSource::Generated { organ, resolution } => organ
             .generate(*resolution)
-            .map_err(|e| err(format!("generating {}: {e}", organ.name())))?,
+            .map_err(|e| {
+                err(format!(
+                    "mesh: generating {} at resolution {resolution}: {e}",
+                    organ.name()
+                ))
+            })?,
     };
     placed_mesh(&mesh, &spec.placement).map_err(err)
+}
+
+/// Refuses a mesh path that is absolute or climbs out of the assets folder with `..` (an
+/// error naming the body and the path) unless `options` allow it.
+pub fn check_mesh_path(spec: &BodySpec, options: SceneOptions) -> Result<(), WorldError> {
+    let MeshSource::File(file) = &spec.mesh else {
+        return Ok(());
+    };
+    let leaves = Path::new(file).components().any(|c| {
+        matches!(
+            c,
+            std::path::Component::ParentDir
+                | std::path::Component::RootDir
+                | std::path::Component::Prefix(_)
+        )
+    });
+    if leaves && !options.allow_outside_assets {
+        return Err(WorldError::Mesh {
+            body: spec.name.clone(),
+            message: format!(
+                "mesh path `{file}` leaves the assets folder (absolute, or `..`); the caller \
+                 can allow it (`SceneOptions::allow_outside_assets`, `simulate \
+                 --allow-outside-assets`, the scene loader's `allow_outside_assets` setting)"
+            ),
+        });
+    }
+    Ok(())
 }
 
 /// The level settings of a scene body on its placed mesh.
