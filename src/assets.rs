@@ -9,6 +9,7 @@ use bevy::prelude::*;
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::io::{FormatError, MeshFormat, parse_tet_mesh, parse_tetgen};
 use soft_tissue_core::scenario::{Scene, SceneError};
+use soft_tissue_core::world::{SceneOptions, WorldError, check_mesh_path};
 
 /// A tetrahedral mesh, shared (`Arc`) with every body built from it.
 #[derive(Asset, TypePath, Clone, Debug)]
@@ -109,6 +110,17 @@ pub enum SceneLoadError {
     /// The RON does not parse or a body is inconsistent (the message names it).
     #[error(transparent)]
     Scene(#[from] SceneError),
+    /// A body's mesh path leaves the assets folder (the message names the body and path).
+    #[error(transparent)]
+    Path(#[from] WorldError),
+}
+
+/// Settings of the scene loader (in an asset's `.meta` file).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct SceneLoaderSettings {
+    /// Let the scene's mesh paths leave the assets folder (absolute paths, `..`). Off by
+    /// default: such a scene is refused, naming the body and the path.
+    pub allow_outside_assets: bool,
 }
 
 /// Loads `.scene.ron` files.
@@ -117,13 +129,13 @@ pub struct SceneLoader;
 
 impl AssetLoader for SceneLoader {
     type Asset = SceneAsset;
-    type Settings = ();
+    type Settings = SceneLoaderSettings;
     type Error = SceneLoadError;
 
     async fn load(
         &self,
         reader: &mut dyn Reader,
-        _settings: &(),
+        settings: &SceneLoaderSettings,
         load_context: &mut LoadContext<'_>,
     ) -> Result<SceneAsset, SceneLoadError> {
         let name = load_context.path().to_string();
@@ -141,6 +153,12 @@ impl AssetLoader for SceneLoader {
         })?;
         let scene = Scene::from_ron(&text, &name)?;
         scene.validate()?;
+        let options = SceneOptions {
+            allow_outside_assets: settings.allow_outside_assets,
+        };
+        for body in &scene.bodies {
+            check_mesh_path(body, options)?;
+        }
         Ok(SceneAsset(scene))
     }
 

@@ -248,6 +248,10 @@ pub struct SoftBodyDiagnostics {
     /// Distance of the cage level from a shadow precise simulation, as a fraction of the
     /// smallest dimension (only with [`ShadowSimulation`]).
     pub shadow_error_ratio: Option<f64>,
+    /// Precise steps since the body was built or reset whose iterative solve (corotational
+    /// FEM, implicit MSD) stopped at its iteration cap above its tolerance and went on with
+    /// its last iterate.
+    pub unconverged_solves: u64,
 }
 
 /// What the body is drawn with, when not its simulation surface: a finer visual mesh whose

@@ -1,8 +1,9 @@
 //! The inspector (feature `inspector`, bevy_egui): every body's level, precise method
-//! (switchable), step time, switches, last jump, temperature range and shadow error; the
-//! simulation's rate, the last step's time and the median, 99th percentile and largest of
-//! the whole step and of each stage over the last steps, pause / single step / reset; and a
-//! live plot of each body's step time over the last seconds, like the paper's figures.
+//! (switchable), step time, switches, last jump, temperature range, shadow error and
+//! unconverged solves; the simulation's rate, the last step's time and the median, 99th
+//! percentile and largest of the whole step and of each stage over the last steps, the error
+//! of a failed step, pause / single step / reset; and a live plot of each body's step time
+//! over the last seconds, like the paper's figures.
 
 use std::collections::VecDeque;
 
@@ -129,6 +130,10 @@ fn inspector_panel(
                 let label = if status.paused { "Resume" } else { "Pause" };
                 if ui.button(label).clicked() {
                     status.paused = !status.paused;
+                    // Resuming after a failed step carries on from the state it left.
+                    if !status.paused {
+                        status.error = None;
+                    }
                 }
                 if ui.button("Step").clicked() {
                     status.paused = true;
@@ -151,6 +156,7 @@ fn inspector_panel(
                     "last jump %",
                     "C",
                     "cage err %",
+                    "unconverged",
                 ] {
                     ui.strong(h);
                 }
@@ -187,6 +193,15 @@ fn inspector_panel(
                         diag.shadow_error_ratio
                             .map_or("-".into(), |r| format!("{:.2}", 100.0 * r)),
                     );
+                    // Solves stopped at their cap: shown in red, they are inexact steps.
+                    if diag.unconverged_solves > 0 {
+                        ui.colored_label(
+                            egui::Color32::LIGHT_RED,
+                            format!("{}", diag.unconverged_solves),
+                        );
+                    } else {
+                        ui.label("0");
+                    }
                     ui.end_row();
                 }
             });

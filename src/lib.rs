@@ -66,7 +66,9 @@ pub mod messages;
 pub mod physics;
 pub mod render;
 
-pub use assets::{SceneAsset, SoftTissueAssetPlugin, TetMeshAsset};
+pub use assets::{
+    SceneAsset, SceneLoadError, SceneLoader, SceneLoaderSettings, SoftTissueAssetPlugin, TetMeshAsset,
+};
 pub use components::*;
 pub use messages::{BodyTouched, LevelChanged};
 pub use physics::{

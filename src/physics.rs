@@ -117,8 +117,12 @@ pub struct SoftTissueStatus {
     /// Stage times of the last [`STAGE_WINDOW`] steps: their median, 99th percentile and
     /// largest on request ([`StageRecorder::summary`]), as the inspector shows them.
     pub recent: StageRecorder,
-    /// The last error of a step (a solver that failed, a NaN caught); the simulation pauses
-    /// when one happens.
+    /// The error of the step that failed (a solver that failed, a NaN caught), if one did.
+    /// The stages after the failing one do not run, the failing one leaves the bodies as it
+    /// found them (see [`soft_tissue_core::world::SoftTissueWorld::step_fixed`]), no
+    /// non-finite position reaches a mesh, and the simulation pauses. No step runs while it
+    /// is set: a [`ResetSimulation`] clears it, or set it to `None` (and unpause) to carry on
+    /// from the state the failed step left.
     pub error: Option<String>,
 }
 
@@ -140,7 +144,7 @@ impl Default for SoftTissueStatus {
 
 impl SoftTissueStatus {
     fn running(&self) -> bool {
-        !self.paused || self.step_once
+        (!self.paused || self.step_once) && self.error.is_none()
     }
 }
 
@@ -215,6 +219,19 @@ impl Plugin for SoftTissuePhysicsPlugin {
             )
                 .chain(),
         );
+        // A stage that fails sets the status's error: the stages after it in this step do
+        // not run (a set's condition is checked when the set is reached, after the stages
+        // before it ran).
+        let no_error = |s: Res<SoftTissueStatus>| s.error.is_none();
+        for set in [
+            S::DetectContact,
+            S::SwitchPrecision,
+            S::StepSolvers,
+            S::Collide,
+            S::Writeback,
+        ] {
+            app.configure_sets(SoftTissueSchedule, set.run_if(no_error));
+        }
         app.add_systems(
             SoftTissueSchedule,
             (
@@ -231,7 +248,11 @@ impl Plugin for SoftTissuePhysicsPlugin {
         let running = |s: Res<SoftTissueStatus>| s.running();
         app.add_systems(
             self.schedule,
-            run_step.in_set(SoftTissueStep).run_if(running),
+            (
+                reset_simulation,
+                run_step.in_set(SoftTissueStep).run_if(running),
+            )
+                .chain(),
         );
         if self.schedule == FixedUpdate.intern() {
             app.add_systems(PreUpdate, sync_fixed_timestep);
@@ -412,12 +433,40 @@ fn build_tools(
     }
 }
 
-/// The prepare stage: a reset when asked for, run-time changes (precise method, pins,
+/// A reset when asked for: every body and tool back to its initial state, counters and the
+/// error cleared. Runs before the step, also while the simulation is paused or stopped by an
+/// error.
+fn reset_simulation(
+    mut requests: MessageReader<ResetSimulation>,
+    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut tools: Query<&mut ToolState>,
+    mut contacts: ResMut<SoftTissueContacts>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    if requests.read().count() == 0 {
+        return;
+    }
+    status.steps = 0;
+    status.error = None;
+    status.recent.clear();
+    for (e, mut b) in &mut bodies {
+        if let Err(err) = b.body.reset() {
+            fail(&mut status, format!("resetting {e}: {err}"));
+        }
+        b.dirty = true;
+    }
+    for mut tool in &mut tools {
+        tool.tool.reset();
+        tool.grabbing = false;
+    }
+    contacts.0.clear();
+}
+
+/// The prepare stage: run-time changes (precise method, pins,
 /// shadows, tool poses and actions), then the core's `prepare`. One system, so the step pays
 /// one system's dispatch for all of it.
 #[allow(clippy::type_complexity, clippy::too_many_arguments)]
 fn prepare_stage(
-    mut requests: MessageReader<ResetSimulation>,
     mut bodies: Query<(
         Entity,
         Ref<SoftBody>,
@@ -428,26 +477,9 @@ fn prepare_stage(
     mut tools: Query<(Entity, &SoftTool, &mut ToolState)>,
     poses: TransformHelper,
     config: Res<SoftTissueConfig>,
-    mut contacts: ResMut<SoftTissueContacts>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let mut t = Instant::now();
-    if requests.read().count() > 0 {
-        for (e, _, mut b, _, _) in &mut bodies {
-            if let Err(err) = b.body.reset() {
-                fail(&mut status, format!("resetting {e}: {err}"));
-            }
-            b.dirty = true;
-        }
-        for (_, _, mut tool) in &mut tools {
-            tool.tool.reset();
-            tool.grabbing = false;
-        }
-        contacts.0.clear();
-        status.steps = 0;
-        status.error = None;
-        status.recent.clear();
-    }
     for (entity, spec, mut sim, pin, shadow) in &mut bodies {
         let b = &mut sim.body;
         let want: PreciseMethod = spec.method.into();
@@ -615,17 +647,16 @@ fn writeback_stage(
 ) {
     let mut t = Instant::now();
     for (entity, mut sim, mut level, mut cage, mut diag, fem, msd, temp) in &mut bodies {
-        // The core's writeback, body by body (bodies are independent here).
-        sim.body.writeback();
+        // The core's writeback, body by body (bodies are independent here). A surface that
+        // is not finite is not written (the mesh keeps its last positions) and stops the
+        // simulation.
+        if let Err(e) = sim.body.writeback() {
+            fail(&mut status, format!("writeback: {e}"));
+            continue;
+        }
         let b = &sim.body;
         let d = *b.diagnostics();
         let lb = b.body();
-        if !d.max_displacement.is_finite() {
-            fail(
-                &mut status,
-                format!("{}: a surface position is not finite", b.name()),
-            );
-        }
         let new_level = PrecisionLevel {
             level: d.level.into(),
             method: lb.settings().precise.into(),
@@ -686,6 +717,7 @@ fn writeback_stage(
             contacts: d.contacts,
             max_displacement: d.max_displacement,
             shadow_error_ratio: d.shadow.map(|e| e.max_ratio),
+            unconverged_solves: d.unconverged_solves,
         });
         let cg = d.cg;
         if let (Some(mut f), Some(fb)) = (fem, lb.fem()) {
@@ -718,8 +750,16 @@ fn writeback_stage(
             tc.damage.clear();
             tc.damage
                 .extend(nodes.iter().map(|&i| h.damaged_fraction(i as usize) as f32));
-            tc.min = temps.iter().copied().fold(f64::INFINITY, f64::min);
-            tc.max = temps.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            // NaN-propagating (`f64::min`/`max` would drop a NaN and show a sound range).
+            let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+            for &v in temps {
+                if v.is_nan() {
+                    (lo, hi) = (f64::NAN, f64::NAN);
+                    break;
+                }
+                (lo, hi) = (lo.min(v), hi.max(v));
+            }
+            (tc.min, tc.max) = (lo, hi);
         }
         if awake || b.surface_written() || d.switched.is_some() || heat_changed {
             sim.dirty = true;
