@@ -15,7 +15,7 @@ use bevy_soft_tissue::core::scenario::{PreciseMethod, Scene};
 use bevy_soft_tissue::core::world::{Script, ScriptAction, SoftTissueWorld};
 use bevy_soft_tissue::prelude::*;
 use bevy_soft_tissue::{
-    SimulatedBody, SoftBodyError, SoftTissueAssetPlugin, SoftTissueConfig, SoftTissueMeshPlugin,
+    SceneLoaderSettings, SimulatedBody, SoftBodyError, SoftTissueAssetPlugin, SoftTissueConfig, SoftTissueMeshPlugin,
     SoftTissuePhysicsPlugin, SoftTissueThreads,
 };
 
@@ -216,6 +216,62 @@ fn meshes_load_through_the_asset_server_and_errors_name_the_file() {
         .resource::<Assets<bevy_soft_tissue::SceneAsset>>();
     let s = scenes.get(&scene).expect("scene loaded");
     assert_eq!(s.0.bodies.len(), 4);
+}
+
+#[test]
+fn scene_assets_keep_mesh_paths_inside_the_assets_folder_unless_allowed() {
+    let dir = std::env::temp_dir().join(format!("soft-tissue-scene-paths-{}", std::process::id()));
+    std::fs::create_dir_all(dir.join("scenes")).unwrap();
+    let text = std::fs::read_to_string(assets().join("scenes/cylinders.scene.ron"))
+        .unwrap()
+        .replacen("meshes/", "../outside/", 1);
+    assert!(text.contains("../outside/"));
+    std::fs::write(dir.join("scenes/escape.scene.ron"), &text).unwrap();
+    std::fs::write(dir.join("scenes/escape-allowed.scene.ron"), &text).unwrap();
+    let mut app = App::new();
+    app.add_plugins((
+        MinimalPlugins,
+        AssetPlugin {
+            file_path: dir.display().to_string(),
+            ..default()
+        },
+        SoftTissueAssetPlugin,
+    ));
+    let server = app.world().resource::<AssetServer>().clone();
+    let refused: Handle<bevy_soft_tissue::SceneAsset> = server.load("scenes/escape.scene.ron");
+    let allowed: Handle<bevy_soft_tissue::SceneAsset> = server
+        .load_builder()
+        .with_settings(|s: &mut SceneLoaderSettings| s.allow_outside_assets = true)
+        .load("scenes/escape-allowed.scene.ron");
+    let done = |id| {
+        matches!(
+            server.load_state(id),
+            LoadState::Loaded | LoadState::Failed(_)
+        )
+    };
+    for _ in 0..300 {
+        app.update();
+        if done(refused.id().untyped()) && done(allowed.id().untyped()) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    match server.load_state(refused.id()) {
+        LoadState::Failed(e) => {
+            let e = e.to_string();
+            assert!(
+                e.contains("Model A") && e.contains("../outside/") && e.contains("assets folder"),
+                "{e}"
+            );
+        }
+        s => panic!("expected a failure, got {s:?}"),
+    }
+    assert!(
+        matches!(server.load_state(allowed.id()), LoadState::Loaded),
+        "{:?}",
+        server.load_state(allowed.id())
+    );
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
@@ -469,6 +525,64 @@ fn pause_single_step_method_change_and_reset() {
     for (v, r) in cage.vertices.iter().zip(rest) {
         assert!((*v - bevy_soft_tissue::convert::to_bevy(r)).length() < 1e-5);
     }
+}
+
+#[test]
+fn a_failed_stage_stops_the_step_there_and_no_nan_reaches_a_mesh() {
+    let scene = cylinders_scene();
+    let (mut app, bodies, world) = scene_app(&scene);
+    let script = Script::builtin("poke-a", &world).unwrap();
+    let dt = world.config().dt;
+    let tool = spawn_tool(&mut app, &script);
+    let a = bodies[0];
+    app.update();
+    let mut k = 0;
+    while level(&app, a) != LevelKind::Precise {
+        k += 1;
+        assert!(k < 400, "the poke never raised A");
+        drive_tool(&mut app, tool, &script, k, dt);
+        app.update();
+    }
+    let status = |app: &App| app.world().resource::<SoftTissueStatus>().clone();
+    let handle = app.world().get::<Mesh3d>(a).unwrap().0.clone();
+    let mesh_before = positions(&app, &handle);
+    let surfaces_before = surfaces(&app, &bodies);
+    let steps = status(&app).steps;
+    // The tool's pose goes bad: the prepare stage fails on it.
+    app.world_mut()
+        .get_mut::<Transform>(tool)
+        .unwrap()
+        .translation
+        .x = f32::NAN;
+    app.update();
+    let s = status(&app);
+    let error = s.error.clone().expect("the step failed");
+    assert!(error.contains("tool"), "{error}");
+    assert!(s.paused);
+    // The stages after the failing one did not run: no step was counted, no state moved,
+    // and the rendered mesh kept its finite positions.
+    assert_eq!(s.steps, steps);
+    assert_eq!(surfaces(&app, &bodies), surfaces_before);
+    let mesh_now = positions(&app, &handle);
+    assert_eq!(mesh_now, mesh_before);
+    assert!(mesh_now.iter().flatten().all(|c| c.is_finite()));
+    // Unpaused with the error still set, nothing runs.
+    app.world_mut().resource_mut::<SoftTissueStatus>().paused = false;
+    app.update();
+    assert_eq!(status(&app).steps, steps);
+    // A reset clears the error though the simulation is stopped, and steps run again.
+    drive_tool(&mut app, tool, &script, 0, dt);
+    app.world_mut().write_message(ResetSimulation);
+    app.update();
+    let s = status(&app);
+    assert!(s.error.is_none(), "{:?}", s.error);
+    assert_eq!(s.steps, 1);
+    assert!(
+        positions(&app, &handle)
+            .iter()
+            .flatten()
+            .all(|c| c.is_finite())
+    );
 }
 
 /// A finer cylinder than the simulation's (Bevy's primitive mesh, 48 around, axis y) of the
