@@ -547,8 +547,8 @@ fn a_body_held_at_its_cage_level_follows_its_precise_twin_under_a_poke() {
     // at its cage level in one and at its precise level in the other. The cage level takes
     // the contact as forces on its cage; it must respond (the poked body moves) and stay
     // within about the dent the precise body takes (the poke goes 15 % of the width deep, a
-    // dent a box cage cannot reproduce; 16 % measured here), so 25 % of the width. Before
-    // the fix it flew tens of widths away.
+    // dent a box cage cannot reproduce): 15.97 % of the width measured, 18 % allowed (the
+    // measured value plus 2 % of the width). Before the fix it flew tens of widths away.
     let mut worlds: Vec<(SoftTissueWorld, Script, usize)> = [Level::Cage, Level::Precise]
         .into_iter()
         .map(|level| {
@@ -583,8 +583,12 @@ fn a_body_held_at_its_cage_level_follows_its_precise_twin_under_a_poke() {
         cage_moved = cage_moved.max(a.diagnostics().max_displacement);
         precise_moved = precise_moved.max(b.diagnostics().max_displacement);
     }
+    eprintln!(
+        "cage level at most {:.2} % of the width from its precise twin",
+        100.0 * worst
+    );
     assert!(
-        worst < 0.25,
+        worst < 0.18,
         "cage level {:.1} % of the width away",
         100.0 * worst
     );

@@ -1,6 +1,8 @@
 //! The rapier3d adapter: bad input is refused by name, and the material, masses, pins and
 //! load reach rapier3d in its units (a cantilever under its own weight bends by the
-//! Euler-Bernoulli amount, within what a coarse linear-tetrahedron bar can do).
+//! Euler-Bernoulli amount, within what a coarse linear-tetrahedron bar can do; a bar pulled
+//! along its axis by its own weight stretches by the closed form the report's comparison
+//! measures against).
 
 use soft_tissue_core::Vec3;
 use soft_tissue_core::mesh::TetMesh;
@@ -112,13 +114,59 @@ fn a_cantilever_bends_by_its_own_weight_as_euler_bernoulli_says() {
         .map(|&i| run.positions[i].x - mesh.positions()[i].x)
         .sum::<f64>()
         / top.len() as f64;
-    // A linear-tetrahedron bar two cells thick is stiffer than the beam (shear locking):
-    // accept 40-130 % of the analytic deflection (the body still sways a little after 6 s:
-    // rapier damps with a damping ratio, not a mass-proportional term).
+    // Measured: 1.074 times the Euler-Bernoulli deflection (0.05368 against 0.05; the bar is
+    // 10 sections long, so shear adds about 1 % (Timoshenko), equal node masses put more of
+    // the load on the surface nodes, and the body still sways a little after 6 s: rapier
+    // damps with a damping ratio, not a mass-proportional term). Allowed: that value plus or
+    // minus 5 % of the analytic deflection.
     assert!(
-        tip > 0.4 * expected && tip < 1.3 * expected,
+        tip > 1.024 * expected && tip < 1.124 * expected,
         "tip {tip}, Euler-Bernoulli {expected}"
     );
     eprintln!("tip {tip} expected {expected} speed {}", run.max_speed);
     assert_eq!(run.step_us.len(), 600);
+}
+
+#[test]
+fn an_axial_bar_stretches_by_its_own_weight_as_the_closed_form_says() {
+    // The peer report's reference: a prismatic bar clamped at y = 0, Poisson ratio 0, a
+    // uniform body force g along +y. Linear elasticity: u(y) = (rho g / E) (L y - y^2 / 2),
+    // nothing across; at the free end rho g L^2 / (2 E). E chosen for 1 % of L there.
+    let (n, h) = (20, 0.05);
+    let mesh = bar(n, h);
+    let (length, side, g) = (n as f64 * h, 2.0 * h, 1.0);
+    let rho = 1.0 / (length * side * side);
+    let young = rho * g * length * length / (2.0 * 0.01 * length);
+    let expected = rho * g * length * length / (2.0 * young);
+    let mut s = setup(&mesh, young, 0.0);
+    s.gravity = Vec3::new(0.0, g, 0.0);
+    // Masses lumped by volume (a quarter of each tetrahedron's mass on each corner), so the
+    // nodal loads are those of a uniform body force.
+    s.masses = vec![0.0; mesh.node_count()];
+    for (tet, v) in mesh.tets().iter().zip(mesh.tet_volumes()) {
+        for &i in tet {
+            s.masses[i as usize] += rho * v / 4.0;
+        }
+    }
+    let run = rapier_fem(&mesh, &s, 600).unwrap();
+    let top: Vec<usize> = (0..mesh.node_count())
+        .filter(|&i| (mesh.positions()[i].y - length).abs() < 1e-9)
+        .collect();
+    let tip = top
+        .iter()
+        .map(|&i| run.positions[i].y - mesh.positions()[i].y)
+        .sum::<f64>()
+        / top.len() as f64;
+    eprintln!(
+        "axial: tip {tip}, closed form {expected}, speed {}",
+        run.max_speed
+    );
+    // The free end's mean axial displacement: 0.10 % from the closed form measured; 0.5 %
+    // allowed. (Node by node this mesh cannot follow the closed form: every cell is split
+    // along the same diagonal, and the static linear-FEM solution on it moves the free end
+    // sideways by 12 % of the axial displacement; the report states that floor per mesh.)
+    assert!(
+        (tip - expected).abs() < 0.005 * expected,
+        "tip {tip}, closed form {expected}"
+    );
 }

@@ -12,7 +12,7 @@ use soft_tissue_core::precision::Level;
 use soft_tissue_core::scenario::Scene;
 use soft_tissue_core::world::{Script, SoftTissueWorld};
 
-use super::{Json, Res, write_file};
+use super::{Csv, Json, Res, cells};
 use crate::realtime::{RunCosts, RunRecorder, triple};
 use crate::simulate::{drive_tool, load_scene};
 
@@ -113,7 +113,7 @@ pub(super) fn budget_section(
          | over 1 ms | over 10 ms | contact / solve |\n|---|---|---|---|---|---|---|"
     )?;
     let mut measured = Vec::new();
-    let mut csv = String::from("scene,stage,median_us,p99_us,max_us,mean_us\n");
+    let mut csv = Csv::new(&["scene", "stage", "median_us", "p99_us", "max_us", "mean_us"])?;
     for (name, scene, script) in &scenes {
         step(&format!("real-time budget: {name}"));
         let (costs, tets, _) = measure(scene, script, steps, runs, None, assets, None)?;
@@ -131,17 +131,23 @@ pub(super) fn budget_section(
             costs.steps_over_10ms,
             ratio(costs.contact_over_solve),
         )?;
-        writeln!(
-            csv,
-            "{name},step,{},{},{},{}",
-            costs.step.median_us, costs.step.p99_us, costs.step.max_us, costs.step.mean_us
-        )?;
+        csv.row(cells![
+            name,
+            "step",
+            costs.step.median_us,
+            costs.step.p99_us,
+            costs.step.max_us,
+            costs.step.mean_us
+        ])?;
         for (stage, t) in &costs.stages {
-            writeln!(
-                csv,
-                "{name},{stage},{},{},{},{}",
-                t.median_us, t.p99_us, t.max_us, t.mean_us
-            )?;
+            csv.row(cells![
+                name,
+                stage,
+                t.median_us,
+                t.p99_us,
+                t.max_us,
+                t.mean_us
+            ])?;
         }
         measured.push((name.clone(), costs));
     }
@@ -287,7 +293,7 @@ pub(super) fn budget_section(
         }
         writeln!(md)?;
     }
-    write_file(out, "realtime_budget.csv", &csv)?;
+    csv.save(out, "realtime_budget.csv")?;
     js.insert(
         "realtime_budget".into(),
         json!({

@@ -238,11 +238,11 @@ pub(super) struct SizeRow {
     pub nodes: usize,
     pub tets: usize,
     pub surface: usize,
-    /// Median step per method (same order as [`SIZE_METHODS`]), us, on one thread; `None`
-    /// where it failed.
-    pub median_us: Vec<Option<f64>>,
-    /// The same on every available core (`None` on a one-core machine or where it failed).
-    pub median_all_us: Vec<Option<f64>>,
+    /// Median step per method (same order as [`SIZE_METHODS`]), us, on one thread, or the
+    /// error that stopped the method (building its body or stepping it).
+    pub median_us: Vec<Result<f64, String>>,
+    /// The same on every available core (`None` on a one-core machine).
+    pub median_all_us: Vec<Option<Result<f64, String>>>,
     /// Matrix and factor bytes of the FEM methods (`None` for the others).
     pub matrix_bytes: Vec<Option<usize>>,
 }
@@ -263,10 +263,12 @@ pub(super) fn growth_exponent(rows: &[SizeRow], method: usize, all: bool) -> Opt
     let pts: Vec<(f64, f64)> = rows
         .iter()
         .filter_map(|r| {
-            let times = if all { &r.median_all_us } else { &r.median_us };
-            times[method]
-                .filter(|t| *t > 0.0)
-                .map(|t| ((r.tets as f64).ln(), t.ln()))
+            let t = if all {
+                r.median_all_us[method].as_ref()?.as_ref().ok()?
+            } else {
+                r.median_us[method].as_ref().ok()?
+            };
+            (*t > 0.0).then(|| ((r.tets as f64).ln(), t.ln()))
         })
         .collect();
     if pts.len() < 2 {
@@ -320,16 +322,15 @@ pub(super) fn mesh_size(
                 bytes = b.matrix_bytes();
                 b.run(m, &mesh, steps / 10, steps)
             });
-            row.median_us.push(measured.ok().map(|r| r.median_us));
+            row.median_us
+                .push(measured.map(|r| r.median_us).map_err(|e| e.to_string()));
             row.matrix_bytes.push(bytes);
-            let all = if threads.count() > 1 {
+            let all = (threads.count() > 1).then(|| {
                 build()
                     .and_then(|mut b| threads.run(|| b.run(m, &mesh, steps / 10, steps)))
-                    .ok()
                     .map(|r| r.median_us)
-            } else {
-                None
-            };
+                    .map_err(|e| e.to_string())
+            });
             row.median_all_us.push(all);
         }
         rows.push(row);

@@ -442,21 +442,18 @@ fn kernel_avx2(packed: &[Lane], k: usize, q: [&[f32]; 3], rest: &[Vec3], out: &m
     kernel::<true>(packed, k, q, rest, out)
 }
 
-/// Runs the widest kernel the CPU supports.
+/// Runs the widest kernel the CPU supports (the portable one when
+/// [`crate::linalg::set_portable_kernels`] forced it).
 #[allow(unsafe_code)]
 fn kernel_dispatch(packed: &[Lane], k: usize, q: [&[f32]; 3], rest: &[Vec3], out: &mut [Vec3]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("fma") {
-            // SAFETY: the CPU has the features `kernel_avx512` is compiled for.
-            unsafe { kernel_avx512(packed, k, q, rest, out) };
-            return;
-        }
-        if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
-            // SAFETY: the CPU has the features `kernel_avx2` is compiled for.
-            unsafe { kernel_avx2(packed, k, q, rest, out) };
-            return;
-        }
+    use crate::linalg::KernelVariant;
+    match crate::linalg::kernel_variant() {
+        // SAFETY: `kernel_variant` saw the features `kernel_avx512` is compiled for.
+        #[cfg(target_arch = "x86_64")]
+        KernelVariant::Avx512 => unsafe { kernel_avx512(packed, k, q, rest, out) },
+        // SAFETY: `kernel_variant` saw the features `kernel_avx2` is compiled for.
+        #[cfg(target_arch = "x86_64")]
+        KernelVariant::Avx2 => unsafe { kernel_avx2(packed, k, q, rest, out) },
+        KernelVariant::Portable => kernel::<false>(packed, k, q, rest, out),
     }
-    kernel::<false>(packed, k, q, rest, out)
 }

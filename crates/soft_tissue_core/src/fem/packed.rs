@@ -288,20 +288,22 @@ fn kernel<const FORCES: bool>(
     stats: &mut LoopStats,
     offset: u32,
 ) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("fma") {
-            // SAFETY: the CPU has the features `packs_avx512` is compiled for.
-            unsafe { packs_avx512::<FORCES>(packs, args, state, out, stats, offset) };
-        } else if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
-            // SAFETY: the CPU has the features `packs_avx2` is compiled for.
-            unsafe { packs_avx2::<FORCES>(packs, args, state, out, stats, offset) };
-        } else {
-            packs_loop::<false, FORCES>(packs, args, state, out, stats, offset);
+    use crate::linalg::KernelVariant;
+    match crate::linalg::kernel_variant() {
+        // SAFETY: `kernel_variant` saw the features `packs_avx512` is compiled for.
+        #[cfg(target_arch = "x86_64")]
+        KernelVariant::Avx512 => unsafe {
+            packs_avx512::<FORCES>(packs, args, state, out, stats, offset)
+        },
+        // SAFETY: `kernel_variant` saw the features `packs_avx2` is compiled for.
+        #[cfg(target_arch = "x86_64")]
+        KernelVariant::Avx2 => unsafe {
+            packs_avx2::<FORCES>(packs, args, state, out, stats, offset)
+        },
+        KernelVariant::Portable => {
+            packs_loop::<false, FORCES>(packs, args, state, out, stats, offset)
         }
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    packs_loop::<false, FORCES>(packs, args, state, out, stats, offset);
 }
 
 struct Args<'a> {

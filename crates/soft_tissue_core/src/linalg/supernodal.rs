@@ -162,20 +162,15 @@ impl SupernodalSolver {
             inv_diag: &self.inv_diag,
             values,
         };
-        #[cfg(target_arch = "x86_64")]
-        {
-            if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("fma") {
-                // SAFETY: the CPU has the features `substitute_avx512` is compiled for.
-                unsafe { substitute_avx512(&parts, x, &mut self.tmp) };
-            } else if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
-                // SAFETY: the CPU has the features `substitute_avx2` is compiled for.
-                unsafe { substitute_avx2(&parts, x, &mut self.tmp) };
-            } else {
-                substitute::<false>(&parts, x, &mut self.tmp);
-            }
+        match super::kernel_variant() {
+            // SAFETY: `kernel_variant` saw the features `substitute_avx512` is compiled for.
+            #[cfg(target_arch = "x86_64")]
+            super::KernelVariant::Avx512 => unsafe { substitute_avx512(&parts, x, &mut self.tmp) },
+            // SAFETY: `kernel_variant` saw the features `substitute_avx2` is compiled for.
+            #[cfg(target_arch = "x86_64")]
+            super::KernelVariant::Avx2 => unsafe { substitute_avx2(&parts, x, &mut self.tmp) },
+            super::KernelVariant::Portable => substitute::<false>(&parts, x, &mut self.tmp),
         }
-        #[cfg(not(target_arch = "x86_64"))]
-        substitute::<false>(&parts, x, &mut self.tmp);
     }
 }
 
