@@ -27,8 +27,8 @@ use std::time::{Duration, Instant};
 mod support;
 use support::{Mutation, SweepSize, mutations};
 
-/// Longest sweep of one input before it counts as a hang (a test build with overflow checks;
-/// the largest shared file takes a few seconds).
+/// Longest sweep of one input before it counts as a hang, times the scale (a test build with
+/// overflow checks; the largest shared file takes a few seconds at scale 1).
 const HANG_GUARD: Duration = Duration::from_secs(60);
 
 #[derive(Debug, Clone, Copy)]
@@ -119,6 +119,8 @@ fn read(reader: Reader, bytes: &[u8], name: &str) -> Result<(), String> {
 struct Outcome {
     runs: usize,
     failures: Vec<String>,
+    /// The slowest read and its mutation.
+    slowest: (Duration, Option<usize>),
 }
 
 /// Every mutation of `input`: panics and errors that do not name the file are failures.
@@ -130,10 +132,16 @@ fn sweep(input: &Input, list: &[Mutation], progress: &AtomicUsize) -> Outcome {
         Err(_) => failures.push(format!("{name} unchanged: panicked")),
         _ => {}
     }
+    let mut slowest = (Duration::ZERO, None);
     for (k, m) in list.iter().enumerate() {
         progress.store(k, Ordering::Relaxed);
         let bytes = m.apply(&input.bytes);
-        match catch_unwind(AssertUnwindSafe(|| read(input.reader, &bytes, name))) {
+        let start = Instant::now();
+        let result = catch_unwind(AssertUnwindSafe(|| read(input.reader, &bytes, name)));
+        if start.elapsed() > slowest.0 {
+            slowest = (start.elapsed(), Some(k));
+        }
+        match result {
             Err(_) => failures.push(format!("{name} ({:?}), {m}: panicked", input.reader)),
             Ok(Err(e)) if e.starts_with("error does not name") => {
                 failures.push(format!("{name} ({:?}), {m}: {e}", input.reader))
@@ -144,6 +152,7 @@ fn sweep(input: &Input, list: &[Mutation], progress: &AtomicUsize) -> Outcome {
     Outcome {
         runs: list.len() + 1,
         failures,
+        slowest,
     }
 }
 
@@ -273,14 +282,18 @@ fn no_reader_panics_or_hangs_on_mutated_real_files() {
                 let _ = tx.send((outcome, start.elapsed()));
             })
         };
-        match rx.recv_timeout(HANG_GUARD) {
+        let guard = HANG_GUARD * scale as u32;
+        match rx.recv_timeout(guard) {
             Ok((outcome, took)) => {
+                let (time, k) = outcome.slowest;
                 eprintln!(
-                    "mutation sweep: {:>5} reads of {} ({} bytes) in {:.1} s",
+                    "mutation sweep: {:>5} reads of {} ({} bytes) in {:.1} s, slowest {:.1} ms ({})",
                     outcome.runs,
                     input.name,
                     input.bytes.len(),
-                    took.as_secs_f64()
+                    took.as_secs_f64(),
+                    time.as_secs_f64() * 1e3,
+                    k.map_or("none".into(), |k| list[k].to_string())
                 );
                 total += outcome.runs;
                 failures.extend(outcome.failures);
@@ -292,7 +305,7 @@ fn no_reader_panics_or_hangs_on_mutated_real_files() {
                     "{} ({:?}): the sweep took over {} s (a hang?), at mutation {k}: {}",
                     input.name,
                     input.reader,
-                    HANG_GUARD.as_secs(),
+                    guard.as_secs(),
                     list[k]
                 );
             }
