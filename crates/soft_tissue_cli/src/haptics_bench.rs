@@ -71,7 +71,7 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
     };
     let recording = match &args.replay {
         Some(path) => Recording::load(path)?,
-        None => Recording::from_script(&script, 1000.0, 1.0),
+        None => Recording::from_script(&script, 1000.0, 1.0)?,
     };
     let (_, axis) = script.pose_at(0.0);
     let tool = world.add_tool(Tool::new("haptic tool", script.tool)?);

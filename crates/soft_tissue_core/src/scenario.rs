@@ -162,6 +162,12 @@ pub enum SceneError {
         /// Parser error with position.
         source: Box<ron::error::SpannedError>,
     },
+    /// The scene's gravity is not finite.
+    #[error("gravity {gravity:?} is not finite")]
+    Gravity {
+        /// The gravity read.
+        gravity: [f64; 3],
+    },
     /// A body's settings are inconsistent or out of range.
     #[error("body {index} ({name}): {message}")]
     Body {
@@ -331,8 +337,13 @@ impl Scene {
         s
     }
 
-    /// Checks every body's settings; the error names the body and the field.
+    /// Checks the gravity and every body's settings; the error names the body and the field.
     pub fn validate(&self) -> Result<(), SceneError> {
+        if !self.gravity.iter().all(|g| g.is_finite()) {
+            return Err(SceneError::Gravity {
+                gravity: self.gravity,
+            });
+        }
         for (index, b) in self.bodies.iter().enumerate() {
             let err = |message: String| SceneError::Body {
                 index,
@@ -469,6 +480,18 @@ mod tests {
             ),
             (140.0, 0.23, 10.0, 10.0, 0.01)
         );
+    }
+
+    #[test]
+    fn a_scene_with_non_finite_gravity_is_refused() {
+        let mut s = Scene::paper_organs();
+        for g in [f64::NAN, f64::INFINITY] {
+            s.gravity = [0.0, g, 0.0];
+            let text = s.to_ron();
+            let e = Scene::from_ron(&text, "g.ron").unwrap_err();
+            assert!(matches!(e, SceneError::Gravity { .. }), "{e}");
+            assert!(e.to_string().starts_with("gravity [0.0, "), "{e}");
+        }
     }
 
     #[test]

@@ -1,7 +1,8 @@
 //! Mesh file formats: reading reference files written by an independent implementation
 //! (meshio, see tests/fixtures/make_fixtures.py), round trips through our writers, every
 //! malformed case with its location, the real-world files in ../shared/meshes when present,
-//! and a no-panic sweep over truncated and corrupted inputs.
+//! and a no-panic sweep over truncated and corrupted inputs (the larger sweep over every
+//! real-world file is `mutation.rs`).
 
 use soft_tissue_core::Vec3;
 use soft_tissue_core::mesh::TetMesh;
@@ -12,6 +13,8 @@ use soft_tissue_core::mesh::io::{
 };
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
+
+mod support;
 
 fn fixtures() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures")
@@ -541,27 +544,10 @@ fn no_panic_on_truncated_or_corrupted_input() {
     }
     inputs.push((V22.as_bytes().to_vec(), MeshFormat::Gmsh));
     inputs.push((VTK.as_bytes().to_vec(), MeshFormat::VtkLegacy));
-    let mut state = 0x9E37_79B9_7F4A_7C15u64;
-    let mut next = move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        state
-    };
     // A copy of `bytes` with one to four bytes replaced (digits, line breaks, signs, noise).
-    let mut corrupt = move |bytes: &[u8]| {
-        let mut b = bytes.to_vec();
-        for _ in 0..1 + next() % 4 {
-            let i = (next() % b.len() as u64) as usize;
-            b[i] = match next() % 4 {
-                0 => b'9',
-                1 => b'\n',
-                2 => b'-',
-                _ => (next() & 0xff) as u8,
-            };
-        }
-        b
-    };
+    let mut rng = support::Rng::new(0x9E37_79B9_7F4A_7C15);
+    let mut corrupt =
+        move |bytes: &[u8]| support::replace_bytes(&mut rng, bytes.len()).apply(bytes);
     for (bytes, format) in &inputs {
         for cut in (0..bytes.len()).step_by((bytes.len() / 97).max(1)) {
             let _ = parse_tet_mesh(&bytes[..cut], *format, "t");

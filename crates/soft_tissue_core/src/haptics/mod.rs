@@ -30,7 +30,9 @@ mod recording;
 mod thread;
 
 pub use coupling::{ContactModel, CouplingParams};
-pub use recording::{CAUTERY_BUTTON, GRAB_BUTTON, RecordedSample, Recording, RecordingError};
+pub use recording::{
+    CAUTERY_BUTTON, GRAB_BUTTON, MAX_RECORDING_SAMPLES, RecordedSample, Recording, RecordingError,
+};
 pub use thread::{
     DeviceMapping, HapticConfig, HapticRun, HapticShared, HapticThread, ToolSample, contact_model,
 };

@@ -14,6 +14,9 @@ pub const GRAB_BUTTON: u32 = 1;
 /// Button bit of the second button (cautery).
 pub const CAUTERY_BUTTON: u32 = 2;
 
+/// Most samples [`Recording::from_script`] makes (a day at 1 kHz is fewer).
+pub const MAX_RECORDING_SAMPLES: usize = 100_000_000;
+
 /// One device sample.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RecordedSample {
@@ -58,6 +61,23 @@ pub enum RecordingError {
     /// No samples.
     #[error("the recording has no samples")]
     Empty,
+    /// A sampling rate that is not positive and finite.
+    #[error("recording rate {rate_hz} Hz must be positive and finite")]
+    BadRate {
+        /// The rate, Hz.
+        rate_hz: f64,
+    },
+    /// Sampling a script would take more than [`MAX_RECORDING_SAMPLES`] samples.
+    #[error(
+        "a recording of {seconds} s at {rate_hz} Hz would exceed {} samples",
+        MAX_RECORDING_SAMPLES
+    )]
+    TooLong {
+        /// Duration, s.
+        seconds: f64,
+        /// Rate, Hz.
+        rate_hz: f64,
+    },
     /// A sample is unusable.
     #[error("recording sample {sample}: {message}")]
     BadSample {
@@ -134,8 +154,13 @@ impl Recording {
             path: name.clone(),
             message: e.to_string(),
         })?;
-        let r: Recording = ron::from_str(&text).map_err(|e| RecordingError::Parse {
-            path: name,
+        Self::from_ron(&text, &name)
+    }
+
+    /// Parses and validates a RON recording; `name` names it in messages.
+    pub fn from_ron(text: &str, name: &str) -> Result<Self, RecordingError> {
+        let r: Recording = ron::from_str(text).map_err(|e| RecordingError::Parse {
+            path: name.to_owned(),
             message: e.to_string(),
         })?;
         r.validate()?;
@@ -144,10 +169,22 @@ impl Recording {
 
     /// Samples `script` at `rate_hz` over its duration plus `tail` seconds: positions from its
     /// path, buttons from its actions (grab sets [`GRAB_BUTTON`], release clears it, a
-    /// cautery power above zero sets [`CAUTERY_BUTTON`]).
-    pub fn from_script(script: &Script, rate_hz: f64, tail: f64) -> Self {
+    /// cautery power above zero sets [`CAUTERY_BUTTON`]). A rate that is not positive and
+    /// finite, or more than [`MAX_RECORDING_SAMPLES`] samples (a script ending far in the future), is an
+    /// error.
+    pub fn from_script(script: &Script, rate_hz: f64, tail: f64) -> Result<Self, RecordingError> {
+        if !(rate_hz.is_finite() && rate_hz > 0.0) {
+            return Err(RecordingError::BadRate { rate_hz });
+        }
         let end = script.end_time() + tail.max(0.0);
-        let n = (end * rate_hz).floor() as usize + 1;
+        let count = (end * rate_hz).floor();
+        if !(count.is_finite() && count < MAX_RECORDING_SAMPLES as f64) {
+            return Err(RecordingError::TooLong {
+                seconds: end,
+                rate_hz,
+            });
+        }
+        let n = count.max(0.0) as usize + 1;
         let mut r = Recording {
             rate_hz,
             samples: Vec::with_capacity(n),
@@ -173,7 +210,7 @@ impl Recording {
                 buttons,
             });
         }
-        r
+        Ok(r)
     }
 
     /// A world script of this session: a waypoint every `every` samples (and the last),
@@ -230,5 +267,65 @@ impl Recording {
             waypoints,
             events,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SCRIPT: &str = "(name: \"poke\", tool: Sphere(radius: 0.5), \
+        waypoints: [(t: 0.0, position: (0.0, 1.0, 0.0), axis: (0.0, 1.0, 0.0)), \
+                    (t: T_END, position: (0.0, 0.0, 0.0), axis: (0.0, 1.0, 0.0))], \
+        events: [(t: 0.1, action: Grab), (t: 0.2, action: Cautery(30.0)), \
+                 (t: 0.3, action: Release), (t: 0.4, action: Cautery(0.0))])";
+
+    fn script(end: &str) -> Script {
+        Script::from_ron(&SCRIPT.replace("T_END", end), "poke.ron").unwrap()
+    }
+
+    #[test]
+    fn a_sampled_script_round_trips_through_ron() {
+        let r = Recording::from_script(&script("0.5"), 100.0, 0.1).unwrap();
+        assert_eq!(r.samples.len(), 61);
+        assert_eq!(r.samples[25].buttons, GRAB_BUTTON | CAUTERY_BUTTON);
+        assert_eq!(r.samples[45].buttons, 0);
+        let text = ron::ser::to_string(&r).unwrap();
+        assert_eq!(Recording::from_ron(&text, "r.ron").unwrap(), r);
+    }
+
+    #[test]
+    fn a_script_ending_far_away_or_a_bad_rate_is_an_error_not_a_panic() {
+        // Once a panic (the sample count overflowed) or an allocation of exabytes.
+        for end in ["1e20", "1e300", "2e5"] {
+            let e = Recording::from_script(&script(end), 1000.0, 1.0).unwrap_err();
+            assert!(matches!(e, RecordingError::TooLong { .. }), "{e}");
+            assert!(e.to_string().contains("would exceed"), "{e}");
+        }
+        for rate in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let e = Recording::from_script(&script("0.5"), rate, 1.0).unwrap_err();
+            assert!(matches!(e, RecordingError::BadRate { .. }), "{e}");
+        }
+    }
+
+    #[test]
+    fn unreadable_recordings_are_typed_errors_naming_the_file() {
+        let e = Recording::from_ron("(rate_hz: 1000.0, samples: [", "r.ron").unwrap_err();
+        assert!(matches!(e, RecordingError::Parse { .. }), "{e}");
+        assert!(e.to_string().starts_with("r.ron: not a recording"), "{e}");
+        let e = Recording::from_ron(
+            "(rate_hz: 1000.0, truncated: false, samples: [\
+             (t: 0.0, position: (0.0, 0.0, 0.0), buttons: 0),\
+             (t: 0.0, position: (0.0, 0.0, 0.0), buttons: 0)])",
+            "r.ron",
+        )
+        .unwrap_err();
+        assert_eq!(
+            e,
+            RecordingError::BadSample {
+                sample: 1,
+                message: "time does not increase"
+            }
+        );
     }
 }
