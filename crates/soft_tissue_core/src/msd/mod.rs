@@ -1067,13 +1067,11 @@ impl MsdBody {
             self.config.cg_max_iterations,
         );
         let stats = match stats {
-            Ok(c) if self.config.cg_must_converge && !c.converged => {
-                Err(MsdError::NotConverged {
-                    iterations: c.iterations,
-                    residual: c.relative_residual,
-                    tolerance: self.config.cg_tolerance,
-                })
-            }
+            Ok(c) if self.config.cg_must_converge && !c.converged => Err(MsdError::NotConverged {
+                iterations: c.iterations,
+                residual: c.relative_residual,
+                tolerance: self.config.cg_tolerance,
+            }),
             other => other.map_err(MsdError::from),
         };
         if stats.is_ok() {
