@@ -26,10 +26,12 @@ pub mod coupling;
 pub mod exchange;
 #[cfg(feature = "haply")]
 pub mod haply;
+mod priority;
 mod recording;
 mod thread;
 
 pub use coupling::{ContactModel, CouplingParams};
+pub use priority::{DEFAULT_REALTIME_LEVEL, HapticPriority, PriorityOutcome, Scheduling};
 pub use recording::{CAUTERY_BUTTON, GRAB_BUTTON, RecordedSample, Recording, RecordingError};
 pub use thread::{
     DeviceMapping, HapticConfig, HapticRun, HapticShared, HapticThread, ToolSample, contact_model,
