@@ -4,7 +4,9 @@
 //! buttons set grab (first button) and cautery (second); after the step the tissue's local
 //! contact model is handed back to the thread, which renders the force between steps.
 //! Removing the component (or despawning the entity) stops the thread and leaves the device
-//! with zero force.
+//! with zero force. The thread asks for real-time scheduling ([`HapticConfig::priority`]);
+//! [`HapticTool::priority`] says what it got, and the physics (Bevy's threads) stays at normal
+//! priority.
 //!
 //! ```no_run
 //! use bevy::prelude::*;
@@ -24,8 +26,8 @@ use std::sync::Arc;
 
 use bevy::prelude::*;
 use soft_tissue_core::haptics::{
-    ContactModel, HapticConfig, HapticDevice, HapticError, HapticShared, HapticThread, ToolSample,
-    contact_model,
+    ContactModel, HapticConfig, HapticDevice, HapticError, HapticShared, HapticThread,
+    PriorityOutcome, ToolSample, contact_model,
 };
 
 use crate::components::{SoftTool, ToolState};
@@ -70,6 +72,12 @@ impl HapticTool {
         cautery_watts: f64,
     ) -> Result<Self, HapticError> {
         let thread = HapticThread::spawn(device, config)?;
+        let priority = thread.priority();
+        if priority.refused.is_some() {
+            warn!("haptic thread priority: {priority}");
+        } else {
+            info!("haptic thread priority: {priority}");
+        }
         let last = thread.shared().tool();
         Ok(HapticTool {
             thread,
@@ -88,6 +96,12 @@ impl HapticTool {
     /// The contact model handed to the thread at the last step.
     pub fn model(&self) -> &ContactModel {
         &self.model
+    }
+
+    /// The scheduling the haptic thread asked for and got (policy and priority, or why the
+    /// request was refused).
+    pub fn priority(&self) -> &PriorityOutcome {
+        self.thread.priority()
     }
 
     /// The state shared with the thread (live tool sample, tick count).

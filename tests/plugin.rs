@@ -804,6 +804,9 @@ fn a_haptic_device_pokes_through_the_haptic_thread_and_feels_the_tissue() {
     assert!(tool_x < inside.x, "tool {tool_x} vs device {}", inside.x);
     assert!(handle.force().norm() <= 8.0 + 1e-9);
     let h = app.world().get::<HapticTool>(tool).unwrap();
+    // The thread got the real time it asks for by default, or says why not.
+    let p = h.priority();
+    assert!(p.is_real_time() || p.refused.is_some(), "{p}");
     assert!(
         h.model().active && h.model().normal.x < 0.0,
         "{:?}",

@@ -1,7 +1,9 @@
 //! `soft-tissue haptics-bench`: a scene stepped in real time on this thread while the haptic
 //! thread replays a recorded session at 1 kHz, coupling the replayed device to the tool and
 //! rendering the contact force from the model each physics step hands over. Prints the haptic
-//! loop's period distribution, missed deadlines and force continuity.
+//! loop's period distribution, missed deadlines and force continuity, and the scheduling the
+//! haptic thread got (real time where the OS allows it; this thread, the physics, stays
+//! normal).
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -10,7 +12,8 @@ use clap::Args;
 use serde_json::json;
 use soft_tissue_core::contact::Tool;
 use soft_tissue_core::haptics::{
-    ContactModel, HapticConfig, HapticThread, Recording, ReplayDevice, contact_model,
+    ContactModel, DEFAULT_REALTIME_LEVEL, HapticConfig, HapticPriority, HapticThread, Recording,
+    ReplayDevice, Scheduling, contact_model,
 };
 use soft_tissue_core::world::{Script, SoftTissueWorld};
 
@@ -45,15 +48,43 @@ pub struct HapticsBenchArgs {
     save_script: Option<PathBuf>,
     /// The haptic thread sleeps until this long before each deadline, then spins,
     /// microseconds. The default spins the whole period (a dedicated core, as haptic loops
-    /// usually run); 300 sleeps most of it (gentler on a shared machine, more jitter).
+    /// usually run) at normal priority; under real time the loop spins at most half the
+    /// period (a real-time thread that never sleeps is throttled by the kernel). 300 sleeps
+    /// most of it (gentler on a shared machine, more jitter at normal priority).
     #[arg(long, default_value_t = 1000.0)]
     spin_us: f64,
+    /// Scheduling of the haptic thread: `realtime` (SCHED_FIFO at level 80 where the OS
+    /// allows it, else the lowest nice value allowed, else normal), `realtime:LEVEL` (1 to 99)
+    /// or `normal` (as the physics thread).
+    #[arg(long, default_value = "realtime", value_parser = parse_priority)]
+    priority: HapticPriority,
     /// One JSON object instead of text.
     #[arg(long)]
     json: bool,
     /// Folder the scene's mesh files are relative to.
     #[arg(long, default_value = "assets")]
     assets: PathBuf,
+}
+
+fn parse_priority(text: &str) -> Result<HapticPriority, String> {
+    let level = match text {
+        "normal" => return Ok(HapticPriority::Normal),
+        "realtime" => DEFAULT_REALTIME_LEVEL,
+        _ => match text.strip_prefix("realtime:").map(str::parse::<u8>) {
+            Some(Ok(level)) => level,
+            _ => {
+                return Err(format!(
+                    "`{text}`: expected `realtime`, `realtime:LEVEL` (1 to 99) or `normal`"
+                ));
+            }
+        },
+    };
+    let p = HapticPriority::RealTime(level);
+    if p.is_valid() {
+        Ok(p)
+    } else {
+        Err(format!("`{text}`: the real-time level must be 1 to 99"))
+    }
 }
 
 pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::Error>> {
@@ -83,6 +114,7 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
         record_seconds: args.seconds + 1.0,
         stats_seconds: args.seconds + 1.0,
         spin_us: args.spin_us,
+        priority: args.priority,
         ..HapticConfig::default()
     };
     let nominal = config.coupling.stiffness;
@@ -189,6 +221,8 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
             "physics_step_max_us": physics_max,
             "physics_steps_late": behind,
             "recorded_samples": run.recording.samples.len(),
+            "haptic_priority": priority_json(&run.priority),
+            "spin_us": run.spin_us,
             "target_p99_le_1100_us": target_met,
             "machine": machine,
         });
@@ -201,6 +235,10 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
             args.seconds,
             run.missed,
             100.0 * run.missed as f64 / run.ticks.max(1) as f64
+        );
+        println!(
+            "haptic thread priority: {}; spin before each deadline {:.0} us",
+            run.priority, run.spin_us
         );
         println!(
             "force: max {:.4}; change per tick: p99 {:.5}, largest {:.5}, largest on a tick that \
@@ -223,4 +261,25 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
         );
     }
     Ok(())
+}
+
+/// The priority outcome as JSON: what was asked, the policy and level (or nice value) the
+/// OS reports, and the refusals.
+fn priority_json(p: &soft_tissue_core::haptics::PriorityOutcome) -> serde_json::Value {
+    let requested = match p.requested {
+        HapticPriority::RealTime(level) => json!({ "real_time": level }),
+        HapticPriority::Normal => json!("normal"),
+    };
+    let obtained = match &p.obtained {
+        Scheduling::RealTime { policy, level } => json!({ "policy": policy, "level": level }),
+        Scheduling::TimeSharing { policy, nice } => json!({ "policy": policy, "nice": nice }),
+        Scheduling::Other(s) => json!({ "policy": s }),
+    };
+    json!({
+        "requested": requested,
+        "obtained": obtained,
+        "real_time": p.is_real_time(),
+        "refused": p.refused,
+        "text": p.to_string(),
+    })
 }

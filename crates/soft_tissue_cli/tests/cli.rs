@@ -304,6 +304,16 @@ fn haptics_bench_reports_records_and_its_session_replays_as_a_script() {
     }
     let ticks = v["ticks"].as_u64().unwrap();
     assert!(ticks > 0);
+    // The priority the haptic thread asked for (real time by default) and what it got: the
+    // level asked, or a stated refusal.
+    let p = &v["haptic_priority"];
+    assert_eq!(p["requested"]["real_time"], 80, "{p}");
+    if p["real_time"].as_bool().unwrap() {
+        assert_eq!(p["obtained"]["level"], 80, "{p}");
+        assert!(p["refused"].is_null(), "{p}");
+    } else {
+        assert!(!p["refused"].as_str().unwrap().is_empty(), "{p}");
+    }
     // The force never exceeds the coupling's clamp (8 scene units).
     assert!(v["max_force"].as_f64().unwrap() <= 8.0 + 1e-9);
     // The recording holds one sample per tick, in increasing time at the haptic rate.
@@ -330,6 +340,45 @@ fn haptics_bench_reports_records_and_its_session_replays_as_a_script() {
         .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--seconds"));
+}
+
+#[cfg(target_os = "linux")]
+#[test]
+fn haptics_bench_names_the_priority_and_keeps_normal_when_asked() {
+    let assets = root().join("assets");
+    let stdout = run_ok(&[
+        "haptics-bench".as_ref(),
+        "--scene".as_ref(),
+        "cylinders".as_ref(),
+        "--script".as_ref(),
+        "poke-a".as_ref(),
+        "--seconds".as_ref(),
+        "0.3".as_ref(),
+        "--spin-us".as_ref(),
+        "300".as_ref(),
+        "--priority".as_ref(),
+        "normal".as_ref(),
+        "--assets".as_ref(),
+        assets.as_os_str(),
+    ]);
+    let text = String::from_utf8_lossy(&stdout);
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("haptic thread priority: "))
+        .unwrap_or_else(|| panic!("no priority line in {text}"));
+    assert!(line.contains("SCHED_OTHER"), "{line}");
+    assert!(line.contains("(asked normal)"), "{line}");
+    assert!(!line.contains("refused"), "{line}");
+    // Levels outside 1 to 99 and unknown words are refused with a message naming the flag.
+    for bad in ["realtime:0", "realtime:100", "fast"] {
+        let out = bin()
+            .args(["haptics-bench", "--priority", bad])
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("--priority") && err.contains(bad), "{err}");
+    }
 }
 
 #[test]

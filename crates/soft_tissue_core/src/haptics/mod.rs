@@ -11,7 +11,10 @@
 //!   the device sample. The physics reads the tool with [`HapticShared::tool`] and publishes
 //!   models with [`HapticShared::publish_model`]; both go through lock-free sequence cells
 //!   ([`exchange::SeqCell`]), so a stalled physics step never stalls the haptic loop, and the
-//!   loop does not allocate.
+//!   loop does not allocate. The thread asks for real-time scheduling ([`HapticPriority`],
+//!   default `SCHED_FIFO` 80 where the OS allows it, else the lowest nice value allowed, else
+//!   normal) and [`HapticThread::priority`] says what it got ([`PriorityOutcome`]); the
+//!   physics thread that spawns it stays at normal priority.
 //! - [`Recording`]: every device sample of a session; saved as RON, replayed exactly by
 //!   [`ReplayDevice`], turned into a world [`crate::world::Script`] with
 //!   [`Recording::to_script`] (and built from one with [`Recording::from_script`]).
@@ -26,10 +29,12 @@ pub mod coupling;
 pub mod exchange;
 #[cfg(feature = "haply")]
 pub mod haply;
+mod priority;
 mod recording;
 mod thread;
 
 pub use coupling::{ContactModel, CouplingParams};
+pub use priority::{DEFAULT_REALTIME_LEVEL, HapticPriority, PriorityOutcome, Scheduling};
 pub use recording::{
     CAUTERY_BUTTON, GRAB_BUTTON, MAX_RECORDING_SAMPLES, RecordedSample, Recording, RecordingError,
 };

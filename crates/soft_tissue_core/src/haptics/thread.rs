@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 
 use super::coupling::{ContactModel, Coupling, CouplingParams, MODEL_WORDS, clamp};
 use super::exchange::SeqCell;
+use super::priority::{self, HapticPriority, PriorityOutcome};
 use super::recording::{RecordedSample, Recording};
 use super::{HapticDevice, HapticError};
 use crate::Vec3;
@@ -46,7 +47,11 @@ pub struct HapticConfig {
     pub coupling: CouplingParams,
     /// Device to scene mapping (not applied to devices that report scene units).
     pub mapping: DeviceMapping,
-    /// The loop sleeps until this long before a deadline, then spins, microseconds.
+    /// The loop sleeps until this long before a deadline, then spins, microseconds. Under a
+    /// real-time policy the loop spins at most half the period, whatever this says: a
+    /// real-time thread that never sleeps is stopped by the kernel's real-time throttling
+    /// (Linux: for 50 ms of every second by default) and starves every other thread of its
+    /// core; one that sleeps is woken on time anyway, as it preempts the normal threads.
     pub spin_us: f64,
     /// Seconds of device samples the session records (allocated up front).
     pub record_seconds: f64,
@@ -54,6 +59,10 @@ pub struct HapticConfig {
     pub stats_seconds: f64,
     /// Cut-off of the low-pass filter on the device velocity, Hz.
     pub velocity_cutoff_hz: f64,
+    /// Scheduling the thread asks for as it starts (default: real time where the OS allows
+    /// it). Only the haptic thread is raised; the thread that spawns it keeps its own. What
+    /// it got is [`HapticThread::priority`].
+    pub priority: HapticPriority,
 }
 
 impl Default for HapticConfig {
@@ -66,6 +75,7 @@ impl Default for HapticConfig {
             record_seconds: 600.0,
             stats_seconds: 600.0,
             velocity_cutoff_hz: 40.0,
+            priority: HapticPriority::default(),
         }
     }
 }
@@ -83,8 +93,8 @@ impl HapticConfig {
                 "stiffness, proxy mass and max force must be finite and > 0",
             );
         }
-        if !(self.spin_us.is_finite() && self.spin_us >= 0.0) {
-            return bad("spin_us", self.spin_us, ">= 0");
+        if !(self.spin_us.is_finite() && (0.0..=1e6).contains(&self.spin_us)) {
+            return bad("spin_us", self.spin_us, "0 to 1e6 (a second)");
         }
         for (what, v) in [
             ("record_seconds", self.record_seconds),
@@ -96,6 +106,11 @@ impl HapticConfig {
         }
         if !(self.velocity_cutoff_hz.is_finite() && self.velocity_cutoff_hz > 0.0) {
             return bad("velocity_cutoff_hz", self.velocity_cutoff_hz, "> 0");
+        }
+        if let HapticPriority::RealTime(level) = self.priority
+            && !self.priority.is_valid()
+        {
+            return bad("priority", f64::from(level), "real-time level 1 to 99");
         }
         let m = &self.mapping;
         let usable = m.scale.is_finite()
@@ -207,6 +222,11 @@ pub struct HapticRun {
     pub recording: Recording,
     /// Why the loop ended early, if a device call failed.
     pub device_error: Option<HapticError>,
+    /// The scheduling the thread asked for and got.
+    pub priority: PriorityOutcome,
+    /// The spin the loop used before each deadline, microseconds: [`HapticConfig::spin_us`],
+    /// at most half the period under real time.
+    pub spin_us: f64,
 }
 
 impl HapticRun {
@@ -237,10 +257,13 @@ fn quantile(values: &[f32], q: f64) -> Option<f64> {
 pub struct HapticThread {
     shared: Arc<HapticShared>,
     handle: Option<JoinHandle<HapticRun>>,
+    priority: PriorityOutcome,
 }
 
 impl HapticThread {
     /// Starts the loop on its own thread. The tool proxy starts at the device's first pose.
+    /// The thread applies [`HapticConfig::priority`] to itself before its first tick and this
+    /// returns once it has (a refused priority is no error: see [`HapticThread::priority`]).
     pub fn spawn(
         mut device: Box<dyn HapticDevice>,
         config: HapticConfig,
@@ -268,14 +291,37 @@ impl HapticThread {
             ticks: AtomicU64::new(0),
         });
         let thread_shared = shared.clone();
+        let (applied, outcome) = std::sync::mpsc::sync_channel(1);
         let handle = std::thread::Builder::new()
             .name("soft-tissue-haptics".into())
-            .spawn(move || run(device, config, mapping, start, &thread_shared))
+            .spawn(move || {
+                let priority = priority::apply(config.priority);
+                // The spawner waits for this; it only fails if the spawner is gone.
+                let _ = applied.send(priority.clone());
+                run(device, config, mapping, start, &thread_shared, priority)
+            })
             .map_err(|e| HapticError::Thread(e.to_string()))?;
+        let priority = match outcome.recv() {
+            Ok(p) => p,
+            Err(_) => {
+                // The thread ended before it reported: it panicked.
+                let _ = handle.join();
+                return Err(HapticError::Thread(
+                    "the haptic thread ended before it started ticking".into(),
+                ));
+            }
+        };
         Ok(HapticThread {
             shared,
             handle: Some(handle),
+            priority,
         })
+    }
+
+    /// The scheduling the thread asked for and got (policy and priority read back from the
+    /// OS, or why the request was refused).
+    pub fn priority(&self) -> &PriorityOutcome {
+        &self.priority
     }
 
     /// The state shared with the loop.
@@ -319,11 +365,15 @@ fn run(
     mapping: DeviceMapping,
     start_position: Vec3,
     shared: &HapticShared,
+    priority: PriorityOutcome,
 ) -> HapticRun {
     let h = 1.0 / config.rate_hz;
     let period = Duration::from_secs_f64(h);
     let late = period / 10;
-    let spin = Duration::from_secs_f64(config.spin_us * 1e-6);
+    let mut spin = Duration::from_secs_f64(config.spin_us * 1e-6);
+    if priority.is_real_time() {
+        spin = spin.min(period / 2);
+    }
     let limit = device.limits().max_force;
     let mut out = HapticRun {
         ticks: 0,
@@ -335,6 +385,8 @@ fn run(
         max_force: 0.0,
         recording: Recording::with_capacity(config.rate_hz, config.record_seconds),
         device_error: None,
+        priority,
+        spin_us: spin.as_secs_f64() * 1e6,
     };
     let mut coupling = Coupling::new(config.coupling, start_position);
     let alpha = {
@@ -618,6 +670,70 @@ mod tests {
     }
 
     #[test]
+    fn normal_priority_leaves_the_thread_at_the_normal_policy_and_says_so() {
+        let thread = HapticThread::spawn(
+            Box::new(NullDevice::new(Vec3::zeros())),
+            HapticConfig {
+                priority: HapticPriority::Normal,
+                ..quick()
+            },
+        )
+        .unwrap();
+        let p = thread.priority().clone();
+        assert_eq!(p.requested, HapticPriority::Normal);
+        assert_eq!(p.refused, None);
+        assert!(!p.is_real_time(), "{p}");
+        #[cfg(target_os = "linux")]
+        assert_eq!(
+            p.obtained,
+            // The spawning thread's policy and nice value, inherited unchanged.
+            priority::current(),
+            "{p}"
+        );
+        let run = thread.stop().unwrap();
+        assert_eq!(run.priority, p, "the run's statistics carry the outcome");
+        assert!((run.spin_us - 300.0).abs() < 1e-6, "{}", run.spin_us);
+    }
+
+    #[test]
+    fn real_time_raises_the_haptic_thread_only_or_states_the_refusal() {
+        let before = priority::current();
+        let thread = HapticThread::spawn(
+            Box::new(NullDevice::new(Vec3::zeros())),
+            HapticConfig {
+                priority: HapticPriority::RealTime(42),
+                spin_us: 1000.0,
+                ..quick()
+            },
+        )
+        .unwrap();
+        let p = thread.priority().clone();
+        assert_eq!(p.requested, HapticPriority::RealTime(42));
+        match (&p.obtained, &p.refused) {
+            // Granted (a privileged process, as on the CI machine): the level asked.
+            (priority::Scheduling::RealTime { level, .. }, None) => assert_eq!(*level, 42),
+            // Refused: the OS's reason, and the loop runs all the same.
+            (_, Some(why)) => assert!(why.contains("real time 42"), "{p}"),
+            _ => panic!("real time neither obtained nor refused: {p}"),
+        }
+        // The spawning thread (the physics) keeps its own scheduling.
+        assert_eq!(priority::current(), before);
+        let shared = thread.shared().clone();
+        while shared.ticks() < 5 {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        let run = thread.stop().unwrap();
+        assert_eq!(run.priority, p);
+        // Under real time the loop sleeps at least half of every period.
+        let want = if p.is_real_time() { 500.0 } else { 1000.0 };
+        assert!(
+            (run.spin_us - want).abs() < 1e-6,
+            "{} vs {want}",
+            run.spin_us
+        );
+    }
+
+    #[test]
     fn bad_settings_are_refused() {
         let mut c = quick();
         c.rate_hz = 0.0;
@@ -637,5 +753,30 @@ mod tests {
                 ..
             })
         ));
+        // A spin too long for a `Duration` is refused, not a panic in the thread.
+        let c = HapticConfig {
+            spin_us: 1e30,
+            ..quick()
+        };
+        assert!(matches!(
+            HapticThread::spawn(Box::new(NullDevice::new(Vec3::zeros())), c),
+            Err(HapticError::BadConfig {
+                what: "spin_us",
+                ..
+            })
+        ));
+        for level in [0, 100] {
+            let c = HapticConfig {
+                priority: HapticPriority::RealTime(level),
+                ..quick()
+            };
+            assert!(matches!(
+                HapticThread::spawn(Box::new(NullDevice::new(Vec3::zeros())), c),
+                Err(HapticError::BadConfig {
+                    what: "priority",
+                    ..
+                })
+            ));
+        }
     }
 }
