@@ -41,7 +41,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::Vec3;
 use crate::boundary::{Boundary, BoundaryError};
-use crate::linalg::{BlockSparse, CgStats, ImplicitSystem, LinalgError};
+use crate::linalg::{BlockSparse, CgStats, ImplicitSystem, LinalgError, NotConverged};
 use crate::material::FemParams;
 use crate::mesh::TetMesh;
 use crate::state::{self, NodalBody, Nodes};
@@ -310,17 +310,8 @@ pub enum FemError {
     },
     /// The step's CG reached its cap above its tolerance while
     /// [`FemConfig::cg_must_converge`] asks for convergence (the state is unchanged).
-    #[error(
-        "the implicit solve did not converge: relative residual {residual:e} after {iterations} iterations (tolerance {tolerance:e})"
-    )]
-    NotConverged {
-        /// Iterations taken (the cap).
-        iterations: u32,
-        /// Final relative residual.
-        residual: f64,
-        /// The tolerance asked for.
-        tolerance: f64,
-    },
+    #[error(transparent)]
+    NotConverged(#[from] NotConverged),
     /// A static solve needs fixed nodes or anchors to remove rigid motions.
     #[error("static solve needs fixed nodes or anchors: the body is free to move rigidly")]
     Unconstrained,
@@ -844,13 +835,11 @@ impl FemBody {
                     self.config.cg_tolerance,
                     self.config.cg_max_iterations,
                 )?;
-                if self.config.cg_must_converge && !stats.cg.converged {
+                if self.config.cg_must_converge
+                    && let Err(e) = stats.cg.require_converged(self.config.cg_tolerance)
+                {
                     self.dv.fill(Vec3::zeros());
-                    return Err(FemError::NotConverged {
-                        iterations: stats.cg.iterations,
-                        residual: stats.cg.relative_residual,
-                        tolerance: self.config.cg_tolerance,
-                    });
+                    return Err(e.into());
                 }
                 stats.solve_us = start.elapsed().as_secs_f64() * 1e6;
             }

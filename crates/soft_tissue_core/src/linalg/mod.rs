@@ -8,7 +8,7 @@ mod supernodal;
 
 pub use bsr::BlockSparse;
 pub use cholesky::{ScalarCholesky, SparseCholesky};
-pub use pcg::{CgStats, ImplicitSystem};
+pub use pcg::{CgStats, ImplicitSystem, NotConverged};
 
 /// `a * b + c`, fused where the calling kernel is compiled for FMA (the vector kernels of the
 /// substitution and the corotational element loop; without FMA `mul_add` would be a library

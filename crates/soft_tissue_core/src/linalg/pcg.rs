@@ -18,6 +18,37 @@ pub struct CgStats {
     pub converged: bool,
 }
 
+/// A solve that stopped at its iteration cap above its tolerance, where convergence was
+/// required (see [`CgStats::require_converged`]).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[error(
+    "the implicit solve did not converge: relative residual {residual:e} after {iterations} iterations (tolerance {tolerance:e})"
+)]
+pub struct NotConverged {
+    /// Iterations taken (the cap).
+    pub iterations: u32,
+    /// Final relative residual.
+    pub residual: f64,
+    /// The tolerance asked for.
+    pub tolerance: f64,
+}
+
+impl CgStats {
+    /// `self` when the solve converged, else the [`NotConverged`] error (`tolerance` is the
+    /// one the solve was given).
+    pub fn require_converged(self, tolerance: f64) -> Result<Self, NotConverged> {
+        if self.converged {
+            Ok(self)
+        } else {
+            Err(NotConverged {
+                iterations: self.iterations,
+                residual: self.relative_residual,
+                tolerance,
+            })
+        }
+    }
+}
+
 /// A symmetric positive definite system over nodes with 3 unknowns each: the matrix (whose
 /// values the owner re-assembles in place), the fixed unknowns, a Cholesky factorization used
 /// as preconditioner or direct solver, and the workspaces of the iteration.

@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::Vec3;
 use crate::boundary::{Boundary, BoundaryError};
-use crate::linalg::{BlockSparse, CgStats, ImplicitSystem, LinalgError};
+use crate::linalg::{BlockSparse, CgStats, ImplicitSystem, LinalgError, NotConverged};
 use crate::material::MsdParams;
 use crate::mesh::TetMesh;
 use crate::state::{self, NodalBody, Nodes};
@@ -234,19 +234,10 @@ pub enum MsdError {
     /// A linear solve failed (implicit integrator).
     #[error("MSD linear solve failed: {0}")]
     Linalg(#[from] LinalgError),
-    /// The implicit CG reached its cap above its tolerance while
+    /// The step's CG reached its cap above its tolerance while
     /// [`MsdConfig::cg_must_converge`] asks for convergence (the state is unchanged).
-    #[error(
-        "the implicit solve did not converge: relative residual {residual:e} after {iterations} iterations (tolerance {tolerance:e})"
-    )]
-    NotConverged {
-        /// Iterations taken (the cap).
-        iterations: u32,
-        /// Final relative residual.
-        residual: f64,
-        /// The tolerance asked for.
-        tolerance: f64,
-    },
+    #[error(transparent)]
+    NotConverged(#[from] NotConverged),
     /// A value given, or produced by a step, is NaN or infinite; a step that produces one is
     /// rolled back.
     #[error("{what} of node {node} is not finite")]
@@ -1067,11 +1058,9 @@ impl MsdBody {
             self.config.cg_max_iterations,
         );
         let stats = match stats {
-            Ok(c) if self.config.cg_must_converge && !c.converged => Err(MsdError::NotConverged {
-                iterations: c.iterations,
-                residual: c.relative_residual,
-                tolerance: self.config.cg_tolerance,
-            }),
+            Ok(c) if self.config.cg_must_converge => c
+                .require_converged(self.config.cg_tolerance)
+                .map_err(MsdError::from),
             other => other.map_err(MsdError::from),
         };
         if stats.is_ok() {
