@@ -67,7 +67,8 @@ pub mod physics;
 pub mod render;
 
 pub use assets::{
-    SceneAsset, SceneLoadError, SceneLoader, SceneLoaderSettings, SoftTissueAssetPlugin, TetMeshAsset,
+    SceneAsset, SceneLoadError, SceneLoader, SceneLoaderSettings, SoftTissueAssetPlugin,
+    TetMeshAsset,
 };
 pub use components::*;
 pub use messages::{BodyTouched, LevelChanged};

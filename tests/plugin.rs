@@ -15,8 +15,8 @@ use bevy_soft_tissue::core::scenario::{PreciseMethod, Scene};
 use bevy_soft_tissue::core::world::{Script, ScriptAction, SoftTissueWorld};
 use bevy_soft_tissue::prelude::*;
 use bevy_soft_tissue::{
-    SceneLoaderSettings, SimulatedBody, SoftBodyError, SoftTissueAssetPlugin, SoftTissueConfig, SoftTissueMeshPlugin,
-    SoftTissuePhysicsPlugin, SoftTissueThreads,
+    SceneLoaderSettings, SimulatedBody, SoftBodyError, SoftTissueAssetPlugin, SoftTissueConfig,
+    SoftTissueMeshPlugin, SoftTissuePhysicsPlugin, SoftTissueThreads,
 };
 
 fn assets() -> &'static Path {

@@ -339,13 +339,11 @@ impl BenchBody {
             } else {
                 FemIntegrator::BackwardEuler
             })?,
-            Solver::Msd(b) if b.config().integrator.is_implicit() => {
-                b.set_integrator(if on {
-                    MsdIntegrator::ImplicitBdf2
-                } else {
-                    MsdIntegrator::ImplicitEuler
-                })?
-            }
+            Solver::Msd(b) if b.config().integrator.is_implicit() => b.set_integrator(if on {
+                MsdIntegrator::ImplicitBdf2
+            } else {
+                MsdIntegrator::ImplicitEuler
+            })?,
             Solver::Msd(_) | Solver::Cage(_) => {}
         }
         Ok(())

@@ -407,10 +407,14 @@ impl Scene {
             }
             let p = &b.placement;
             if let Some(v) = p.translation.iter().find(|v| !v.is_finite()) {
-                return Err(err(format!("placement: translation must be finite, found {v}")));
+                return Err(err(format!(
+                    "placement: translation must be finite, found {v}"
+                )));
             }
             if let Some(v) = p.rotation_deg.iter().find(|v| !v.is_finite()) {
-                return Err(err(format!("placement: rotation_deg must be finite, found {v}")));
+                return Err(err(format!(
+                    "placement: rotation_deg must be finite, found {v}"
+                )));
             }
             if let Some(h) = &b.heat {
                 h.validate().map_err(|e| err(format!("heat: {e}")))?;

@@ -15,8 +15,8 @@ use soft_tissue_core::precision::{Level, PrecisionError};
 use soft_tissue_core::scenario::{PreciseMethod, Scene};
 use soft_tissue_core::state::NodalBody;
 use soft_tissue_core::world::{
-    ContactState, Script, SimBody, SoftTissueWorld, WorldError, collide, detect_contacts,
-    prepare, scene_bodies, step_solvers, switch_precision, writeback,
+    ContactState, Script, SimBody, SoftTissueWorld, WorldError, collide, detect_contacts, prepare,
+    scene_bodies, step_solvers, switch_precision, writeback,
 };
 
 fn assets() -> &'static Path {
@@ -185,12 +185,7 @@ fn a_non_finite_surface_refuses_the_contact_response_and_is_never_written() {
 fn a_switch_from_a_non_finite_cage_is_refused_and_the_body_stays_at_its_cage() {
     let mut s = Staged::cylinders();
     assert_eq!(s.bodies[0].body().level(), Level::Cage);
-    s.bodies[0]
-        .body_mut()
-        .cage_mut()
-        .msd_mut()
-        .velocities_mut()[2]
-        .x = f64::NAN;
+    s.bodies[0].body_mut().cage_mut().msd_mut().velocities_mut()[2].x = f64::NAN;
     let err = s.bodies[0].body_mut().raise().unwrap_err();
     assert!(
         matches!(
@@ -254,7 +249,10 @@ fn a_failed_solver_step_leaves_its_body_halts_the_world_until_resumed_or_reset()
         matches!(&err, WorldError::Precision { body, .. } if body == "Liver"),
         "{text}"
     );
-    assert!(text.contains("external force") && text.contains("node 5"), "{text}");
+    assert!(
+        text.contains("external force") && text.contains("node 5"),
+        "{text}"
+    );
     assert_eq!(level_state(&w.bodies()[liver]), before);
     assert_eq!(surface_bits(&w.bodies()[liver]), surface);
     assert_eq!(w.step_count(), steps);
@@ -264,10 +262,7 @@ fn a_failed_solver_step_leaves_its_body_halts_the_world_until_resumed_or_reset()
     assert_eq!(w.step_count(), steps);
     // Resumed with the cause still there, it fails again in the same way.
     w.resume();
-    assert!(matches!(
-        w.step_fixed(),
-        Err(WorldError::Precision { .. })
-    ));
+    assert!(matches!(w.step_fixed(), Err(WorldError::Precision { .. })));
     w.reset().unwrap();
     assert!(w.halted().is_none());
     poke_until_liver_precise(&mut w, &script);
@@ -343,13 +338,28 @@ fn every_bad_scene_value_is_refused_naming_the_body_and_the_field() {
     );
     // (what the file says instead, the text naming the field)
     let cases: Vec<(String, &str)> = vec![
-        (good.replacen("young_modulus: 140.0", "young_modulus: -140.0", 1), "young_modulus"),
-        (good.replacen("young_modulus: 140.0", "young_modulus: NaN", 1), "young_modulus"),
-        (good.replacen("poisson_ratio: 0.23", "poisson_ratio: 0.5", 1), "poisson_ratio"),
+        (
+            good.replacen("young_modulus: 140.0", "young_modulus: -140.0", 1),
+            "young_modulus",
+        ),
+        (
+            good.replacen("young_modulus: 140.0", "young_modulus: NaN", 1),
+            "young_modulus",
+        ),
+        (
+            good.replacen("poisson_ratio: 0.23", "poisson_ratio: 0.5", 1),
+            "poisson_ratio",
+        ),
         (good.replacen("dt: 0.01", "dt: 0.0", 1), "dt"),
         (good.replacen("mass: 10.0", "mass: inf", 1), "mass"),
-        (good.replacen("damping: 10.0", "damping: -1.0", 1), "damping"),
-        (good.replacen("stiffness: 50.0", "stiffness: NaN", 1), "stiffness"),
+        (
+            good.replacen("damping: 10.0", "damping: -1.0", 1),
+            "damping",
+        ),
+        (
+            good.replacen("stiffness: 50.0", "stiffness: NaN", 1),
+            "stiffness",
+        ),
         (
             good.replacen("meshes/liver.vtk", "meshes/no-such-liver.vtk", 1),
             "no-such-liver.vtk",
@@ -359,12 +369,25 @@ fn every_bad_scene_value_is_refused_naming_the_body_and_the_field() {
             "leaves the assets folder",
         ),
         (
-            good.replacen("translation: (0.0, 0.0, 0.0)", "translation: (NaN, 0.0, 0.0)", 1),
+            good.replacen(
+                "translation: (0.0, 0.0, 0.0)",
+                "translation: (NaN, 0.0, 0.0)",
+                1,
+            ),
             "translation",
         ),
-        (generated.replacen("resolution: 1.0", "resolution: 1e19", 1), "resolution"),
-        (generated.replacen("resolution: 1.0", "resolution: 0.0", 1), "resolution"),
-        (generated.replacen("resolution: 1.0", "resolution: NaN", 1), "resolution"),
+        (
+            generated.replacen("resolution: 1.0", "resolution: 1e19", 1),
+            "resolution",
+        ),
+        (
+            generated.replacen("resolution: 1.0", "resolution: 0.0", 1),
+            "resolution",
+        ),
+        (
+            generated.replacen("resolution: 1.0", "resolution: NaN", 1),
+            "resolution",
+        ),
     ];
     for (text, field) in cases {
         assert_ne!(text, good, "the case for {field} changed nothing");

@@ -119,7 +119,7 @@ fn fem_initially_flat_elements() {
 #[test]
 fn fem_tool_force_100_times_the_weight_then_released() {
     let v = cases("tool force 100x weight", is_fem);
-    assert_eq!(v.len(), 3);
+    assert_eq!(v.len(), 5);
     for c in v {
         check_returns_to_rest(&c, 1.01);
     }

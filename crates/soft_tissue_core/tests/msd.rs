@@ -376,7 +376,8 @@ fn bdf2_is_second_order_and_implicit_euler_first() {
         let omega0 = (k / m).sqrt();
         let zeta_w = gamma / (2.0 * m);
         let wd = (omega0 * omega0 - zeta_w * zeta_w).sqrt();
-        let exact = |t: f64| 0.1 * (-zeta_w * t).exp() * ((wd * t).cos() + zeta_w / wd * (wd * t).sin());
+        let exact =
+            |t: f64| 0.1 * (-zeta_w * t).exp() * ((wd * t).cos() + zeta_w / wd * (wd * t).sin());
         let error = |integrator, dt: f64| {
             let steps = (2.0 / dt).round() as usize;
             let u = oscillator(integrator, k, m, gamma, dt, steps);

@@ -118,9 +118,6 @@ pub(super) fn configs(quick: bool, dt: f64) -> Vec<Config> {
         v.push(precise(pf, "FEM corotational prefactored", dt * s));
     }
     for s in [1.0, 2.0] {
-        v.push(bdf2(pf, "FEM corotational prefactored BDF2", dt * s));
-    }
-    for s in [1.0, 2.0] {
         v.push(precise(li, "FEM linear", dt * s));
     }
     for s in [1.0, 2.0] {

@@ -46,7 +46,10 @@ pub enum MsdIntegrator {
 impl MsdIntegrator {
     /// Whether the integrator solves a linear system (implicit Euler, BDF2).
     pub fn is_implicit(self) -> bool {
-        matches!(self, MsdIntegrator::ImplicitEuler | MsdIntegrator::ImplicitBdf2)
+        matches!(
+            self,
+            MsdIntegrator::ImplicitEuler | MsdIntegrator::ImplicitBdf2
+        )
     }
 }
 
@@ -1178,13 +1181,11 @@ impl MsdBody {
             self.config.cg_max_iterations,
         );
         let stats = match stats {
-            Ok(c) if self.config.cg_must_converge && !c.converged => {
-                Err(MsdError::NotConverged {
-                    iterations: c.iterations,
-                    residual: c.relative_residual,
-                    tolerance: self.config.cg_tolerance,
-                })
-            }
+            Ok(c) if self.config.cg_must_converge && !c.converged => Err(MsdError::NotConverged {
+                iterations: c.iterations,
+                residual: c.relative_residual,
+                tolerance: self.config.cg_tolerance,
+            }),
             other => other.map_err(MsdError::from),
         };
         if stats.is_ok() {

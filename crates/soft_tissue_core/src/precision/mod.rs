@@ -626,9 +626,7 @@ impl LeveledBody {
     pub fn precise_cg(&self) -> Option<CgStats> {
         match &self.precise {
             Precise::Fem(b) if b.model() == FemModel::Corotational => Some(b.last_step().cg),
-            Precise::Msd(b) if b.config().integrator.is_implicit() => {
-                Some(b.last_step().cg)
-            }
+            Precise::Msd(b) if b.config().integrator.is_implicit() => Some(b.last_step().cg),
             _ => None,
         }
     }

@@ -356,7 +356,12 @@ fn collide_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
         let b = b.borrow_mut();
         if b.active {
             b.collider.gather(b.body.node_positions());
-            if let Some(v) = b.collider.positions().iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            if let Some(v) = b
+                .collider
+                .positions()
+                .iter()
+                .position(|p| !p.iter().all(|c| c.is_finite()))
+            {
                 return Err(WorldError::NonFinite {
                     body: b.name.clone(),
                     node: b.collider.nodes()[v] as usize,

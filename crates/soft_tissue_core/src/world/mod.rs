@@ -28,8 +28,8 @@ mod script;
 pub use crate::timing::StageTimes;
 pub use contact_stages::{ContactState, collide, detect_contacts};
 pub use scene::{
-    SceneBody, SceneOptions, body_settings, check_mesh_path, load_mesh, load_mesh_with, placed_mesh,
-    scene_bodies, scene_bodies_with,
+    SceneBody, SceneOptions, body_settings, check_mesh_path, load_mesh, load_mesh_with,
+    placed_mesh, scene_bodies, scene_bodies_with,
 };
 pub use script::{Script, ScriptAction, ScriptError, ScriptEvent, Waypoint};
 
@@ -45,7 +45,7 @@ use crate::heat::{HeatBoundary, HeatError, HeatField, HeatParams};
 use crate::linalg::CgStats;
 use crate::mesh::TetMesh;
 use crate::precision::{
-    BodySettings, Level, LeveledBody, LevelSnapshot, PrecisionError, ShadowError, SwitchRecord,
+    BodySettings, Level, LevelSnapshot, LeveledBody, PrecisionError, ShadowError, SwitchRecord,
 };
 use crate::scenario::SceneError;
 

@@ -69,14 +69,14 @@ pub fn load_mesh_with(
                 .map_err(|e| err(format!("{}: {e}", path.display())))?
                 .mesh
         }
-        MeshSource::Generated { organ, resolution } => organ
-            .generate(*resolution)
-            .map_err(|e| {
+        MeshSource::Generated { organ, resolution } => {
+            organ.generate(*resolution).map_err(|e| {
                 err(format!(
                     "mesh: generating {} at resolution {resolution}: {e}",
                     organ.name()
                 ))
-            })?,
+            })?
+        }
     };
     placed_mesh(&mesh, &spec.placement).map_err(err)
 }
