@@ -77,21 +77,24 @@ pub enum PreciseMethodKind {
     MsdSymplectic,
     /// Mass-spring-damper, linearised implicit Euler.
     MsdImplicit,
+    /// Mass-spring-damper, linearised BDF2 (second order).
+    MsdBdf2,
 }
 
 impl PreciseMethodKind {
     /// Every method, in display order.
-    pub const ALL: [PreciseMethodKind; 6] = [
+    pub const ALL: [PreciseMethodKind; 7] = [
         PreciseMethodKind::LinearFem,
         PreciseMethodKind::CorotationalFem,
         PreciseMethodKind::PrefactoredFem,
         PreciseMethodKind::MsdRk4,
         PreciseMethodKind::MsdSymplectic,
         PreciseMethodKind::MsdImplicit,
+        PreciseMethodKind::MsdBdf2,
     ];
 
     /// Short name (`fem-linear`, `fem-corotational`, `fem-corotational-prefactored`,
-    /// `msd-rk4`, `msd-symplectic`, `msd-implicit`).
+    /// `msd-rk4`, `msd-symplectic`, `msd-implicit`, `msd-bdf2`).
     pub fn name(self) -> &'static str {
         PreciseMethod::from(self).name()
     }
@@ -108,6 +111,7 @@ impl From<PreciseMethod> for PreciseMethodKind {
             PreciseMethod::Msd(MsdIntegrator::Rk4) => PreciseMethodKind::MsdRk4,
             PreciseMethod::Msd(MsdIntegrator::SymplecticEuler) => PreciseMethodKind::MsdSymplectic,
             PreciseMethod::Msd(MsdIntegrator::ImplicitEuler) => PreciseMethodKind::MsdImplicit,
+            PreciseMethod::Msd(MsdIntegrator::ImplicitBdf2) => PreciseMethodKind::MsdBdf2,
         }
     }
 }
@@ -123,6 +127,7 @@ impl From<PreciseMethodKind> for PreciseMethod {
             PreciseMethodKind::MsdRk4 => PreciseMethod::Msd(MsdIntegrator::Rk4),
             PreciseMethodKind::MsdSymplectic => PreciseMethod::Msd(MsdIntegrator::SymplecticEuler),
             PreciseMethodKind::MsdImplicit => PreciseMethod::Msd(MsdIntegrator::ImplicitEuler),
+            PreciseMethodKind::MsdBdf2 => PreciseMethod::Msd(MsdIntegrator::ImplicitBdf2),
         }
     }
 }

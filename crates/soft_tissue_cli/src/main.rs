@@ -131,6 +131,13 @@ struct BenchArgs {
     /// CG iteration cap of the implicit methods (default: the method's own).
     #[arg(long)]
     cg_max_iterations: Option<u32>,
+    /// Time integrator of the FEM methods and of implicit MSD: backward-euler (the
+    /// default) or bdf2 (second order, see the README).
+    #[arg(long, default_value = "backward-euler")]
+    integrator: String,
+    /// Corotational FEM's rotation tolerance, radians (default: the library's, 1e-10).
+    #[arg(long)]
+    rotation_tolerance: Option<f64>,
     /// Untimed steps before timing.
     #[arg(long, default_value_t = 100)]
     warmup: usize,
@@ -412,6 +419,15 @@ fn bench(args: &BenchArgs) -> Res {
         }
     }
     methods.dedup();
+    let bdf2 = match args.integrator.as_str() {
+        "backward-euler" => false,
+        "bdf2" => true,
+        other => {
+            return Err(
+                format!("unknown --integrator '{other}': expected backward-euler or bdf2").into(),
+            );
+        }
+    };
     let threads = soft_tissue_core::parallel::Threads::new(args.threads)?;
     let mut machine = machine();
     machine["threads_used"] = serde_json::json!(threads.count());
@@ -427,6 +443,10 @@ fn bench(args: &BenchArgs) -> Res {
             args.gravity,
             args.cage_vertices,
         )?;
+        body.set_bdf2(bdf2)?;
+        if let Some(tolerance) = args.rotation_tolerance {
+            body.set_rotation_tolerance(tolerance)?;
+        }
         if args.cg_tolerance.is_some() || args.cg_max_iterations.is_some() {
             let (tol, cap) = match method {
                 BenchMethod::MsdImplicit => (1e-6, 50),

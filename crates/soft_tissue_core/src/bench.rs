@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 use crate::Vec3;
 use crate::boundary::Boundary;
 use crate::cage::{CageBody, CageBodyConfig, CageError, FitOptions, box_cage, fitted_cage};
-use crate::fem::{FemBody, FemConfig, FemError, FemModel};
+use crate::fem::{FemBody, FemConfig, FemError, FemIntegrator, FemModel};
 use crate::material::{FemParams, MsdParams};
 use crate::mesh::TetMesh;
 use crate::msd::{MsdBody, MsdConfig, MsdError, MsdIntegrator};
@@ -325,6 +325,34 @@ impl BenchBody {
             Solver::Fem(b) => b.set_cg(tolerance, max_iterations)?,
             Solver::Msd(b) => b.set_cg(tolerance, max_iterations)?,
             Solver::Cage(_) => {}
+        }
+        Ok(())
+    }
+
+    /// Second-order time integration: BDF2 for the FEM methods ([`FemIntegrator::Bdf2`]),
+    /// implicit MSD switched to [`MsdIntegrator::ImplicitBdf2`]; no effect on the explicit
+    /// MSD and the cages.
+    pub fn set_bdf2(&mut self, on: bool) -> Result<(), BenchError> {
+        match &mut self.solver {
+            Solver::Fem(b) => b.set_integrator(if on {
+                FemIntegrator::Bdf2
+            } else {
+                FemIntegrator::BackwardEuler
+            })?,
+            Solver::Msd(b) if b.config().integrator.is_implicit() => b.set_integrator(if on {
+                MsdIntegrator::ImplicitBdf2
+            } else {
+                MsdIntegrator::ImplicitEuler
+            })?,
+            Solver::Msd(_) | Solver::Cage(_) => {}
+        }
+        Ok(())
+    }
+
+    /// Sets [`FemConfig::rotation_tolerance`] of the FEM methods; no effect on the others.
+    pub fn set_rotation_tolerance(&mut self, tolerance: f64) -> Result<(), BenchError> {
+        if let Solver::Fem(b) = &mut self.solver {
+            b.set_rotation_tolerance(tolerance)?;
         }
         Ok(())
     }

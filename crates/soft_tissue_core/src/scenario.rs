@@ -8,6 +8,7 @@
 //! `assets/scenes/cylinders.scene.ron` and `assets/scenes/organs.scene.ron` are these definitions written
 //! out; a test keeps them in sync with [`Scene::paper_cylinders`] and [`Scene::paper_organs`].
 
+use crate::fem::FemIntegrator;
 use crate::material::{FemParams, MsdParams, PAPER_CAGE_MSD};
 use crate::mesh::generate::Organ;
 use serde::{Deserialize, Serialize};
@@ -33,6 +34,10 @@ pub struct FemLevel {
     pub params: FemParams,
     /// Time step, seconds.
     pub dt: f64,
+    /// Time integrator: `BackwardEuler` (the default, also when the field is left out) or
+    /// `Bdf2` (second order; see `FemIntegrator`).
+    #[serde(default)]
+    pub integrator: FemIntegrator,
 }
 
 /// Mass-spring-damper settings of a body (or of its cage).
@@ -189,6 +194,7 @@ pub const CYLINDER_FEM: FemLevel = FemLevel {
         damping: 1.0,
     },
     dt: 0.02,
+    integrator: FemIntegrator::BackwardEuler,
 };
 
 /// The paper's cylinder MSD parameters (section IV-A).
@@ -210,6 +216,7 @@ pub const ORGAN_FEM: FemLevel = FemLevel {
         damping: 10.0,
     },
     dt: 0.01,
+    integrator: FemIntegrator::BackwardEuler,
 };
 
 /// The paper's cage MSD (both scenes): stiffness 50, mass 20, damping 0.3, dt 0.02.

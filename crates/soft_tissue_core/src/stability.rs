@@ -9,7 +9,7 @@
 
 use crate::Vec3;
 use crate::boundary::Boundary;
-use crate::fem::{FemBody, FemConfig, FemError, FemModel, element};
+use crate::fem::{FemBody, FemConfig, FemError, FemIntegrator, FemModel, element};
 use crate::material::{FemParams, MsdParams};
 use crate::mesh::TetMesh;
 use crate::msd::{ExplicitLimit, MsdBody, MsdConfig, MsdError, MsdIntegrator};
@@ -33,6 +33,8 @@ pub enum Disturbance {
 pub enum CaseMethod {
     /// FEM, implicit Euler.
     Fem(FemModel),
+    /// FEM, BDF2 (second order).
+    FemBdf2(FemModel),
     /// Mass-spring-damper with this integrator.
     Msd(MsdIntegrator),
 }
@@ -87,17 +89,24 @@ impl HardCase {
 
     /// The solvers issue's hard cases: for both FEM models Poisson 0.49, Young x1000 and
     /// ten times the step under a kick, initially inverted and flattened elements, a tool
-    /// force of 100 body weights; for the MSD stiff springs x1000 (implicit), the tool force,
-    /// flattened and folded bodies (RK4 and implicit), and RK4 at three times its stability
-    /// limit, substepped and refused.
+    /// force of 100 body weights, each with backward Euler and (linear, corotational) with
+    /// BDF2; for the MSD stiff
+    /// springs x1000 (implicit Euler and BDF2), the tool force, flattened and folded bodies
+    /// (RK4, implicit Euler and BDF2), and RK4 at three times its stability limit,
+    /// substepped and refused.
     pub fn all() -> Vec<HardCase> {
         let mut v = Vec::new();
-        for m in [
+        let models = [
             FemModel::Linear,
             FemModel::Corotational,
             FemModel::CorotationalPrefactored,
-        ] {
-            let f = CaseMethod::Fem(m);
+        ];
+        // BDF2 for the models that take it (not the prefactored one).
+        let fem = models.map(CaseMethod::Fem).into_iter().chain([
+            CaseMethod::FemBdf2(FemModel::Linear),
+            CaseMethod::FemBdf2(FemModel::Corotational),
+        ]);
+        for f in fem {
             v.push(HardCase {
                 poisson: Some(0.49),
                 ..HardCase::new("Poisson 0.49", f, Disturbance::Kick(2.0))
@@ -125,12 +134,15 @@ impl HardCase {
             ));
         }
         let implicit = CaseMethod::Msd(MsdIntegrator::ImplicitEuler);
+        let bdf2 = CaseMethod::Msd(MsdIntegrator::ImplicitBdf2);
         let rk4 = CaseMethod::Msd(MsdIntegrator::Rk4);
-        v.push(HardCase {
-            stiffness_scale: 1000.0,
-            ..HardCase::new("stiffness x1000", implicit, Disturbance::Kick(2.0))
-        });
-        for m in [rk4, implicit] {
+        for m in [implicit, bdf2] {
+            v.push(HardCase {
+                stiffness_scale: 1000.0,
+                ..HardCase::new("stiffness x1000", m, Disturbance::Kick(2.0))
+            });
+        }
+        for m in [rk4, implicit, bdf2] {
             v.push(HardCase::new(
                 "tool force 100x weight",
                 m,
@@ -161,9 +173,15 @@ impl HardCase {
             CaseMethod::Fem(FemModel::Linear) => "FEM linear",
             CaseMethod::Fem(FemModel::Corotational) => "FEM corotational",
             CaseMethod::Fem(FemModel::CorotationalPrefactored) => "FEM corotational prefactored",
+            CaseMethod::FemBdf2(FemModel::Linear) => "FEM linear BDF2",
+            CaseMethod::FemBdf2(FemModel::Corotational) => "FEM corotational BDF2",
+            CaseMethod::FemBdf2(FemModel::CorotationalPrefactored) => {
+                "FEM corotational prefactored BDF2"
+            }
             CaseMethod::Msd(MsdIntegrator::Rk4) => "MSD RK4",
             CaseMethod::Msd(MsdIntegrator::SymplecticEuler) => "MSD symplectic",
             CaseMethod::Msd(MsdIntegrator::ImplicitEuler) => "MSD implicit",
+            CaseMethod::Msd(MsdIntegrator::ImplicitBdf2) => "MSD BDF2",
         }
     }
 }
@@ -347,12 +365,15 @@ pub fn run_case(
     let label = format!("{} ({})", case.name, case.method_name());
     let boundary = Boundary::fixed_below(mesh.positions(), 1, 0.1);
     let mut body = match case.method {
-        CaseMethod::Fem(model) => {
+        CaseMethod::Fem(model) | CaseMethod::FemBdf2(model) => {
             let dt = match case.step {
                 CaseStep::Times(s) | CaseStep::LimitTimes(s) => fem_dt * s,
             };
             let mut c = FemConfig::paper(fem, dt);
             c.model = model;
+            if let CaseMethod::FemBdf2(_) = case.method {
+                c.integrator = FemIntegrator::Bdf2;
+            }
             c.young_modulus *= case.stiffness_scale;
             if let Some(nu) = case.poisson {
                 c.poisson_ratio = nu;

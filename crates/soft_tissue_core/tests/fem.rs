@@ -10,7 +10,7 @@
 
 use nalgebra::{Matrix3, Rotation3};
 use soft_tissue_core::boundary::Boundary;
-use soft_tissue_core::fem::{FemBody, FemConfig, FemModel, MassSpec, element};
+use soft_tissue_core::fem::{FemBody, FemConfig, FemIntegrator, FemModel, MassSpec, element};
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::generate::block;
 use soft_tissue_core::{NodalBody, Vec3};
@@ -31,6 +31,8 @@ fn config(model: FemModel, young: f64, poisson: f64) -> FemConfig {
         stiffness_update_angle: 0.0,
         prefactored_iterations: 1,
         cg_must_converge: false,
+        integrator: FemIntegrator::BackwardEuler,
+        rotation_tolerance: soft_tissue_core::fem::DEFAULT_ROTATION_TOLERANCE,
     }
 }
 
@@ -636,4 +638,258 @@ fn prefactored_refuses_stiffness_damping() {
         .unwrap_err();
     assert!(e.to_string().contains("stiffness_damping"), "{e}");
     assert_eq!(body.model(), FemModel::Corotational);
+}
+
+/// One tetrahedron with three corners clamped: the free corner is a three-degree-of-freedom
+/// linear oscillator `m u'' + alpha m u' + K u = 0` (linear model, `K` the free corner's
+/// stiffness block, `m` its lumped mass). Returns the body and the closed-form displacement
+/// at time `t` from `u(0) = u0`, `u'(0) = 0`, by modes of `K / m`.
+fn oscillator(
+    integrator: FemIntegrator,
+    model: FemModel,
+    dt: f64,
+    alpha: f64,
+) -> (FemBody, Box<dyn Fn(f64, Vec3) -> Vec3>) {
+    let mesh = TetMesh::new(
+        vec![
+            Vec3::zeros(),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(0.3, 0.4, 1.0),
+        ],
+        vec![[0, 1, 2, 3]],
+    )
+    .unwrap();
+    let mut c = config(model, 10.0, 0.3);
+    c.dt = dt;
+    c.mass_damping = alpha;
+    c.integrator = integrator;
+    let body = FemBody::new(&mesh, c, &Boundary::fixed_nodes([0, 1, 2])).unwrap();
+    let k = body.stiffness_at(mesh.positions(), FemModel::Linear);
+    let km = k.blocks()[k.block_index(3, 3).unwrap()] / body.masses()[3];
+    let eig = km.symmetric_eigen();
+    let exact = move |t: f64, u0: Vec3| {
+        let q0 = eig.eigenvectors.transpose() * u0;
+        let q = Vec3::from_fn(|j, _| {
+            let w2 = eig.eigenvalues[j];
+            let wd = (w2 - 0.25 * alpha * alpha).sqrt();
+            let decay = (-0.5 * alpha * t).exp();
+            q0[j] * decay * ((wd * t).cos() + 0.5 * alpha / wd * (wd * t).sin())
+        });
+        eig.eigenvectors * q
+    };
+    (body, Box::new(exact))
+}
+
+/// Largest error over `t` in [0, 2] of the oscillator released from a small displacement,
+/// relative to it.
+fn oscillator_error(integrator: FemIntegrator, model: FemModel, dt: f64, alpha: f64) -> f64 {
+    let (mut body, exact) = oscillator(integrator, model, dt, alpha);
+    let u0 = Vec3::new(0.01, -0.02, 0.015);
+    let rest = body.positions()[3];
+    body.positions_mut()[3] = rest + u0;
+    let steps = (2.0 / dt).round() as usize;
+    let mut worst = 0.0f64;
+    for k in 1..=steps {
+        body.step().unwrap();
+        let e = (body.positions()[3] - rest - exact(k as f64 * dt, u0)).norm();
+        worst = worst.max(e / u0.norm());
+    }
+    worst
+}
+
+/// Against the closed form (linear model; the corotational one differs from it by the
+/// strain): backward Euler's error halves when the step halves (first order), BDF2's falls by
+/// four (second order) and is far smaller at the same step. Ratios checked within [1.8, 2.2]
+/// and [3.6, 4.4].
+#[test]
+fn bdf2_is_second_order_and_backward_euler_first_on_an_oscillator() {
+    let model = FemModel::Linear;
+    for alpha in [0.0, 0.8] {
+        let errors = |integrator| {
+            [0.004, 0.002, 0.001].map(|dt| oscillator_error(integrator, model, dt, alpha))
+        };
+        let be = errors(FemIntegrator::BackwardEuler);
+        let bdf2 = errors(FemIntegrator::Bdf2);
+        println!("alpha {alpha}: backward Euler {be:?}, BDF2 {bdf2:?}");
+        for w in be.windows(2) {
+            let r = w[0] / w[1];
+            assert!((1.8..2.2).contains(&r), "BE ratio {r}: {be:?}");
+        }
+        for w in bdf2.windows(2) {
+            let r = w[0] / w[1];
+            assert!((3.6..4.4).contains(&r), "BDF2 ratio {r}: {bdf2:?}");
+        }
+        assert!(bdf2[0] < 0.1 * be[0], "{be:?} {bdf2:?}");
+    }
+}
+
+/// A cube turning and vibrating (nonlinear corotated forces), corotational CG model, against
+/// BDF2 at a step 16 times finer. The CG model linearizes each step once, at its start, with
+/// the warped stiffness, which leaves out the derivative of the rotations: under rotation of
+/// a deformed body that error (proportional to the strain) makes BDF2 first order, measured
+/// 2.6e-2, 1.2e-2, 5.4e-3 at dt 0.01, 0.005, 0.0025 against backward Euler's 1.6e-2, 9.9e-3,
+/// 6.0e-3. Linearizing at the predicted positions `x + h v` made it second order (ratios
+/// 4.1 and 4.2) but blew up in the ten-times-the-step hard case, so it is not used. Checked:
+/// the error falls with the step.
+#[test]
+fn bdf2_is_second_order_for_the_corotational_models_under_rotation() {
+    let mesh = cube(2);
+    let run = |model: FemModel, integrator: FemIntegrator, dt: f64| {
+        let mut c = config(model, 20.0, 0.3);
+        c.dt = dt;
+        c.integrator = integrator;
+        c.prefactored_iterations = 30;
+        c.cg_tolerance = 1e-12;
+        let mut body = FemBody::new(&mesh, c, &Boundary::free()).unwrap();
+        let centre = Vec3::repeat(0.5);
+        let omega = Vec3::new(0.5, 1.0, 2.0);
+        for (i, x0) in mesh.positions().iter().enumerate() {
+            body.positions_mut()[i] = x0 + 0.05 * Vec3::new(x0.y, -x0.z, x0.x * x0.y);
+            body.velocities_mut()[i] = omega.cross(&(x0 - centre));
+        }
+        let steps = (1.0 / dt).round() as usize;
+        for _ in 0..steps {
+            body.step().unwrap();
+        }
+        body.positions().to_vec()
+    };
+    {
+        let model = FemModel::Corotational;
+        let reference = run(model, FemIntegrator::Bdf2, 0.01 / 16.0);
+        let errors = |integrator| {
+            [0.01, 0.005, 0.0025].map(|dt| {
+                run(model, integrator, dt)
+                    .iter()
+                    .zip(&reference)
+                    .map(|(a, b)| (a - b).norm())
+                    .fold(0.0, f64::max)
+            })
+        };
+        let (bdf2, be) = (
+            errors(FemIntegrator::Bdf2),
+            errors(FemIntegrator::BackwardEuler),
+        );
+        println!("{model:?} errors: BDF2 {bdf2:?}, backward Euler {be:?}");
+        // Converges (at least first order); on the linear part of the motion (the
+        // oscillator test) it is second order.
+        for w in bdf2.windows(2) {
+            let r = w[0] / w[1];
+            assert!(r > 1.8, "{model:?} BDF2 ratio {r}: {bdf2:?}");
+        }
+    }
+}
+
+/// A cantilever under its own weight, damped by mass, stepped with the default corotational
+/// settings (one rotation update a step, the lagged stiffness, a loose CG) comes to rest
+/// within 1e-8 (relative to the tip deflection) of the static solve, with either
+/// integrator: the rotation tolerance no longer leaves it short.
+#[test]
+fn corotational_steps_come_to_rest_on_the_static_solution() {
+    let (len, a) = (4.0, 0.5);
+    let mesh = block(Vec3::zeros(), Vec3::new(len, a, a), [16, 2, 2]).unwrap();
+    let boundary = Boundary::fixed_below(mesh.positions(), 0, 0.0);
+    let mut c = FemConfig::paper(&soft_tissue_core::scenario::ORGAN_FEM.params, 0.01);
+    c.young_modulus = 3000.0;
+    c.poisson_ratio = 0.35;
+    c.mass = MassSpec::Density(1.0);
+    c.mass_damping = 4.0;
+    c.gravity = Vec3::new(0.0, 0.0, -9.81);
+    let mut reference = FemBody::new(&mesh, c, &boundary).unwrap();
+    reference.solve_static(1e-13, 200).unwrap();
+    let tip = (0..mesh.positions().len())
+        .max_by(|&i, &j| mesh.positions()[i].x.total_cmp(&mesh.positions()[j].x))
+        .unwrap();
+    let deflection = (reference.positions()[tip] - mesh.positions()[tip]).norm();
+    assert!(deflection > 0.05 * len, "a visible bend: {deflection}");
+    for (integrator, tolerance) in [
+        (FemIntegrator::BackwardEuler, c.rotation_tolerance),
+        (FemIntegrator::Bdf2, c.rotation_tolerance),
+        (FemIntegrator::BackwardEuler, 1e-4),
+    ] {
+        let mut c = c;
+        c.integrator = integrator;
+        c.rotation_tolerance = tolerance;
+        let mut body = FemBody::new(&mesh, c, &boundary).unwrap();
+        for _ in 0..2000 {
+            body.step().unwrap();
+        }
+        let worst = body
+            .positions()
+            .iter()
+            .zip(reference.positions())
+            .map(|(p, q)| (p - q).norm())
+            .fold(0.0, f64::max)
+            / deflection;
+        println!("{integrator:?}, rotation tolerance {tolerance:e}: {worst:.3e} off");
+        if tolerance == c.rotation_tolerance && tolerance < 1e-8 {
+            assert!(
+                worst < 1e-8,
+                "{integrator:?}: off the static solution by {worst}"
+            );
+        } else {
+            // The former fixed tolerance, 1e-4 rad, left it measurably short (2.9e-5).
+            assert!(worst > 1e-6, "{integrator:?} at {tolerance:e}: {worst}");
+        }
+    }
+}
+
+/// BDF2 on the free stretched cube of `implicit_euler_never_gains_energy`: not monotone
+/// from step to step in general (a two-step method), but the energy stays bounded by its
+/// start (1e-6 slack) and decays under damping. (That it damps less than backward Euler at
+/// frequencies the step resolves is what the oscillator tests show; this cube's modes are
+/// far above `1 / dt`, where both damp them out.)
+#[test]
+fn bdf2_energy_stays_bounded_and_decays() {
+    let mesh = cube(3);
+    for model in [FemModel::Linear, FemModel::Corotational] {
+        for alpha in [0.0, 0.5] {
+            let mut c = config(model, 1000.0, 0.3);
+            c.mass_damping = alpha;
+            c.stiffness_update_angle = 0.01;
+            c.dt = 0.02;
+            c.integrator = FemIntegrator::Bdf2;
+            let mut be = c;
+            be.integrator = FemIntegrator::BackwardEuler;
+            let energy_after = |c: FemConfig| {
+                let mut body = FemBody::new(&mesh, c, &Boundary::free()).unwrap();
+                let stretch = Matrix3::from_diagonal(&Vec3::new(1.2, 0.9, 1.0));
+                for (x, x0) in body.positions_mut().iter_mut().zip(mesh.positions()) {
+                    *x = stretch * x0;
+                }
+                let e0 = body.kinetic_energy() + body.elastic_energy();
+                let mut e = e0;
+                for s in 0..200 {
+                    body.step().unwrap();
+                    e = body.kinetic_energy() + body.elastic_energy();
+                    assert!(
+                        e <= e0 * (1.0 + 1e-6),
+                        "{model:?} alpha {alpha}: step {s} {e0} -> {e}"
+                    );
+                }
+                e / e0
+            };
+            let (kept_bdf2, kept_be) = (energy_after(c), energy_after(be));
+            println!("{model:?} alpha {alpha}: energy kept BDF2 {kept_bdf2:.3}, BE {kept_be:.3}");
+            if alpha > 0.0 {
+                assert!(kept_bdf2 < 0.9, "{model:?}: should decay, kept {kept_bdf2}");
+            }
+        }
+    }
+}
+
+/// The prefactored model takes backward Euler only: BDF2 is refused with an error naming the
+/// field, at build time and at run time (the body keeps its integrator).
+#[test]
+fn prefactored_refuses_bdf2() {
+    let mesh = cube(1);
+    let mut c = config(FemModel::CorotationalPrefactored, 1000.0, 0.3);
+    c.integrator = FemIntegrator::Bdf2;
+    let err = FemBody::new(&mesh, c, &Boundary::free()).unwrap_err();
+    assert!(err.to_string().contains("`integrator`"), "{err}");
+    c.integrator = FemIntegrator::BackwardEuler;
+    let mut body = FemBody::new(&mesh, c, &Boundary::free()).unwrap();
+    assert!(body.set_integrator(FemIntegrator::Bdf2).is_err());
+    assert_eq!(body.integrator(), FemIntegrator::BackwardEuler);
+    body.step().unwrap();
 }

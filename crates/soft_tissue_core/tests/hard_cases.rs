@@ -74,7 +74,7 @@ fn check_returns_to_rest(case: &HardCase, bound: f64) {
 }
 
 fn is_fem(m: CaseMethod) -> bool {
-    matches!(m, CaseMethod::Fem(_))
+    matches!(m, CaseMethod::Fem(_) | CaseMethod::FemBdf2(_))
 }
 
 // FEM: bounded means the energy after the disturbance never exceeds what it was when it
@@ -119,7 +119,7 @@ fn fem_initially_flat_elements() {
 #[test]
 fn fem_tool_force_100_times_the_weight_then_released() {
     let v = cases("tool force 100x weight", is_fem);
-    assert_eq!(v.len(), 3);
+    assert_eq!(v.len(), 5);
     for c in v {
         check_returns_to_rest(&c, 1.01);
     }
@@ -142,9 +142,12 @@ fn every_case_is_listed_once_per_solver() {
 
 #[test]
 fn msd_stiff_springs_implicit() {
-    for c in cases("stiffness x1000", |m| {
+    let v = cases("stiffness x1000", |m| {
         m == CaseMethod::Msd(MsdIntegrator::ImplicitEuler)
-    }) {
+            || m == CaseMethod::Msd(MsdIntegrator::ImplicitBdf2)
+    });
+    assert_eq!(v.len(), 2);
+    for c in v {
         check_returns_to_rest(&c, 1.01);
     }
 }
@@ -158,7 +161,7 @@ fn msd_tool_force_100_times_the_weight_then_released() {
     // do come back). Checked: every step succeeds, the energy stays bounded after release,
     // the body stops, and it ends far closer to rest than at the peak of the pull.
     let v = cases("tool force 100x weight", |m| !is_fem(m));
-    assert_eq!(v.len(), 2);
+    assert_eq!(v.len(), 3);
     for c in v {
         let r = run(&c);
         let name = c.method_name();
@@ -189,10 +192,10 @@ fn msd_tool_force_100_times_the_weight_then_released() {
 
 #[test]
 fn msd_squashed_and_folded() {
-    // Symplectic Euler is not among the cases; RK4 and implicit Euler dissipate.
+    // Symplectic Euler is not among the cases; RK4, implicit Euler and BDF2 dissipate.
     for name in ["initially flat", "initially inverted"] {
         let v = cases(name, |m| !is_fem(m));
-        assert_eq!(v.len(), 2, "{name}");
+        assert_eq!(v.len(), 3, "{name}");
         for c in v {
             check_returns_to_rest(&c, 1.01);
         }

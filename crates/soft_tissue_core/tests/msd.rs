@@ -364,3 +364,40 @@ fn implicit_euler_never_gains_energy_with_stiff_springs() {
         assert!(prev < 0.5 * e0);
     }
 }
+
+/// Against the closed form of the damped oscillator `m u'' + gamma u' + k u = 0` (from
+/// `u = 0.1`, at rest): the largest error over `t` in [0, 2] of implicit Euler halves when the step halves
+/// (first order) and BDF2's falls by four (second order), far below implicit Euler's at the
+/// same step. The motion stays on the spring's axis, where the spring is linear.
+#[test]
+fn bdf2_is_second_order_and_implicit_euler_first() {
+    let (k, m): (f64, f64) = (40.0, 1.0);
+    for gamma in [0.0, 1.5] {
+        let omega0 = (k / m).sqrt();
+        let zeta_w = gamma / (2.0 * m);
+        let wd = (omega0 * omega0 - zeta_w * zeta_w).sqrt();
+        let exact =
+            |t: f64| 0.1 * (-zeta_w * t).exp() * ((wd * t).cos() + zeta_w / wd * (wd * t).sin());
+        let error = |integrator, dt: f64| {
+            let steps = (2.0 / dt).round() as usize;
+            let u = oscillator(integrator, k, m, gamma, dt, steps);
+            u.iter()
+                .enumerate()
+                .map(|(i, u)| (u - exact(i as f64 * dt)).abs() / 0.1)
+                .fold(0.0, f64::max)
+        };
+        let dts = [0.004, 0.002, 0.001];
+        let be = dts.map(|dt| error(MsdIntegrator::ImplicitEuler, dt));
+        let bdf2 = dts.map(|dt| error(MsdIntegrator::ImplicitBdf2, dt));
+        println!("gamma {gamma}: implicit Euler {be:?}, BDF2 {bdf2:?}");
+        for w in be.windows(2) {
+            let r = w[0] / w[1];
+            assert!((1.8..2.2).contains(&r), "implicit Euler ratio {r}: {be:?}");
+        }
+        for w in bdf2.windows(2) {
+            let r = w[0] / w[1];
+            assert!((3.6..4.4).contains(&r), "BDF2 ratio {r}: {bdf2:?}");
+        }
+        assert!(bdf2[0] < 0.1 * be[0], "{be:?} {bdf2:?}");
+    }
+}

@@ -49,6 +49,10 @@ pub struct ReportArgs {
     /// measure one thread and every core whatever this is.
     #[arg(long, default_value_t = 1)]
     threads: usize,
+    /// Run only the speed-against-error sweep (printed, and written to
+    /// `speed_against_error.md` and its CSV in `--out`), not the whole report.
+    #[arg(long)]
+    only_sweep: bool,
 }
 
 /// What one run measured for one body.
@@ -415,6 +419,23 @@ pub fn report(args: &ReportArgs) -> Res<()> {
     let all_cores = soft_tissue_core::parallel::Threads::new(0)?;
     // The scripts' interactions last about 4 s (poke, hold, withdraw) at 100 Hz.
     let steps = if quick { 120 } else { 500 };
+    if args.only_sweep {
+        let (mut md, mut js) = (String::new(), serde_json::Map::new());
+        let configs = sweep::configs(quick, ORGAN_FEM.dt);
+        speed_error_section(
+            &mut md,
+            &mut js,
+            &args.out,
+            assets,
+            &configs,
+            steps as f64 * 0.01,
+            &mut |what: &str| eprintln!("{what}"),
+        )?;
+        let path = args.out.join("speed_against_error.md");
+        std::fs::write(&path, &md).map_err(|e| format!("{}: {e}", path.display()))?;
+        println!("{md}");
+        return Ok(());
+    }
     let pairs = [
         (PreciseMethod::LinearFem, PreciseMethod::LinearFem),
         (PreciseMethod::Msd, PreciseMethod::Msd),

@@ -179,7 +179,7 @@ impl Prefactored {
     /// (Re)factorizes `A` for the body's current time step and damping.
     fn factorize(&mut self, body: &FemBody) -> Result<(), FemError> {
         let n = body.nodes.x.len();
-        let h = body.config.dt;
+        let h = body.config.system_dt();
         let c = (1.0 + h * body.config.mass_damping) / (h * h);
         let kappa = 2.0 * body.mu + KAPPA_LAMBDA * body.lambda;
         let nodes = &body.nodes;
@@ -235,7 +235,7 @@ impl FemBody {
     }
 
     fn prefactored_iterations(&mut self, p: &mut Prefactored) -> Result<(u32, f64, f64), FemError> {
-        let h = self.config.dt;
+        let h = self.config.system_dt();
         let damp = 1.0 + h * self.config.mass_damping;
         let c = damp / (h * h);
         if c != p.inertia {

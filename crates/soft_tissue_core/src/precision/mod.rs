@@ -43,7 +43,7 @@ use crate::boundary::{Boundary, BoundaryError};
 use crate::cage::{
     CageBody, CageBodyConfig, CageError, FitOptions, FitReport, SurfaceFit, box_cage, fitted_cage,
 };
-use crate::fem::{FemBody, FemConfig, FemError, FemModel};
+use crate::fem::{FemBody, FemConfig, FemError, FemIntegrator, FemModel};
 use crate::linalg::CgStats;
 use crate::material::{FemParams, MsdParams, PAPER_CAGE_MSD};
 use crate::mesh::TetMesh;
@@ -74,7 +74,7 @@ pub enum PreciseMethod {
 
 impl PreciseMethod {
     /// Short name: `fem-linear`, `fem-corotational`, `fem-corotational-prefactored`, `msd-rk4`,
-    /// `msd-symplectic`, `msd-implicit`.
+    /// `msd-symplectic`, `msd-implicit`, `msd-bdf2`.
     pub fn name(self) -> &'static str {
         match self {
             PreciseMethod::Fem(FemModel::Linear) => "fem-linear",
@@ -83,6 +83,7 @@ impl PreciseMethod {
             PreciseMethod::Msd(MsdIntegrator::Rk4) => "msd-rk4",
             PreciseMethod::Msd(MsdIntegrator::SymplecticEuler) => "msd-symplectic",
             PreciseMethod::Msd(MsdIntegrator::ImplicitEuler) => "msd-implicit",
+            PreciseMethod::Msd(MsdIntegrator::ImplicitBdf2) => "msd-bdf2",
         }
     }
 }
@@ -128,6 +129,8 @@ pub struct BodySettings {
     pub cage_msd: MsdParams,
     /// Time step of every level, seconds.
     pub dt: f64,
+    /// Time integrator of the FEM methods (their shadow included). Default backward Euler.
+    pub fem_integrator: FemIntegrator,
     /// Gravity on the precise level (the cage level keeps its rest shape instead).
     pub gravity: Vec3,
     /// Fixed nodes and anchors of the precise level.
@@ -147,6 +150,7 @@ impl BodySettings {
             cage: CageKind::BoundingBox,
             cage_msd: PAPER_CAGE_MSD,
             dt,
+            fem_integrator: FemIntegrator::BackwardEuler,
             gravity: Vec3::zeros(),
             boundary: Boundary::free(),
             policy: PrecisionPolicy::default(),
@@ -410,6 +414,7 @@ fn build_precise(mesh: &TetMesh, s: &BodySettings) -> Result<Precise, PrecisionE
             let mut c = FemConfig::paper(&s.fem, s.dt);
             c.model = model;
             c.gravity = s.gravity;
+            c.integrator = s.fem_integrator;
             Precise::Fem(Box::new(FemBody::new(mesh, c, &s.boundary)?))
         }
         PreciseMethod::Msd(integrator) => {
@@ -621,9 +626,7 @@ impl LeveledBody {
     pub fn precise_cg(&self) -> Option<CgStats> {
         match &self.precise {
             Precise::Fem(b) if b.model() == FemModel::Corotational => Some(b.last_step().cg),
-            Precise::Msd(b) if b.config().integrator == MsdIntegrator::ImplicitEuler => {
-                Some(b.last_step().cg)
-            }
+            Precise::Msd(b) if b.config().integrator.is_implicit() => Some(b.last_step().cg),
             _ => None,
         }
     }
@@ -690,6 +693,26 @@ impl LeveledBody {
         if let Some(s) = self.shadow.as_mut() {
             s.body_mut().add_force(node, force);
         }
+    }
+
+    /// Time integrator of the FEM methods ([`BodySettings::fem_integrator`]).
+    pub fn fem_integrator(&self) -> FemIntegrator {
+        self.settings.fem_integrator
+    }
+
+    /// Changes the time integrator of the FEM methods at run time (the precise solver and
+    /// its shadow, when FEM; kept for a later switch to FEM otherwise). The state is kept;
+    /// BDF2 starts a new history from it. Fails, keeping the integrator, when a
+    /// refactorization fails.
+    pub fn set_fem_integrator(&mut self, integrator: FemIntegrator) -> Result<(), PrecisionError> {
+        if let Precise::Fem(b) = &mut self.precise {
+            b.set_integrator(integrator)?;
+        }
+        if let Some(Precise::Fem(s)) = self.shadow.as_deref_mut() {
+            s.set_integrator(integrator)?;
+        }
+        self.settings.fem_integrator = integrator;
+        Ok(())
     }
 
     /// Changes the precise method at run time. At the precise level the new solver takes the
@@ -890,8 +913,12 @@ impl LeveledBody {
                 let to = shadow.body_mut();
                 to.positions_mut().copy_from_slice(from.positions());
                 to.velocities_mut().copy_from_slice(from.velocities());
-                if let Precise::Fem(b) = shadow.as_mut() {
-                    b.sync_rotations();
+                match shadow.as_mut() {
+                    Precise::Fem(b) => {
+                        b.restart_history();
+                        b.sync_rotations();
+                    }
+                    Precise::Msd(b) => b.restart_history(),
                 }
             }
         }
@@ -1173,11 +1200,16 @@ fn load_state(target: &mut Precise, x: &[Vec3], v: &[Vec3], turned: UnitQuaterni
             }
         }
     }
-    // Element rotations matter to the corotational model only (a switch to it syncs them).
-    if let Precise::Fem(b) = target
-        && b.model().is_corotational()
-    {
-        b.sync_rotations_from(turned);
+    // A state from elsewhere: BDF2 starts a new history. Element rotations matter to the
+    // corotational model only (a switch to it syncs them).
+    if let Precise::Msd(b) = target {
+        b.restart_history();
+    }
+    if let Precise::Fem(b) = target {
+        b.restart_history();
+        if b.model().is_corotational() {
+            b.sync_rotations_from(turned);
+        }
     }
 }
 

@@ -143,6 +143,9 @@ pub fn body_settings(
     let msd: MsdParams = spec.msd.map(|m| m.params).unwrap_or(CYLINDER_MSD.params);
     let mut s = BodySettings::new(fem, msd, dt);
     s.precise = method;
+    if let Some(f) = spec.fem {
+        s.fem_integrator = f.integrator;
+    }
     s.cage = spec.cage.kind;
     s.cage_msd = spec.cage.msd.params;
     s.gravity = gravity;
