@@ -69,14 +69,14 @@ pub fn load_mesh_with(
                 .map_err(|e| err(format!("{}: {e}", path.display())))?
                 .mesh
         }
-        MeshSource::Generated { organ, resolution } => organ
-            .generate(*resolution)
-            .map_err(|e| {
+        MeshSource::Generated { organ, resolution } => {
+            organ.generate(*resolution).map_err(|e| {
                 err(format!(
                     "mesh: generating {} at resolution {resolution}: {e}",
                     organ.name()
                 ))
-            })?,
+            })?
+        }
     };
     placed_mesh(&mesh, &spec.placement).map_err(err)
 }
@@ -145,6 +145,7 @@ pub fn body_settings(
     s.precise = method;
     s.cage = spec.cage.kind;
     s.cage_msd = spec.cage.msd.params;
+    s.cage_dynamics = spec.cage.dynamics;
     s.gravity = gravity;
     s.boundary = match spec.anchor {
         Anchor::None => Boundary::free(),
