@@ -113,6 +113,8 @@ impl ReducedModel {
         }
         // Columns of J: the motion of every node per unit motion of one cage coordinate.
         let mut cols: Vec<Vec<Vec3>> = vec![vec![Vec3::zeros(); n]; dim];
+        // `p` indexes a row across every column.
+        #[allow(clippy::needless_range_loop)]
         for p in 0..n {
             let (phi, psi) = (coords.phi(p), coords.psi(p));
             for (v, &w) in phi.iter().enumerate() {
