@@ -8,6 +8,7 @@
 //! `assets/scenes/cylinders.scene.ron` and `assets/scenes/organs.scene.ron` are these definitions written
 //! out; a test keeps them in sync with [`Scene::paper_cylinders`] and [`Scene::paper_organs`].
 
+use crate::cage::CageDynamics;
 use crate::fem::FemIntegrator;
 use crate::material::{FemParams, MsdParams, PAPER_CAGE_MSD};
 use crate::mesh::generate::Organ;
@@ -66,8 +67,12 @@ pub enum CageKind {
 pub struct CageLevel {
     /// Cage shape.
     pub kind: CageKind,
-    /// The MSD that moves the cage vertices.
+    /// The MSD that moves the cage vertices under [`CageDynamics::Paper`].
     pub msd: MsdLevel,
+    /// How the cage moves: calibrated against the body's precise model (the default, also
+    /// for scene files written before this setting) or the paper's cage MSD.
+    #[serde(default)]
+    pub dynamics: CageDynamics,
 }
 
 /// Where a body's tetrahedral mesh comes from.
@@ -219,13 +224,22 @@ pub const ORGAN_FEM: FemLevel = FemLevel {
     integrator: FemIntegrator::BackwardEuler,
 };
 
-/// The paper's cage MSD (both scenes): stiffness 50, mass 20, damping 0.3, dt 0.02.
+/// The cage of both paper scenes: a box, calibrated against the body's precise model. The
+/// paper's cage MSD (stiffness 50, mass 20, damping 0.3, dt 0.02) is kept in `msd` and used
+/// with [`CageDynamics::Paper`] (see [`PAPER_CAGE_MSD_LEVEL`]).
 pub const PAPER_CAGE: CageLevel = CageLevel {
     kind: CageKind::BoundingBox,
     msd: MsdLevel {
         params: PAPER_CAGE_MSD,
         dt: 0.02,
     },
+    dynamics: CageDynamics::Calibrated,
+};
+
+/// The paper's cage exactly: a box moved by the paper's cage MSD.
+pub const PAPER_CAGE_MSD_LEVEL: CageLevel = CageLevel {
+    dynamics: CageDynamics::Paper,
+    ..PAPER_CAGE
 };
 
 impl Scene {

@@ -81,9 +81,11 @@ fn cpu_has_fused_kernels() -> bool {
 /// The portable kernels give the fused kernels' result to rounding and replay bit for bit;
 /// on a CPU with FMA the two differ in the last bits, which shows the setting reached the
 /// kernel. Rounding here: after 150 steps of a poke, the largest node coordinate difference
-/// at most 1e-9 of the largest coordinate (about 2.2). Measured on an AVX-512 CPU: 4.7e-10
-/// at the cage level (its coefficients are `f32`, the displacement added to `f64` rest
-/// positions), 4.4e-16 and 2.7e-15 with the corotational and prefactored models.
+/// at most 1e-9 of the largest coordinate (about 2.2) at the precise level, 1e-7 at the cage
+/// level (its coefficients are `f32`, the displacement added to `f64` rest positions).
+/// Measured on an AVX-512 CPU: 4.7e-10 at the cage level with the paper's cage MSD, 3.7e-9
+/// with the calibrated cage (which follows the poke further), 4.4e-16 and 2.7e-15 with the
+/// corotational and prefactored models.
 #[test]
 fn portable_kernels_agree_with_the_fused_ones_to_rounding_and_replay_exactly() {
     let steps = 150;
@@ -118,8 +120,15 @@ fn portable_kernels_agree_with_the_fused_ones_to_rounding_and_replay_exactly() {
             .fold(0.0, f64::max);
         let scale = fused.iter().map(|v| v.abs()).fold(0.0, f64::max);
         eprintln!("{hold:?}: largest fused/portable difference {largest:e} (scale {scale})");
+        // The cage level evaluates its points with `f32` coefficients (about 6e-8 of the
+        // displacement), and its contact forces feed them back into the cage's dynamics:
+        // its rounding bound is the `f32` one.
+        let bound = match hold {
+            Hold::Cage => 1e-7,
+            Hold::Precise(_) => 1e-9,
+        };
         assert!(
-            largest <= 1e-9 * scale,
+            largest <= bound * scale,
             "{hold:?}: fused and portable differ by {largest:e}"
         );
         if cpu_has_fused_kernels() {

@@ -17,6 +17,7 @@ use std::time::Instant;
 
 use clap::Args;
 use serde_json::json;
+use soft_tissue_core::cage::CageDynamics;
 use soft_tissue_core::contact::Tool;
 use soft_tissue_core::msd::MsdIntegrator;
 use soft_tissue_core::precision::{Level, PreciseMethod as LevelMethod};
@@ -53,6 +54,33 @@ pub struct ReportArgs {
     /// `speed_against_error.md` and its CSV in `--out`), not the whole report.
     #[arg(long)]
     only_sweep: bool,
+    /// How the cages move: `calibrated` (projected from each body's precise model, the
+    /// default) or `paper` (the paper's cage MSD). Applies to the Fig. 5 section; the other sections
+    /// use each scene's setting.
+    #[arg(long, value_enum, default_value = "calibrated")]
+    cage_dynamics: CageDynamicsArg,
+    /// Only the Fig. 5 section (the cage level's error), for quick comparisons of cage
+    /// settings.
+    #[arg(long)]
+    fig5_only: bool,
+}
+
+/// `--cage-dynamics`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum CageDynamicsArg {
+    /// Calibrated against the precise model.
+    Calibrated,
+    /// The paper's cage MSD.
+    Paper,
+}
+
+impl From<CageDynamicsArg> for CageDynamics {
+    fn from(a: CageDynamicsArg) -> Self {
+        match a {
+            CageDynamicsArg::Calibrated => CageDynamics::Calibrated,
+            CageDynamicsArg::Paper => CageDynamics::Paper,
+        }
+    }
 }
 
 /// What one run measured for one body.
@@ -459,6 +487,35 @@ pub fn report(args: &ReportArgs) -> Res<()> {
             ("fitted 128".into(), CageKind::Fitted { vertices: 128 }),
         ]
     };
+    if args.fig5_only {
+        let mut progress = Progress {
+            done: 0,
+            total: 2 * cages.len(),
+            start: Instant::now(),
+        };
+        let mut md = String::from("# Fig. 5 only\n\n");
+        let mut js = Json::new();
+        fig5_section(
+            &mut md,
+            &mut js,
+            &args.out,
+            assets,
+            &cages,
+            steps,
+            args.cage_dynamics.into(),
+            &mut progress,
+        )?;
+        progress.finish();
+        write_file(&args.out, "report.md", &md)?;
+        js.insert("quick".into(), json!(quick));
+        write_file(
+            &args.out,
+            "report.json",
+            &serde_json::to_string_pretty(&serde_json::Value::Object(js))?,
+        )?;
+        println!("wrote {}", args.out.join("report.md").display());
+        return Ok(());
+    }
     let resting: Vec<usize> = if quick {
         vec![0, 4, 16]
     } else {
@@ -677,96 +734,16 @@ pub fn report(args: &ReportArgs) -> Res<()> {
         .and_then(BodyStats::median_precise_us);
 
     // Fig. 5: the cage level's error under the interaction, against the precise level.
-    writeln!(
-        md,
-        "## Fig. 5: error of the cage level\n\n\
-         The cylinders under `poke-a` run twice in lockstep, every body held at its cage level \
-         in one run and at its precise level in the other; per step the mean and the largest \
-         distance between the two runs' nodes of model A, as a percentage of A's smallest \
-         dimension, and over the run the mean of the means and the largest (the paper: at \
-         most 4 % against FEM, 8.1 % against MSD, box cage). Series in \
-         `fig5_<precise>_<cage>.csv`.\n\n\
-         | precise | cage | mean % | max % | cage step us |\n|---|---|---|---|---|"
+    let best_fitted_vs_fem = fig5_section(
+        &mut md,
+        &mut js,
+        &args.out,
+        assets,
+        &cages,
+        steps,
+        args.cage_dynamics.into(),
+        &mut progress,
     )?;
-    let mut fig5 = Vec::new();
-    let mut fig5_series: [Vec<Series>; 2] = [Vec::new(), Vec::new()];
-    let mut best_fitted_vs_fem: Option<(String, f64, f64)> = None;
-    for (precise, tag) in [
-        (PreciseMethod::CorotationalFem, "fem"),
-        (PreciseMethod::Msd, "msd"),
-    ] {
-        for (cage_name, kind) in &cages {
-            progress.step(&format!("fig 5: {tag} vs {cage_name}"));
-            let mut scene = Scene::paper_cylinders(precise, precise);
-            for b in &mut scene.bodies {
-                b.cage.kind = *kind;
-            }
-            let (series, cage_step) = compare_levels(&scene, "poke-a", steps, assets)?;
-            let n = series.len().max(1) as f64;
-            let mean = 100.0 * series.iter().map(|s| s.0).sum::<f64>() / n;
-            let max = 100.0 * series.iter().map(|s| s.1).fold(0.0, f64::max);
-            writeln!(
-                md,
-                "| {} | {cage_name} | {mean:.2} | {max:.2} | {} |",
-                method_name(precise),
-                us(Some(cage_step))
-            )?;
-            let mut csv = Csv::new(&["step", "mean_pct", "max_pct"])?;
-            for (k, (a, b)) in series.iter().enumerate() {
-                csv.row(cells![k + 1, 100.0 * a, 100.0 * b])?;
-            }
-            let slot = usize::from(tag == "msd");
-            for (which, pick) in [("max", true), ("mean", false)] {
-                fig5_series[slot].push(Series {
-                    name: format!("{cage_name} {which}"),
-                    points: series
-                        .iter()
-                        .enumerate()
-                        .map(|(k, (a, b))| ((k + 1) as f64, 100.0 * if pick { *b } else { *a }))
-                        .collect(),
-                    line: true,
-                    markers: false,
-                });
-            }
-            csv.save(
-                &args.out,
-                &format!("fig5_{tag}_{}.csv", cage_name.replace(' ', "")),
-            )?;
-            if tag == "fem"
-                && *kind != CageKind::BoundingBox
-                && best_fitted_vs_fem.as_ref().is_none_or(|b| max < b.1)
-            {
-                best_fitted_vs_fem = Some((cage_name.clone(), max, cage_step));
-            }
-            fig5.push(json!({
-                "precise": method_name(precise), "cage": cage_name,
-                "mean_pct": mean, "max_pct": max, "cage_step_us": cage_step,
-            }));
-        }
-    }
-    for (slot, (tag, name)) in [("fem", "corotational FEM"), ("msd", "MSD (RK4)")]
-        .into_iter()
-        .enumerate()
-    {
-        chart(
-            &args.out.join(format!("fig5_{tag}.png")),
-            &format!("Fig. 5: cage level against {name}, cylinders, poke-a"),
-            Axis {
-                desc: "step",
-                log: false,
-            },
-            Axis {
-                desc: "node distance, % of smallest dimension",
-                log: false,
-            },
-            &fig5_series[slot],
-        )?;
-    }
-    writeln!(
-        md,
-        "\n![Fig. 5 against FEM](fig5_fem.png)\n![Fig. 5 against MSD](fig5_msd.png)\n"
-    )?;
-    js.insert("fig5".into(), json!(fig5));
 
     // Scaling with resting bodies.
     writeln!(
@@ -1071,6 +1048,114 @@ pub fn report(args: &ReportArgs) -> Res<()> {
 }
 
 pub(crate) type Json = serde_json::Map<String, serde_json::Value>;
+
+/// The paper's Fig. 5 section (see [`compare_levels`]): the cylinders under `poke-a` with
+/// every cage of `cages`, moved by `dynamics`, against corotational FEM and MSD (RK4).
+/// Returns the best fitted cage against FEM: name, max %, cage step us.
+#[allow(clippy::too_many_arguments)]
+fn fig5_section(
+    md: &mut String,
+    js: &mut Json,
+    out: &Path,
+    assets: &Path,
+    cages: &[(String, CageKind)],
+    steps: usize,
+    dynamics: CageDynamics,
+    progress: &mut Progress,
+) -> Res<Option<(String, f64, f64)>> {
+    writeln!(
+        *md,
+        "## Fig. 5: error of the cage level\n\n\
+         The cylinders under `poke-a` run twice in lockstep, every body held at its cage level \
+         in one run and at its precise level in the other; per step the mean and the largest \
+         distance between the two runs' nodes of model A, as a percentage of A's smallest \
+         dimension, and over the run the mean of the means and the largest (the paper: at \
+         most 4 % against FEM, 8.1 % against MSD, box cage). Series in \
+         `fig5_<precise>_<cage>.csv`.\n\n\
+         | precise | cage | mean % | max % | cage step us |\n|---|---|---|---|---|"
+    )?;
+    let mut fig5 = Vec::new();
+    let mut fig5_series: [Vec<Series>; 2] = [Vec::new(), Vec::new()];
+    let mut best_fitted_vs_fem: Option<(String, f64, f64)> = None;
+    for (precise, tag) in [
+        (PreciseMethod::CorotationalFem, "fem"),
+        (PreciseMethod::Msd, "msd"),
+    ] {
+        for (cage_name, kind) in cages {
+            progress.step(&format!("fig 5: {tag} vs {cage_name}"));
+            let mut scene = Scene::paper_cylinders(precise, precise);
+            for b in &mut scene.bodies {
+                b.cage.kind = *kind;
+                b.cage.dynamics = dynamics;
+            }
+            let (series, cage_step) = compare_levels(&scene, "poke-a", steps, assets)?;
+            let n = series.len().max(1) as f64;
+            let mean = 100.0 * series.iter().map(|s| s.0).sum::<f64>() / n;
+            let max = 100.0 * series.iter().map(|s| s.1).fold(0.0, f64::max);
+            writeln!(
+                *md,
+                "| {} | {cage_name} | {mean:.2} | {max:.2} | {} |",
+                method_name(precise),
+                us(Some(cage_step))
+            )?;
+            let mut csv = Csv::new(&["step", "mean_pct", "max_pct"])?;
+            for (k, (a, b)) in series.iter().enumerate() {
+                csv.row(cells![k + 1, 100.0 * a, 100.0 * b])?;
+            }
+            let slot = usize::from(tag == "msd");
+            for (which, pick) in [("max", true), ("mean", false)] {
+                fig5_series[slot].push(Series {
+                    name: format!("{cage_name} {which}"),
+                    points: series
+                        .iter()
+                        .enumerate()
+                        .map(|(k, (a, b))| ((k + 1) as f64, 100.0 * if pick { *b } else { *a }))
+                        .collect(),
+                    line: true,
+                    markers: false,
+                });
+            }
+            csv.save(
+                &out,
+                &format!("fig5_{tag}_{}.csv", cage_name.replace(' ', "")),
+            )?;
+            if tag == "fem"
+                && *kind != CageKind::BoundingBox
+                && best_fitted_vs_fem.as_ref().is_none_or(|b| max < b.1)
+            {
+                best_fitted_vs_fem = Some((cage_name.clone(), max, cage_step));
+            }
+            fig5.push(json!({
+                "precise": method_name(precise), "cage": cage_name,
+                "mean_pct": mean, "max_pct": max, "cage_step_us": cage_step,
+            }));
+        }
+    }
+    for (slot, (tag, name)) in [("fem", "corotational FEM"), ("msd", "MSD (RK4)")]
+        .into_iter()
+        .enumerate()
+    {
+        chart(
+            &out.join(format!("fig5_{tag}.png")),
+            &format!("Fig. 5: cage level against {name}, cylinders, poke-a"),
+            Axis {
+                desc: "step",
+                log: false,
+            },
+            Axis {
+                desc: "node distance, % of smallest dimension",
+                log: false,
+            },
+            &fig5_series[slot],
+        )?;
+    }
+    writeln!(
+        *md,
+        "\n![Fig. 5 against FEM](fig5_fem.png)\n![Fig. 5 against MSD](fig5_msd.png)\n"
+    )?;
+    js.insert("fig5".into(), json!(fig5));
+    Ok(best_fitted_vs_fem)
+}
 
 /// Step time against mesh size: the generated liver at several resolutions.
 fn mesh_size_section(

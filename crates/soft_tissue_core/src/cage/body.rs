@@ -7,6 +7,7 @@ use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
 use super::green::{FastScratch, GreenCoordinates, coordinates_at};
+use super::reduced::{ReducedModel, ReducedStepper};
 use super::{Cage, CageError};
 use crate::Vec3;
 use crate::boundary::Boundary;
@@ -151,6 +152,9 @@ pub struct CageBody {
     scratch: FastScratch,
     points: Vec<Vec3>,
     stats: CageStepStats,
+    /// Calibrated dynamics: when set, steps use it instead of the cage MSD's springs (the
+    /// MSD then only holds the cage state).
+    reduced: Option<ReducedStepper>,
 }
 
 impl CageBody {
@@ -217,6 +221,7 @@ impl CageBody {
             coords,
             msd,
             stats: CageStepStats::default(),
+            reduced: None,
         };
         body.update_points()?;
         Ok(body)
@@ -242,6 +247,34 @@ impl CageBody {
         &mut self.msd
     }
 
+    /// Replaces the cage MSD's springs by calibrated dynamics (see
+    /// [`crate::cage::ReducedModel`]) stepped at `dt`, or goes back to the springs (`None`).
+    pub fn set_reduced(
+        &mut self,
+        model: Option<Arc<ReducedModel>>,
+        dt: f64,
+    ) -> Result<(), CageError> {
+        self.reduced = match model {
+            Some(m) => {
+                if m.dim() != 3 * self.cage.vertices().len() {
+                    return Err(CageError::LengthMismatch {
+                        what: "reduced model coordinates (3 per cage vertex)",
+                        expected: 3 * self.cage.vertices().len(),
+                        found: m.dim(),
+                    });
+                }
+                Some(ReducedStepper::new(m, dt)?)
+            }
+            None => None,
+        };
+        Ok(())
+    }
+
+    /// The calibrated dynamics, if the cage uses them.
+    pub fn reduced(&self) -> Option<&Arc<ReducedModel>> {
+        self.reduced.as_ref().map(|r| r.model())
+    }
+
     /// Current cage vertex positions.
     pub fn cage_positions(&self) -> &[Vec3] {
         self.msd.positions()
@@ -260,10 +293,19 @@ impl CageBody {
     /// Advances the cage MSD one step and re-evaluates the embedded points. On error the
     /// state is unchanged.
     pub fn step(&mut self) -> Result<CageStepStats, CageError> {
-        let s = self.msd.step()?;
-        self.stats = CageStepStats {
-            substeps: s.substeps,
-        };
+        if let Some(r) = self.reduced.as_mut() {
+            let nodes = self.msd.nodes_mut();
+            if let Some((what, index)) = nodes.first_non_finite_input() {
+                return Err(CageError::NonFinite { what, index });
+            }
+            r.step(&mut nodes.x, &mut nodes.v, &mut nodes.f_ext)?;
+            self.stats = CageStepStats { substeps: 1 };
+        } else {
+            let s = self.msd.step()?;
+            self.stats = CageStepStats {
+                substeps: s.substeps,
+            };
+        }
         self.update_points()?;
         Ok(self.stats)
     }
@@ -297,7 +339,8 @@ impl CageBody {
 
     /// Applies a force at embedded point `point` for the next step: cage vertex `i` receives
     /// `phi_i f` (the transpose of the coordinates; the face terms are ignored, as in the
-    /// paper). A point out of range is an error.
+    /// paper), or with calibrated dynamics the transpose of the linearised map, face terms
+    /// included. A point out of range is an error.
     pub fn apply_point_force(&mut self, point: usize, force: Vec3) -> Result<(), CageError> {
         if point >= self.coords.point_count() {
             return Err(CageError::InvalidArgument {
@@ -313,6 +356,14 @@ impl CageBody {
                 field: "force",
                 message: format!("not finite: {:?}", [force.x, force.y, force.z]),
             });
+        }
+        if let Some(r) = self.reduced.as_ref() {
+            // Calibrated dynamics: the whole transpose of the linearised map, face terms
+            // included (the generalised force of the projection).
+            let f = &mut self.msd.nodes_mut().f_ext;
+            r.model()
+                .add_point_force(self.coords.phi(point), self.coords.psi(point), force, f);
+            return Ok(());
         }
         let f = self.msd.external_forces_mut();
         for (fi, phi) in f.iter_mut().zip(self.coords.phi(point)) {

@@ -15,6 +15,7 @@
 pub mod build;
 pub mod fit;
 pub mod green;
+pub mod reduced;
 
 mod body;
 use crate::geometry;
@@ -23,6 +24,7 @@ pub use body::{CageBody, CageBodyConfig, CageSprings, CageStepStats};
 pub use build::{FitOptions, box_cage, fitted_cage};
 pub use fit::{FitReport, SurfaceFit};
 pub use green::GreenCoordinates;
+pub use reduced::{CageDynamics, ReducedModel};
 
 use std::collections::HashMap;
 

@@ -40,8 +40,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::Vec3;
 use crate::boundary::{Boundary, BoundaryError};
+use crate::cage::reduced::{ModelKey, PreciseOperators, cached_model};
 use crate::cage::{
-    CageBody, CageBodyConfig, CageError, FitOptions, FitReport, SurfaceFit, box_cage, fitted_cage,
+    CageBody, CageBodyConfig, CageDynamics, CageError, FitOptions, FitReport, ReducedModel,
+    SurfaceFit, box_cage, fitted_cage,
 };
 use crate::fem::{FemBody, FemConfig, FemError, FemIntegrator, FemModel};
 use crate::linalg::CgStats;
@@ -125,8 +127,12 @@ pub struct BodySettings {
     pub msd: MsdParams,
     /// Cage shape.
     pub cage: CageKind,
-    /// Cage MSD parameters (paper: stiffness 50, mass 20, damping 0.3).
+    /// Cage MSD parameters (paper: stiffness 50, mass 20, damping 0.3), used with
+    /// [`CageDynamics::Paper`] only.
     pub cage_msd: MsdParams,
+    /// How the cage moves: calibrated against the precise model (default) or the paper's
+    /// cage MSD.
+    pub cage_dynamics: CageDynamics,
     /// Time step of every level, seconds.
     pub dt: f64,
     /// Time integrator of the FEM methods (their shadow included). Default backward Euler.
@@ -140,8 +146,9 @@ pub struct BodySettings {
 }
 
 impl BodySettings {
-    /// Corotational FEM with `fem`, the paper's MSD and cage MSD otherwise, a box cage, no
-    /// gravity, a free body.
+    /// Corotational FEM with `fem`, `msd` for the MSD method, a box cage calibrated against
+    /// the precise model (the paper's cage MSD parameters kept for
+    /// [`CageDynamics::Paper`]), no gravity, a free body.
     pub fn new(fem: FemParams, msd: MsdParams, dt: f64) -> Self {
         BodySettings {
             precise: PreciseMethod::Fem(FemModel::Corotational),
@@ -149,6 +156,7 @@ impl BodySettings {
             msd,
             cage: CageKind::BoundingBox,
             cage_msd: PAPER_CAGE_MSD,
+            cage_dynamics: CageDynamics::Calibrated,
             dt,
             fem_integrator: FemIntegrator::BackwardEuler,
             gravity: Vec3::zeros(),
@@ -354,6 +362,7 @@ fn build_cage(
     mesh: &TetMesh,
     positions: &[Vec3],
     settings: &BodySettings,
+    precise: &Precise,
 ) -> Result<CageBody, PrecisionError> {
     let nodes = &cage_points(mesh, positions)[..];
     let triangles = mesh.surface().triangles();
@@ -369,6 +378,12 @@ fn build_cage(
         CageKind::Fitted { .. } => fitted_cage(nodes, triangles, &options)?,
     };
     let mut cage_config = CageBodyConfig::paper(settings.dt);
+    if settings.cage_dynamics == CageDynamics::Calibrated {
+        let mut body = CageBody::new(cage_shape, nodes, &cage_config)?;
+        let model = calibrated_model(mesh, nodes, &body, settings, precise)?;
+        body.set_reduced(Some(model), settings.dt)?;
+        return Ok(body);
+    }
     cage_config.msd.stiffness = settings.cage_msd.stiffness;
     cage_config.msd.mass = settings.cage_msd.mass;
     cage_config.msd.damping = settings.cage_msd.damping;
@@ -408,6 +423,117 @@ fn build_cage(
     )?)
 }
 
+/// The cage dynamics projected from `precise` linearised at `nodes` (see
+/// [`ReducedModel`]), from the process-wide cache when an identical body (same nodes, mesh,
+/// cage, method, material and supports) was built before.
+fn calibrated_model(
+    mesh: &TetMesh,
+    nodes: &[Vec3],
+    cage: &CageBody,
+    settings: &BodySettings,
+    precise: &Precise,
+) -> Result<std::sync::Arc<ReducedModel>, PrecisionError> {
+    let body = precise.body();
+    // Linearised where the cage's points stand at rest (unused nodes carry no stiffness).
+    let x = nodes.to_vec();
+    let anchor_k = &body.nodes().anchor_k;
+    let free =
+        !body.fixed().iter().any(|f| f.iter().any(|&b| b)) && anchor_k.iter().all(|&k| k == 0.0);
+    let mut key = ModelKey::default();
+    key.add(settings.precise.name())
+        .floats(nodes.iter().flat_map(|p| p.iter().copied()))
+        .add(mesh.tets())
+        .floats(
+            cage.cage()
+                .vertices()
+                .iter()
+                .flat_map(|p| p.iter().copied()),
+        )
+        .add(cage.cage().triangles())
+        .floats(body.masses().iter().copied())
+        .floats(anchor_k.iter().copied())
+        .add(body.fixed());
+    let key = match precise {
+        Precise::Fem(b) => {
+            let c = b.config();
+            key.floats([
+                c.young_modulus,
+                c.poisson_ratio,
+                c.mass_damping,
+                c.stiffness_damping,
+            ])
+        }
+        Precise::Msd(b) => {
+            let c = b.config();
+            key.floats([c.stiffness, c.mass, c.damping])
+        }
+    }
+    .finish();
+    let coords = cage.coordinates().clone();
+    let model = cached_model(key, || {
+        let masses = body.masses();
+        let fixed = body.fixed();
+        match precise {
+            Precise::Fem(b) => {
+                let k = b.stiffness_at(&x, b.model());
+                let mut mul = |u: &[Vec3], out: &mut [Vec3]| k.mul(u, out);
+                let c = b.config();
+                ReducedModel::project(
+                    cage.cage(),
+                    &coords,
+                    PreciseOperators {
+                        masses,
+                        fixed,
+                        stiffness: &mut mul,
+                        damping: (c.mass_damping, c.stiffness_damping, 0.0),
+                        free,
+                    },
+                )
+            }
+            Precise::Msd(b) => {
+                // K u by central differences of the spring, volume and anchor forces.
+                let size = mesh.bbox().diagonal();
+                let (mut xp, mut fp, mut fm) = (
+                    x.clone(),
+                    vec![Vec3::zeros(); x.len()],
+                    vec![Vec3::zeros(); x.len()],
+                );
+                let mut mul = |u: &[Vec3], out: &mut [Vec3]| {
+                    let umax = u.iter().map(|v| v.amax()).fold(0.0, f64::max);
+                    if umax == 0.0 {
+                        out.fill(Vec3::zeros());
+                        return;
+                    }
+                    let eps = 1e-6 * size / umax;
+                    for ((p, x0), ui) in xp.iter_mut().zip(&x).zip(u) {
+                        *p = x0 + ui * eps;
+                    }
+                    b.spring_forces(&xp, &mut fp);
+                    for ((p, x0), ui) in xp.iter_mut().zip(&x).zip(u) {
+                        *p = x0 - ui * eps;
+                    }
+                    b.spring_forces(&xp, &mut fm);
+                    for ((o, a), m) in out.iter_mut().zip(&fp).zip(&fm) {
+                        *o = (m - a) / (2.0 * eps);
+                    }
+                };
+                ReducedModel::project(
+                    cage.cage(),
+                    &coords,
+                    PreciseOperators {
+                        masses,
+                        fixed,
+                        stiffness: &mut mul,
+                        damping: (0.0, 0.0, b.config().damping),
+                        free,
+                    },
+                )
+            }
+        }
+    })?;
+    Ok(model)
+}
+
 fn build_precise(mesh: &TetMesh, s: &BodySettings) -> Result<Precise, PrecisionError> {
     Ok(match s.precise {
         PreciseMethod::Fem(model) => {
@@ -431,8 +557,8 @@ impl LeveledBody {
     /// starts at rest at the cage level.
     pub fn new(mesh: &TetMesh, settings: BodySettings) -> Result<Self, PrecisionError> {
         let nodes = mesh.positions();
-        let cage = build_cage(mesh, nodes, &settings)?;
         let precise = build_precise(mesh, &settings)?;
+        let cage = build_cage(mesh, nodes, &settings, &precise)?;
         let surface = mesh.surface().vertices().to_vec();
         let fit = SurfaceFit::new(cage.coordinates(), &surface)?;
         let n = nodes.len();
@@ -747,6 +873,12 @@ impl LeveledBody {
             }
         }
         self.precise = next;
+        // A calibrated cage follows its precise model: projected again from the new one.
+        if self.cage.reduced().is_some() {
+            let nodes = self.cage.coordinates().rest_points().to_vec();
+            let model = calibrated_model(mesh, &nodes, &self.cage, &settings, &self.precise)?;
+            self.cage.set_reduced(Some(model), settings.dt)?;
+        }
         if self.cg_must_converge {
             self.set_precise_cg_must_converge(true);
         }
@@ -1137,7 +1269,7 @@ impl LeveledBody {
         // The cage is rebuilt around the settled shape, which it then reproduces exactly at
         // rest: the settled shape is the cage level's rest state and the initial state.
         let settled = self.precise.body().positions().to_vec();
-        let cage = build_cage(mesh, &settled, &self.settings)?;
+        let cage = build_cage(mesh, &settled, &self.settings, &self.precise)?;
         self.install_cage(cage)?;
         self.level = Level::Cage;
         self.pin = pin;

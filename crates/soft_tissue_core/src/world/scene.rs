@@ -148,6 +148,7 @@ pub fn body_settings(
     }
     s.cage = spec.cage.kind;
     s.cage_msd = spec.cage.msd.params;
+    s.cage_dynamics = spec.cage.dynamics;
     s.gravity = gravity;
     s.boundary = match spec.anchor {
         Anchor::None => Boundary::free(),
