@@ -1116,7 +1116,7 @@ fn fig5_section(
                 });
             }
             csv.save(
-                &out,
+                out,
                 &format!("fig5_{tag}_{}.csv", cage_name.replace(' ', "")),
             )?;
             if tag == "fem"
