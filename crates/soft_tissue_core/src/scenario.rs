@@ -12,6 +12,7 @@ use crate::cage::CageDynamics;
 use crate::fem::FemIntegrator;
 use crate::material::{FemParams, MsdParams, PAPER_CAGE_MSD};
 use crate::mesh::generate::Organ;
+use crate::msd::SpringStiffness;
 use serde::{Deserialize, Serialize};
 
 /// The precise method a body rises to when touched.
@@ -48,6 +49,11 @@ pub struct MsdLevel {
     pub params: MsdParams,
     /// Time step, seconds.
     pub dt: f64,
+    /// Where the springs' stiffnesses come from: `params.stiffness` for every spring (the
+    /// paper, the default, also for scene files written before this setting) or fitted to a
+    /// material. Not used by a cage's MSD.
+    #[serde(default)]
+    pub spring_stiffness: SpringStiffness,
 }
 
 /// The kind of cage used at the cheap level.
@@ -210,6 +216,7 @@ pub const CYLINDER_MSD: MsdLevel = MsdLevel {
         damping: 0.4,
     },
     dt: 0.02,
+    spring_stiffness: SpringStiffness::Constant,
 };
 
 /// The paper's organ FEM parameters (section IV-B).
@@ -232,6 +239,7 @@ pub const PAPER_CAGE: CageLevel = CageLevel {
     msd: MsdLevel {
         params: PAPER_CAGE_MSD,
         dt: 0.02,
+        spring_stiffness: SpringStiffness::Constant,
     },
     dynamics: CageDynamics::Calibrated,
 };
@@ -389,6 +397,9 @@ impl Scene {
                         .msd
                         .ok_or_else(|| err("the Msd precise method needs `msd` settings".into()))?;
                     m.params.validate().map_err(|e| err(format!("msd: {e}")))?;
+                    m.spring_stiffness
+                        .validate()
+                        .map_err(|(field, e)| err(format!("msd: {field} {e}")))?;
                     if !dt_ok(m.dt) {
                         return Err(err(format!("msd: dt must be positive, found {}", m.dt)));
                     }

@@ -6,7 +6,8 @@
 use soft_tissue_core::boundary::Boundary;
 use soft_tissue_core::mesh::generate::block;
 use soft_tissue_core::msd::{
-    ExplicitLimit, MsdBody, MsdConfig, MsdError, MsdIntegrator, Spring, SpringSet,
+    ExplicitLimit, MsdBody, MsdConfig, MsdError, MsdIntegrator, Spring, SpringSet, SpringStiffness,
+    fit_tet_springs,
 };
 use soft_tissue_core::{NodalBody, Vec3};
 
@@ -17,6 +18,7 @@ fn config(integrator: MsdIntegrator, dt: f64, damping: f64) -> MsdConfig {
         mass: 1.0,
         damping,
         springs: SpringSet::Edges,
+        spring_stiffness: SpringStiffness::Constant,
         volume_stiffness: 0.0,
         dt,
         gravity: Vec3::zeros(),
@@ -399,5 +401,177 @@ fn bdf2_is_second_order_and_implicit_euler_first() {
             assert!((3.6..4.4).contains(&r), "BDF2 ratio {r}: {bdf2:?}");
         }
         assert!(bdf2[0] < 0.1 * be[0], "{be:?} {bdf2:?}");
+    }
+}
+
+/// The linear FEM stiffness of one tetrahedron assembled the textbook way, `V Bᵀ D B` with
+/// Voigt strains, independently of the inner products the fit uses.
+fn fem_element_stiffness(p: [Vec3; 4], e: f64, nu: f64) -> nalgebra::DMatrix<f64> {
+    let m = nalgebra::Matrix4::from_fn(|i, j| if j == 0 { 1.0 } else { p[i][j - 1] });
+    let volume = m.determinant().abs() / 6.0;
+    let c = m.try_inverse().unwrap();
+    let lambda = e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
+    let mu = e / (2.0 * (1.0 + nu));
+    let mut b = nalgebra::DMatrix::<f64>::zeros(6, 12);
+    for i in 0..4 {
+        let (gx, gy, gz) = (c[(1, i)], c[(2, i)], c[(3, i)]);
+        let rows = [
+            [gx, 0.0, 0.0],
+            [0.0, gy, 0.0],
+            [0.0, 0.0, gz],
+            [gy, gx, 0.0],
+            [0.0, gz, gy],
+            [gz, 0.0, gx],
+        ];
+        for (r, row) in rows.iter().enumerate() {
+            for (k, v) in row.iter().enumerate() {
+                b[(r, 3 * i + k)] = *v;
+            }
+        }
+    }
+    let mut d = nalgebra::DMatrix::<f64>::zeros(6, 6);
+    for i in 0..3 {
+        for j in 0..3 {
+            d[(i, j)] = lambda;
+        }
+        d[(i, i)] += 2.0 * mu;
+        d[(i + 3, i + 3)] = mu;
+    }
+    b.transpose() * d * b * volume
+}
+
+/// The rest-state stiffness of the six edge springs with stiffnesses `k`.
+fn spring_stiffness_matrix(p: [Vec3; 4], k: [f64; 6]) -> nalgebra::DMatrix<f64> {
+    let edges = [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]];
+    let mut out = nalgebra::DMatrix::<f64>::zeros(12, 12);
+    for (e, &[a, b]) in edges.iter().enumerate() {
+        let d = (p[b] - p[a]).normalize();
+        let dd = d * d.transpose() * k[e];
+        for (i, si) in [(a, -1.0), (b, 1.0)] {
+            for (j, sj) in [(a, -1.0), (b, 1.0)] {
+                for r in 0..3 {
+                    for c in 0..3 {
+                        out[(3 * i + r, 3 * j + c)] += si * sj * dd[(r, c)];
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Lloyd, Székely and Harders (2007): a regular tetrahedron of edge `l` with Poisson ratio 1/4
+/// is matched by springs of stiffness `2 √2 E l / 25`.
+#[test]
+fn material_springs_match_lloyds_closed_form_on_a_regular_tetrahedron() {
+    for (e, scale) in [(1.0, 1.0), (140.0, 0.3), (5e3, 2.5)] {
+        let p = [
+            Vec3::new(1.0, 1.0, 1.0) * scale,
+            Vec3::new(1.0, -1.0, -1.0) * scale,
+            Vec3::new(-1.0, 1.0, -1.0) * scale,
+            Vec3::new(-1.0, -1.0, 1.0) * scale,
+        ];
+        let l = 8f64.sqrt() * scale;
+        let expected = 2.0 * 2f64.sqrt() / 25.0 * e * l;
+        for k in fit_tet_springs(p, e, 0.25) {
+            assert!(
+                (k - expected).abs() < 1e-12 * expected,
+                "E {e}, l {l}: {k} against {expected}"
+            );
+        }
+    }
+}
+
+/// On irregular tetrahedra the fitted stiffnesses are the constrained least-squares optimum
+/// against the textbook element matrix: the residual's gradient vanishes along every
+/// positive stiffness and points outward (>= 0) along every zero one (the KKT conditions),
+/// and no random non-negative alternative fits better.
+#[test]
+fn material_springs_are_the_least_squares_fit_to_the_fem_element() {
+    let mut seed = 7u64;
+    let mut rand = move || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    };
+    let mut zero_seen = false;
+    for case in 0..40 {
+        let p = [0; 4].map(|_| Vec3::new(rand(), rand(), rand()));
+        let nu = [0.0, 0.23, 0.3, 0.45, -0.3][case % 5];
+        let k = fit_tet_springs(p, 10.0, nu);
+        let target = fem_element_stiffness(p, 10.0, nu);
+        let residual = |k: [f64; 6]| (spring_stiffness_matrix(p, k) - &target).norm_squared();
+        let r0 = residual(k);
+        let scale = target.norm_squared();
+        for e in 0..6 {
+            let h = 1e-6 * (1.0 + k[e]);
+            let mut up = k;
+            up[e] += h;
+            let grad = (residual(up) - r0) / h;
+            if k[e] > 0.0 {
+                let mut down = k;
+                down[e] -= h;
+                let central = (residual(up) - residual(down)) / (2.0 * h);
+                assert!(
+                    central.abs() < 1e-5 * scale,
+                    "case {case} edge {e}: {central}"
+                );
+            } else {
+                zero_seen = true;
+                assert!(grad > -1e-5 * scale, "case {case} edge {e}: {grad} < 0");
+            }
+        }
+        for _ in 0..20 {
+            let other = k.map(|v| (v * (1.0 + 0.3 * rand())).max(0.0));
+            assert!(residual(other) >= r0 * (1.0 - 1e-12), "case {case}");
+        }
+    }
+    assert!(zero_seen, "no case exercised the non-negativity bound");
+}
+
+/// A material MSD gets the mesh's springs from the fit, summed over the tetrahedra sharing
+/// an edge; the stiffness scales with Young's modulus, and a bad material is refused.
+#[test]
+fn material_msd_sums_the_fit_over_tetrahedra() {
+    let mesh = block(Vec3::zeros(), Vec3::new(1.0, 0.5, 0.5), [2, 1, 1]).unwrap();
+    let mut c = config(MsdIntegrator::ImplicitEuler, 0.01, 0.1);
+    c.spring_stiffness = SpringStiffness::Material {
+        young_modulus: 100.0,
+        poisson_ratio: 0.3,
+    };
+    let body = MsdBody::from_mesh(&mesh, c, &Boundary::free()).unwrap();
+    let x = mesh.positions();
+    for s in body.springs() {
+        let mut expected = 0.0;
+        for t in mesh.tets() {
+            let local: Vec<usize> = [s.a, s.b]
+                .iter()
+                .filter_map(|n| t.iter().position(|m| m == n))
+                .collect();
+            if local.len() == 2 {
+                let edges = [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]];
+                let pair = [local[0].min(local[1]), local[0].max(local[1])];
+                let e = edges.iter().position(|&q| q == pair).unwrap();
+                expected += fit_tet_springs(t.map(|i| x[i as usize]), 100.0, 0.3)[e];
+            }
+        }
+        assert!((s.stiffness - expected).abs() <= 1e-12 * expected.max(1.0));
+    }
+    c.spring_stiffness = SpringStiffness::Material {
+        young_modulus: 200.0,
+        poisson_ratio: 0.3,
+    };
+    let stiffer = MsdBody::from_mesh(&mesh, c, &Boundary::free()).unwrap();
+    for (a, b) in body.springs().iter().zip(stiffer.springs()) {
+        assert!((2.0 * a.stiffness - b.stiffness).abs() <= 1e-12 * b.stiffness.max(1.0));
+    }
+    for bad in [(-1.0, 0.3), (100.0, 0.5), (f64::NAN, 0.3)] {
+        c.spring_stiffness = SpringStiffness::Material {
+            young_modulus: bad.0,
+            poisson_ratio: bad.1,
+        };
+        let err = MsdBody::from_mesh(&mesh, c, &Boundary::free()).unwrap_err();
+        assert!(err.to_string().contains("spring_stiffness"), "{err}");
     }
 }

@@ -26,6 +26,9 @@ use crate::material::MsdParams;
 use crate::mesh::TetMesh;
 use crate::state::{self, NodalBody, Nodes};
 
+mod material;
+pub use material::{SpringStiffness, fit_tet_springs, material_stiffnesses};
+
 /// Time integrator of an MSD body.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub enum MsdIntegrator {
@@ -95,6 +98,10 @@ pub struct MsdConfig {
     pub damping: f64,
     /// Springs made from a mesh. Default: edges.
     pub springs: SpringSet,
+    /// Where the springs' stiffnesses come from (mesh constructor only): `stiffness` for
+    /// every spring (the paper, the default), or fitted to a material's linear FEM stiffness.
+    #[serde(default)]
+    pub spring_stiffness: SpringStiffness,
     /// Volume stiffness `k_v` (force / length^2) of the optional per-tetrahedron volume term
     /// `E = k_v (V - V0)^2 / (2 V0)` on the signed volume (Teschner et al. 2004), mesh
     /// constructor only. Edge springs cannot tell a tetrahedron from its mirror image, so a
@@ -137,6 +144,7 @@ impl MsdConfig {
             mass: params.mass,
             damping: params.damping,
             springs: SpringSet::Edges,
+            spring_stiffness: SpringStiffness::Constant,
             volume_stiffness: 0.0,
             dt,
             gravity: Vec3::zeros(),
@@ -160,6 +168,9 @@ impl MsdConfig {
         }
         if !pos(self.mass) {
             return bad("mass", format!("must be positive, found {}", self.mass));
+        }
+        if let Err((field, message)) = self.spring_stiffness.validate() {
+            return bad(field, message);
         }
         if !(self.volume_stiffness.is_finite() && self.volume_stiffness >= 0.0) {
             return bad(
@@ -381,12 +392,26 @@ impl MsdBody {
             }
             pairs.extend(extra);
         }
+        let fitted = match config.spring_stiffness {
+            SpringStiffness::Constant => vec![None; pairs.len()],
+            SpringStiffness::Material {
+                young_modulus,
+                poisson_ratio,
+            } => material_stiffnesses(
+                &positions,
+                mesh.tets(),
+                &pairs,
+                young_modulus,
+                poisson_ratio,
+            ),
+        };
         let springs = pairs
             .iter()
-            .map(|&[a, b]| Spring {
+            .zip(fitted)
+            .map(|(&[a, b], k)| Spring {
                 a,
                 b,
-                stiffness: config.stiffness,
+                stiffness: k.unwrap_or(config.stiffness),
                 rest_length: (positions[b as usize] - positions[a as usize]).norm(),
             })
             .collect();

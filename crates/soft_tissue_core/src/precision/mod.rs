@@ -49,7 +49,7 @@ use crate::fem::{FemBody, FemConfig, FemError, FemIntegrator, FemModel};
 use crate::linalg::CgStats;
 use crate::material::{FemParams, MsdParams, PAPER_CAGE_MSD};
 use crate::mesh::TetMesh;
-use crate::msd::{MsdBody, MsdConfig, MsdError, MsdIntegrator};
+use crate::msd::{MsdBody, MsdConfig, MsdError, MsdIntegrator, SpringStiffness};
 use crate::scenario::CageKind;
 use crate::state::NodalBody;
 
@@ -125,6 +125,9 @@ pub struct BodySettings {
     pub fem: FemParams,
     /// MSD parameters (used by MSD methods).
     pub msd: MsdParams,
+    /// Where the MSD method's spring stiffnesses come from: `msd.stiffness` for every spring
+    /// (the paper, the default) or fitted to a material.
+    pub msd_spring_stiffness: SpringStiffness,
     /// Cage shape.
     pub cage: CageKind,
     /// Cage MSD parameters (paper: stiffness 50, mass 20, damping 0.3), used with
@@ -154,6 +157,7 @@ impl BodySettings {
             precise: PreciseMethod::Fem(FemModel::Corotational),
             fem,
             msd,
+            msd_spring_stiffness: SpringStiffness::Constant,
             cage: CageKind::BoundingBox,
             cage_msd: PAPER_CAGE_MSD,
             cage_dynamics: CageDynamics::Calibrated,
@@ -546,6 +550,7 @@ fn build_precise(mesh: &TetMesh, s: &BodySettings) -> Result<Precise, PrecisionE
         PreciseMethod::Msd(integrator) => {
             let mut c = MsdConfig::paper(&s.msd, s.dt);
             c.integrator = integrator;
+            c.spring_stiffness = s.msd_spring_stiffness;
             c.gravity = s.gravity;
             Precise::Msd(Box::new(MsdBody::from_mesh(mesh, c, &s.boundary)?))
         }
@@ -690,6 +695,15 @@ impl LeveledBody {
     /// and at each down-switch).
     pub fn cage_residual(&self) -> f64 {
         self.residual
+    }
+
+    /// Fits the cage to the precise level's current surface now, as a down-switch would
+    /// (warm-started from the last fit), and returns the largest distance between a surface
+    /// vertex and the fitted cage's image of it: how close a cage of this shape can follow
+    /// the precise state, whatever its dynamics. Reads the precise level's state at either
+    /// level (at the cage level that is the state it left, or was handed at the last switch).
+    pub fn fit_cage_now(&mut self) -> Result<f64, PrecisionError> {
+        self.fit_cage(MAX_FIT_ITERATIONS)
     }
 
     /// Smallest bounding-box dimension of the rest mesh.

@@ -146,6 +146,9 @@ pub fn body_settings(
     if let Some(f) = spec.fem {
         s.fem_integrator = f.integrator;
     }
+    if let Some(m) = spec.msd {
+        s.msd_spring_stiffness = m.spring_stiffness;
+    }
     s.cage = spec.cage.kind;
     s.cage_msd = spec.cage.msd.params;
     s.cage_dynamics = spec.cage.dynamics;
