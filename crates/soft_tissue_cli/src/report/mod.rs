@@ -54,33 +54,19 @@ pub struct ReportArgs {
     /// `speed_against_error.md` and its CSV in `--out`), not the whole report.
     #[arg(long)]
     only_sweep: bool,
-    /// How the cages move: `calibrated` (projected from each body's precise model, the
-    /// default) or `paper` (the paper's cage MSD). Applies to the Fig. 5 section; the other sections
-    /// use each scene's setting.
-    #[arg(long, value_enum, default_value = "calibrated")]
-    cage_dynamics: CageDynamicsArg,
-    /// Only the Fig. 5 section (the cage level's error), for quick comparisons of cage
-    /// settings.
+    /// With `--only-sweep`: only the settings whose family contains this text (for example
+    /// `BDF2`, `cage`).
+    #[arg(long, requires = "only_sweep")]
+    sweep_family: Option<String>,
+    /// With `--only-sweep`: run each chosen family at these multiples of the paper's step
+    /// instead of the report's own list (for example `1,0.5,0.25` for an order of
+    /// convergence).
+    #[arg(long, value_delimiter = ',', requires = "only_sweep")]
+    sweep_scales: Option<Vec<f64>>,
+    /// Only the Fig. 5 section (the cage level's error, paper and calibrated cage
+    /// dynamics), for quick comparisons of cage settings.
     #[arg(long)]
     fig5_only: bool,
-}
-
-/// `--cage-dynamics`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum CageDynamicsArg {
-    /// Calibrated against the precise model.
-    Calibrated,
-    /// The paper's cage MSD.
-    Paper,
-}
-
-impl From<CageDynamicsArg> for CageDynamics {
-    fn from(a: CageDynamicsArg) -> Self {
-        match a {
-            CageDynamicsArg::Calibrated => CageDynamics::Calibrated,
-            CageDynamicsArg::Paper => CageDynamics::Paper,
-        }
-    }
 }
 
 /// What one run measured for one body.
@@ -204,16 +190,28 @@ fn run(spec: RunSpec<'_>, assets: &Path) -> Res<Run> {
     })
 }
 
+/// One step of the Fig. 5 protocol, as fractions of the first body's smallest dimension.
+#[derive(Debug, Clone, Copy)]
+struct LevelGap {
+    /// Mean node distance between the cage run and the precise run.
+    mean: f64,
+    /// Largest node distance.
+    max: f64,
+    /// Largest surface distance of the best cage fit to the precise run's surface: how
+    /// close a cage of this shape can follow, whatever moves it.
+    fit: f64,
+}
+
 /// The paper's Fig. 5 protocol: the same scene and interaction run twice in lockstep, every
 /// body pinned at its cage level in one and at its precise level in the other; per step, the
-/// mean and the largest node distance of the first body between the two, as fractions of its
-/// smallest dimension. Also the mean cage step of that body, us.
+/// distances of the first body between the two ([`LevelGap`]). Also the mean cage step of that
+/// body, us.
 fn compare_levels(
     scene: &Scene,
     script: &str,
     steps: usize,
     assets: &Path,
-) -> Res<(Vec<(f64, f64)>, f64)> {
+) -> Res<(Vec<LevelGap>, f64)> {
     let mut worlds = Vec::with_capacity(2);
     for level in [Level::Cage, Level::Precise] {
         let mut w = sweep::build_world(scene, assets, &paper_msd)?;
@@ -233,6 +231,7 @@ fn compare_levels(
             drive_tool(w, s, *ti, t, dt)?;
             w.step_fixed()?;
         }
+        let fit = worlds[1].0.bodies_mut()[0].body_mut().fit_cage_now()?;
         let (cage, precise) = (&worlds[0].0.bodies()[0], &worlds[1].0.bodies()[0]);
         cage_us += cage.diagnostics().step_us;
         let scale = precise.body().smallest_dimension();
@@ -247,7 +246,11 @@ fn compare_levels(
             max = max.max(d);
         }
         let n = a.len().max(1) as f64;
-        series.push((sum / n / scale, max / scale));
+        series.push(LevelGap {
+            mean: sum / n / scale,
+            max: max / scale,
+            fit: fit / scale,
+        });
     }
     Ok((series, cage_us / steps.max(1) as f64))
 }
@@ -449,7 +452,12 @@ pub fn report(args: &ReportArgs) -> Res<()> {
     let steps = if quick { 120 } else { 500 };
     if args.only_sweep {
         let (mut md, mut js) = (String::new(), serde_json::Map::new());
-        let configs = sweep::configs(quick, ORGAN_FEM.dt);
+        let configs = sweep::select(
+            sweep::configs(quick, ORGAN_FEM.dt),
+            args.sweep_family.as_deref(),
+            args.sweep_scales.as_deref(),
+            ORGAN_FEM.dt,
+        )?;
         speed_error_section(
             &mut md,
             &mut js,
@@ -490,7 +498,7 @@ pub fn report(args: &ReportArgs) -> Res<()> {
     if args.fig5_only {
         let mut progress = Progress {
             done: 0,
-            total: 2 * cages.len(),
+            total: 4 * cages.len(),
             start: Instant::now(),
         };
         let mut md = String::from("# Fig. 5 only\n\n");
@@ -502,7 +510,6 @@ pub fn report(args: &ReportArgs) -> Res<()> {
             assets,
             &cages,
             steps,
-            args.cage_dynamics.into(),
             &mut progress,
         )?;
         progress.finish();
@@ -546,11 +553,11 @@ pub fn report(args: &ReportArgs) -> Res<()> {
         done: 0,
         total: 2 * pairs.len()
             + 2
-            + 2 * cages.len()
+            + 4 * cages.len()
             + 2 * resting.len()
             + resolutions.len()
             + sweep_configs.len()
-            + 1
+            + 2
             + cases.len()
             + peers.len()
             + 3
@@ -741,7 +748,6 @@ pub fn report(args: &ReportArgs) -> Res<()> {
         assets,
         &cages,
         steps,
-        args.cage_dynamics.into(),
         &mut progress,
     )?;
 
@@ -1060,7 +1066,6 @@ fn fig5_section(
     assets: &Path,
     cages: &[(String, CageKind)],
     steps: usize,
-    dynamics: CageDynamics,
     progress: &mut Progress,
 ) -> Res<Option<(String, f64, f64)>> {
     writeln!(
@@ -1070,9 +1075,16 @@ fn fig5_section(
          in one run and at its precise level in the other; per step the mean and the largest \
          distance between the two runs' nodes of model A, as a percentage of A's smallest \
          dimension, and over the run the mean of the means and the largest (the paper: at \
-         most 4 % against FEM, 8.1 % against MSD, box cage). Series in \
-         `fig5_<precise>_<cage>.csv`.\n\n\
-         | precise | cage | mean % | max % | cage step us |\n|---|---|---|---|---|"
+         most 4 % against FEM, 8.1 % against MSD, box cage). Each cage moves by the paper's \
+         cage MSD (stiffness 50, mass 20, damping 0.3) and, the default, by dynamics \
+         calibrated against the precise model. `fit floor`: the largest surface distance of \
+         the best cage fit to the precise run's surface at each step (least squares, as a \
+         down-switch fits), the error no dynamics of that cage can go much below: a cage \
+         moves the surface only through its Green coordinates, and a local dent under the \
+         tool is not among the shapes a coarse cage spans. Series in \
+         `fig5_<precise>_<cage>_<dynamics>.csv`.\n\n\
+         | precise | cage | paper mean % | paper max % | calibrated mean % | calibrated max % \
+         | fit floor max % | cage step us, paper / calibrated |\n|---|---|---|---|---|---|---|---|"
     )?;
     let mut fig5 = Vec::new();
     let mut fig5_series: [Vec<Series>; 2] = [Vec::new(), Vec::new()];
@@ -1082,53 +1094,68 @@ fn fig5_section(
         (PreciseMethod::Msd, "msd"),
     ] {
         for (cage_name, kind) in cages {
-            progress.step(&format!("fig 5: {tag} vs {cage_name}"));
-            let mut scene = Scene::paper_cylinders(precise, precise);
-            for b in &mut scene.bodies {
-                b.cage.kind = *kind;
-                b.cage.dynamics = dynamics;
-            }
-            let (series, cage_step) = compare_levels(&scene, "poke-a", steps, assets)?;
-            let n = series.len().max(1) as f64;
-            let mean = 100.0 * series.iter().map(|s| s.0).sum::<f64>() / n;
-            let max = 100.0 * series.iter().map(|s| s.1).fold(0.0, f64::max);
-            writeln!(
-                *md,
-                "| {} | {cage_name} | {mean:.2} | {max:.2} | {} |",
-                method_name(precise),
-                us(Some(cage_step))
-            )?;
-            let mut csv = Csv::new(&["step", "mean_pct", "max_pct"])?;
-            for (k, (a, b)) in series.iter().enumerate() {
-                csv.row(cells![k + 1, 100.0 * a, 100.0 * b])?;
-            }
-            let slot = usize::from(tag == "msd");
-            for (which, pick) in [("max", true), ("mean", false)] {
+            let mut row = Vec::new();
+            let mut floor = 0.0f64;
+            for (dynamics, dyn_tag) in [
+                (CageDynamics::Paper, "paper"),
+                (CageDynamics::Calibrated, "calibrated"),
+            ] {
+                progress.step(&format!("fig 5: {tag} vs {cage_name} ({dyn_tag})"));
+                let mut scene = Scene::paper_cylinders(precise, precise);
+                for b in &mut scene.bodies {
+                    b.cage.kind = *kind;
+                    b.cage.dynamics = dynamics;
+                }
+                let (series, cage_step) = compare_levels(&scene, "poke-a", steps, assets)?;
+                let n = series.len().max(1) as f64;
+                let mean = 100.0 * series.iter().map(|s| s.mean).sum::<f64>() / n;
+                let max = 100.0 * series.iter().map(|s| s.max).fold(0.0, f64::max);
+                floor = floor.max(100.0 * series.iter().map(|s| s.fit).fold(0.0, f64::max));
+                let mut csv = Csv::new(&["step", "mean_pct", "max_pct", "fit_floor_pct"])?;
+                for (k, g) in series.iter().enumerate() {
+                    csv.row(cells![k + 1, 100.0 * g.mean, 100.0 * g.max, 100.0 * g.fit])?;
+                }
+                csv.save(
+                    out,
+                    &format!("fig5_{tag}_{}_{dyn_tag}.csv", cage_name.replace(' ', "")),
+                )?;
+                let slot = usize::from(tag == "msd");
+                // The chart: the largest distance per step of every cage, both dynamics.
                 fig5_series[slot].push(Series {
-                    name: format!("{cage_name} {which}"),
+                    name: format!("{cage_name} {dyn_tag}"),
                     points: series
                         .iter()
                         .enumerate()
-                        .map(|(k, (a, b))| ((k + 1) as f64, 100.0 * if pick { *b } else { *a }))
+                        .map(|(k, g)| ((k + 1) as f64, 100.0 * g.max))
                         .collect(),
                     line: true,
                     markers: false,
                 });
+                if tag == "fem"
+                    && dynamics == CageDynamics::Calibrated
+                    && *kind != CageKind::BoundingBox
+                    && best_fitted_vs_fem.as_ref().is_none_or(|b| max < b.1)
+                {
+                    best_fitted_vs_fem = Some((cage_name.clone(), max, cage_step));
+                }
+                row.push((mean, max, cage_step));
+                fig5.push(json!({
+                    "precise": method_name(precise), "cage": cage_name, "dynamics": dyn_tag,
+                    "mean_pct": mean, "max_pct": max, "cage_step_us": cage_step,
+                    "fit_floor_max_pct": 100.0 * series.iter().map(|s| s.fit).fold(0.0, f64::max),
+                }));
             }
-            csv.save(
-                out,
-                &format!("fig5_{tag}_{}.csv", cage_name.replace(' ', "")),
+            writeln!(
+                *md,
+                "| {} | {cage_name} | {:.2} | {:.2} | {:.2} | {:.2} | {floor:.2} | {} / {} |",
+                method_name(precise),
+                row[0].0,
+                row[0].1,
+                row[1].0,
+                row[1].1,
+                us(Some(row[0].2)),
+                us(Some(row[1].2)),
             )?;
-            if tag == "fem"
-                && *kind != CageKind::BoundingBox
-                && best_fitted_vs_fem.as_ref().is_none_or(|b| max < b.1)
-            {
-                best_fitted_vs_fem = Some((cage_name.clone(), max, cage_step));
-            }
-            fig5.push(json!({
-                "precise": method_name(precise), "cage": cage_name,
-                "mean_pct": mean, "max_pct": max, "cage_step_us": cage_step,
-            }));
         }
     }
     for (slot, (tag, name)) in [("fem", "corotational FEM"), ("msd", "MSD (RK4)")]
@@ -1137,13 +1164,13 @@ fn fig5_section(
     {
         chart(
             &out.join(format!("fig5_{tag}.png")),
-            &format!("Fig. 5: cage level against {name}, cylinders, poke-a"),
+            &format!("Fig. 5: largest cage-level distance against {name}, cylinders, poke-a"),
             Axis {
                 desc: "step",
                 log: false,
             },
             Axis {
-                desc: "node distance, % of smallest dimension",
+                desc: "largest node distance, % of smallest dimension",
                 log: false,
             },
             &fig5_series[slot],
@@ -1374,12 +1401,18 @@ fn speed_error_section(
          The organs under `poke-liver` for {duration} s, every body held at one level with one \
          setting; the liver's nodes against the {} (CG tolerance 1e-8) at the same times. \
          Time: the liver's median step (its heat field included), us. Error: mean and largest \
-         node distance, % of the liver's smallest dimension. The MSD and the cages keep the paper's own parameters (not fitted to the \
-         FEM material), so their error includes that model difference, as in Fig. 5. A setting \
-         is on the Pareto front when no other is both faster and more accurate (largest \
-         distance).\n\n\
+         node distance, % of the liver's smallest dimension. The cages are calibrated against \
+         corotational FEM unless marked `paper` (the paper's cage MSD). `MSD` keeps the scene's \
+         constant spring stiffness (the paper's); `MSD ... material` fits its springs to the \
+         liver's FEM material. A setting is on the Pareto front when no other is both faster \
+         and more accurate (largest distance).\n\n\
+         The reference's own convergence: the same run at half its step ({}) is {:.4} % away \
+         at most ({:.5} % mean).\n\n\
          | setting | step us | mean % | max % | Pareto |\n|---|---|---|---|---|",
-        reference.label
+        reference.config.label,
+        reference.halved,
+        reference.halving_max_pct,
+        reference.halving_mean_pct,
     )?;
     let mut csv = Csv::new(&[
         "setting",
@@ -1461,7 +1494,10 @@ fn speed_error_section(
     js.insert(
         "speed_error".into(),
         json!({
-            "reference": reference.label,
+            "reference": reference.config.label,
+            "reference_halved": reference.halved,
+            "reference_halving_max_pct": reference.halving_max_pct,
+            "reference_halving_mean_pct": reference.halving_mean_pct,
             "points": points.iter().map(|p| json!({
                 "setting": p.config.label, "family": p.config.family, "dt": p.config.dt,
                 "median_us": p.median_us, "mean_pct": p.mean_pct, "max_pct": p.max_pct,

@@ -6,10 +6,11 @@ use std::sync::Arc;
 
 use soft_tissue_core::Vec3;
 use soft_tissue_core::bench::{BenchBody, BenchMethod};
+use soft_tissue_core::cage::CageDynamics;
 use soft_tissue_core::contact::Tool;
 use soft_tissue_core::fem::{FemIntegrator, FemModel};
 use soft_tissue_core::mesh::generate::Organ;
-use soft_tissue_core::msd::MsdIntegrator;
+use soft_tissue_core::msd::{MsdIntegrator, SpringStiffness};
 use soft_tissue_core::precision::{BodySettings, Level, PreciseMethod as Method};
 use soft_tissue_core::scenario::{CYLINDER_MSD, CageKind, ORGAN_FEM, Scene};
 use soft_tissue_core::world::{Script, SimBody, SoftTissueWorld, scene_bodies};
@@ -48,7 +49,23 @@ pub(super) struct Config {
     pub integrator: FemIntegrator,
     pub level: Level,
     pub cage: CageKind,
+    /// How the cage moves (cage level only).
+    pub cage_dynamics: CageDynamics,
+    /// The MSD's springs fitted to the body's FEM material instead of the scene's constant.
+    pub material_springs: bool,
     pub dt: f64,
+}
+
+/// The sweep's reference and its own convergence.
+#[derive(Debug, Clone)]
+pub(super) struct Reference {
+    pub config: Config,
+    /// The run at half the reference's step.
+    pub halved: String,
+    /// Largest node distance between the two over the run, % of the smallest dimension.
+    pub halving_max_pct: f64,
+    /// Mean over the run of their mean node distance, %.
+    pub halving_mean_pct: f64,
 }
 
 /// A measured point of the sweep.
@@ -74,6 +91,8 @@ pub(super) fn configs(quick: bool, dt: f64) -> Vec<Config> {
         integrator: FemIntegrator::BackwardEuler,
         level: Level::Precise,
         cage: CageKind::BoundingBox,
+        cage_dynamics: CageDynamics::Calibrated,
+        material_springs: false,
         dt,
     };
     let cage = |kind, name: &str, dt: f64| Config {
@@ -83,7 +102,21 @@ pub(super) fn configs(quick: bool, dt: f64) -> Vec<Config> {
         integrator: FemIntegrator::BackwardEuler,
         level: Level::Cage,
         cage: kind,
+        cage_dynamics: CageDynamics::Calibrated,
+        material_springs: false,
         dt,
+    };
+    // The paper's cage MSD instead of the calibrated dynamics.
+    let paper_cage = |kind, name: &str, dt: f64| Config {
+        label: format!("cage {name} paper dt {dt}"),
+        family: "cage (paper)",
+        cage_dynamics: CageDynamics::Paper,
+        ..cage(kind, name, dt)
+    };
+    // The MSD with springs fitted to the material.
+    let material = |method, family, dt: f64| Config {
+        material_springs: true,
+        ..precise(method, family, dt)
     };
     let co = Method::Fem(FemModel::Corotational);
     let pf = Method::Fem(FemModel::CorotationalPrefactored);
@@ -104,7 +137,9 @@ pub(super) fn configs(quick: bool, dt: f64) -> Vec<Config> {
             precise(li, "FEM linear", dt),
             bdf2(li, "FEM linear BDF2", dt),
             precise(implicit, "MSD implicit", dt),
+            material(implicit, "MSD implicit material", dt),
             cage(CageKind::BoundingBox, "box", dt),
+            paper_cage(CageKind::BoundingBox, "box", dt),
         ];
     }
     let mut v = Vec::new();
@@ -133,8 +168,18 @@ pub(super) fn configs(quick: bool, dt: f64) -> Vec<Config> {
         v.push(precise(msd_bdf2, "MSD BDF2", dt * s));
     }
     for s in [1.0, 2.0] {
+        v.push(material(implicit, "MSD implicit material", dt * s));
+    }
+    v.push(material(msd_bdf2, "MSD BDF2 material", dt));
+    for s in [1.0, 2.0] {
         v.push(cage(CageKind::BoundingBox, "box", dt * s));
     }
+    v.push(paper_cage(CageKind::BoundingBox, "box", dt));
+    v.push(paper_cage(
+        CageKind::Fitted { vertices: 128 },
+        "fitted 128",
+        dt,
+    ));
     for n in [32, 64, 128] {
         v.push(cage(
             CageKind::Fitted { vertices: n },
@@ -143,6 +188,58 @@ pub(super) fn configs(quick: bool, dt: f64) -> Vec<Config> {
         ));
     }
     v
+}
+
+/// The configurations whose family contains `family` (all without it), each family at the
+/// steps `scales` times `dt` when given (its first configuration rescaled), as listed
+/// otherwise.
+pub(super) fn select(
+    configs: Vec<Config>,
+    family: Option<&str>,
+    scales: Option<&[f64]>,
+    dt: f64,
+) -> Res<Vec<Config>> {
+    let chosen: Vec<Config> = configs
+        .into_iter()
+        .filter(|c| family.is_none_or(|f| c.family.contains(f)))
+        .collect();
+    if chosen.is_empty() {
+        return Err(format!("no setting's family contains {:?}", family.unwrap_or("")).into());
+    }
+    let Some(scales) = scales else {
+        return Ok(chosen);
+    };
+    if let Some(s) = scales.iter().find(|s| !(s.is_finite() && **s > 0.0)) {
+        return Err(format!("--sweep-scales: {s} is not a positive step multiple").into());
+    }
+    let mut out = Vec::new();
+    let mut seen: Vec<&'static str> = Vec::new();
+    for c in &chosen {
+        // A family's first setting, once per cage shape.
+        if seen.contains(&c.family) && c.level == Level::Precise {
+            continue;
+        }
+        if out
+            .iter()
+            .any(|o: &Config| o.family == c.family && o.cage == c.cage && o.dt == dt * scales[0])
+        {
+            continue;
+        }
+        seen.push(c.family);
+        for &s in scales {
+            let step = dt * s;
+            let base = c
+                .label
+                .rsplit_once(" dt ")
+                .map_or(c.label.as_str(), |(l, _)| l);
+            out.push(Config {
+                label: format!("{base} dt {step}"),
+                dt: step,
+                ..c.clone()
+            });
+        }
+    }
+    Ok(out)
 }
 
 /// Positions of the first body after each step of a run of `duration` seconds at `config`,
@@ -159,6 +256,13 @@ fn trajectory(
         s.precise = config.method;
         s.fem_integrator = config.integrator;
         s.cage = config.cage;
+        s.cage_dynamics = config.cage_dynamics;
+        if config.material_springs {
+            s.msd_spring_stiffness = SpringStiffness::Material {
+                young_modulus: s.fem.young_modulus,
+                poisson_ratio: s.fem.poisson_ratio,
+            };
+        }
         s.dt = config.dt;
     })?;
     for b in world.bodies_mut() {
@@ -195,8 +299,10 @@ pub(super) fn speed_against_error(
     configs: &[Config],
     duration: f64,
     progress: &mut dyn FnMut(&str),
-) -> Res<(Config, Vec<Point>)> {
-    let base = configs.iter().map(|c| c.dt).fold(f64::INFINITY, f64::min);
+) -> Res<(Reference, Vec<Point>)> {
+    // A tenth of the paper's organ step, whatever steps the settings take (their order of
+    // convergence is measured down to a quarter of it); its own convergence is measured below.
+    let base = ORGAN_FEM.dt;
     let reference = Config {
         label: format!("reference: FEM corotational BDF2 dt {}", base / 10.0),
         family: "reference",
@@ -207,6 +313,8 @@ pub(super) fn speed_against_error(
         integrator: FemIntegrator::Bdf2,
         level: Level::Precise,
         cage: CageKind::BoundingBox,
+        cage_dynamics: CageDynamics::Calibrated,
+        material_springs: false,
         dt: base / 10.0,
     };
     progress(&reference.label);
@@ -222,6 +330,35 @@ pub(super) fn speed_against_error(
         let w = build_world(scene, assets, &|_| {})?;
         w.bodies()[0].body().smallest_dimension()
     };
+    // The reference's own convergence: the same run at half its step, compared at the
+    // reference's times.
+    let half = Config {
+        label: format!("FEM corotational BDF2 dt {}", reference.dt / 2.0),
+        dt: reference.dt / 2.0,
+        ..reference.clone()
+    };
+    progress(&format!("reference check: {}", half.label));
+    let (halved, _) = trajectory(scene, assets, script, &half, duration, Some((1e-8, 200)))?;
+    let (mut halving_max, mut halving_sum, mut halving_n) = (0.0f64, 0.0f64, 0usize);
+    for (k, r) in refs.iter().enumerate() {
+        let Some(h) = halved.get(2 * k + 1) else {
+            break;
+        };
+        let mut s = 0.0;
+        for (p, q) in r.iter().zip(h) {
+            let d = (p - q).norm();
+            s += d;
+            halving_max = halving_max.max(d);
+        }
+        halving_sum += s / r.len().max(1) as f64;
+        halving_n += 1;
+    }
+    let reference = Reference {
+        halving_max_pct: 100.0 * halving_max / scale,
+        halving_mean_pct: 100.0 * halving_sum / halving_n.max(1) as f64 / scale,
+        halved: half.label,
+        config: reference,
+    };
     let mut points = Vec::with_capacity(configs.len());
     for c in configs {
         progress(&c.label);
@@ -229,7 +366,7 @@ pub(super) fn speed_against_error(
         let (mut sum, mut max, mut n) = (0.0f64, 0.0f64, 0usize);
         for (k, x) in traj.iter().enumerate() {
             let t = (k + 1) as f64 * c.dt;
-            let j = ((t / reference.dt).round() as usize).clamp(1, refs.len()) - 1;
+            let j = ((t / reference.config.dt).round() as usize).clamp(1, refs.len()) - 1;
             let r = &refs[j];
             let mut s = 0.0;
             for (p, q) in x.iter().zip(r) {
