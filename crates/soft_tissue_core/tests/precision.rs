@@ -612,3 +612,69 @@ fn a_poked_cylinder_held_at_a_calibrated_cage_is_nearer_its_precise_shadow_than_
         );
     }
 }
+
+#[test]
+fn a_calibrated_cage_reproduces_a_response_it_can_represent() {
+    // A uniform dilation `u = ε (x - c)` is a constant strain: linear tetrahedra represent it
+    // exactly, and it is the linear FEM body's static response to a uniform normal traction
+    // `t = 3 κ ε n` on its boundary (κ the bulk modulus), whose consistent nodal loads are
+    // `t A / 3` on each corner of every boundary triangle, computed here from the surface
+    // alone. Green coordinates move the points by the same dilation when the cage is
+    // dilated. So the Galerkin projection is exact for this load: the calibrated stiffness
+    // applied to the dilated cage, `Kc dV`, equals the generalised load `Σ J_pᵀ f_p`.
+    let mesh = asset("liver");
+    let mut fem = ORGAN_FEM.params;
+    fem.poisson_ratio = 0.3;
+    let kappa3 = fem.young_modulus / (1.0 - 2.0 * fem.poisson_ratio);
+    let eps = 1e-3;
+    for model in [FemModel::Linear, FemModel::Corotational] {
+        for cage in [CageKind::BoundingBox, CageKind::Fitted { vertices: 48 }] {
+            let mut s = BodySettings::new(fem, CYLINDER_MSD.params, ORGAN_FEM.dt);
+            s.precise = PreciseMethod::Fem(model);
+            s.cage = cage;
+            let body = LeveledBody::new(&mesh, s).unwrap();
+            let reduced = body.cage().reduced().unwrap().clone();
+            let coords = body.cage().coordinates().clone();
+            let verts = body.cage().cage().vertices();
+            let c = verts.iter().sum::<Vec3>() / verts.len() as f64;
+            // Loads from the traction.
+            let x = mesh.positions();
+            let mut f = vec![Vec3::zeros(); x.len()];
+            for t in mesh.surface().triangles() {
+                let [a, b, d] = t.map(|i| x[i as usize]);
+                let area_normal = (b - a).cross(&(d - a)) / 2.0;
+                for &i in t {
+                    f[i as usize] += area_normal * (kappa3 * eps / 3.0);
+                }
+            }
+            let mut load = vec![Vec3::zeros(); verts.len()];
+            for (p, fp) in f.iter().enumerate() {
+                if fp.norm() > 0.0 {
+                    reduced.add_point_force(coords.phi(p), coords.psi(p), *fp, &mut load);
+                }
+            }
+            // The calibrated stiffness on the dilated cage.
+            let dv: Vec<f64> = verts
+                .iter()
+                .flat_map(|v| {
+                    let m = (v - c) * eps;
+                    [m.x, m.y, m.z]
+                })
+                .collect();
+            let dim = reduced.dim();
+            let k = reduced.stiffness();
+            let mut worst = 0.0f64;
+            let mut size = 0.0f64;
+            for r in 0..dim {
+                let kv: f64 = (0..dim).map(|q| k[r * dim + q] * dv[q]).sum();
+                let l = load[r / 3][r % 3];
+                worst = worst.max((kv - l).abs());
+                size = size.max(l.abs());
+            }
+            assert!(
+                worst < 1e-3 * size,
+                "{model:?} {cage:?}: |Kc dV - J^T f| {worst} against {size}"
+            );
+        }
+    }
+}
