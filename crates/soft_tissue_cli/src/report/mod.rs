@@ -1170,6 +1170,8 @@ fn fig5_section(
                 row[1].1,
                 if floor.1 == 0 {
                     format!("{:.2}", floor.0)
+                } else if floor.1 >= steps {
+                    format!("- (no fit of the {steps} converged)")
                 } else {
                     format!(
                         "{:.2} ({} of {steps} fits did not converge)",
