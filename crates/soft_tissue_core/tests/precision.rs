@@ -543,6 +543,18 @@ fn identical_bodies_share_a_calibrated_cage_and_the_paper_option_keeps_springs()
         built.cage().reduced().unwrap(),
         changed.cage().reduced().unwrap()
     ));
+    // An MSD whose springs come from the material is another model than one with the
+    // constant springs, though every other setting is the same.
+    let mut material = s.clone();
+    material.precise = msd;
+    material.msd_spring_stiffness = soft_tissue_core::msd::SpringStiffness::Material {
+        young_modulus: s.fem.young_modulus,
+        poisson_ratio: s.fem.poisson_ratio,
+    };
+    let m = LeveledBody::new(&mesh, material).unwrap();
+    let (mm, mc) = (m.cage().reduced().unwrap(), built.cage().reduced().unwrap());
+    assert!(!std::sync::Arc::ptr_eq(mm, mc));
+    assert_ne!(mm.stiffness(), mc.stiffness());
     let mut paper = s;
     paper.cage_dynamics = CageDynamics::Paper;
     let d = LeveledBody::new(&mesh, paper).unwrap();

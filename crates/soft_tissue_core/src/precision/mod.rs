@@ -468,8 +468,16 @@ fn calibrated_model(
             ])
         }
         Precise::Msd(b) => {
+            // The springs themselves: their stiffnesses come from the constant or from a
+            // material.
             let c = b.config();
-            key.floats([c.stiffness, c.mass, c.damping])
+            key.floats([c.mass, c.damping, c.volume_stiffness])
+                .floats(
+                    b.springs()
+                        .iter()
+                        .flat_map(|s| [s.stiffness, s.rest_length]),
+                )
+                .add(b.springs().iter().map(|s| [s.a, s.b]).collect::<Vec<_>>())
         }
     }
     .finish();
@@ -477,21 +485,15 @@ fn calibrated_model(
     let model = cached_model(key, || {
         let masses = body.masses();
         let fixed = body.fixed();
-        match precise {
+        // The precise model's `K u` and its damping `(alpha, beta, gamma)`.
+        type Mul<'a> = Box<dyn FnMut(&[Vec3], &mut [Vec3]) + 'a>;
+        let (mut mul, damping): (Mul<'_>, (f64, f64, f64)) = match precise {
             Precise::Fem(b) => {
                 let k = b.stiffness_at(&x, b.model());
-                let mut mul = |u: &[Vec3], out: &mut [Vec3]| k.mul(u, out);
                 let c = b.config();
-                ReducedModel::project(
-                    cage.cage(),
-                    &coords,
-                    PreciseOperators {
-                        masses,
-                        fixed,
-                        stiffness: &mut mul,
-                        damping: (c.mass_damping, c.stiffness_damping, 0.0),
-                        free,
-                    },
+                (
+                    Box::new(move |u: &[Vec3], out: &mut [Vec3]| k.mul(u, out)),
+                    (c.mass_damping, c.stiffness_damping, 0.0),
                 )
             }
             Precise::Msd(b) => {
@@ -502,38 +504,42 @@ fn calibrated_model(
                     vec![Vec3::zeros(); x.len()],
                     vec![Vec3::zeros(); x.len()],
                 );
-                let mut mul = |u: &[Vec3], out: &mut [Vec3]| {
-                    let umax = u.iter().map(|v| v.amax()).fold(0.0, f64::max);
-                    if umax == 0.0 {
-                        out.fill(Vec3::zeros());
-                        return;
-                    }
-                    let eps = 1e-6 * size / umax;
-                    for ((p, x0), ui) in xp.iter_mut().zip(&x).zip(u) {
-                        *p = x0 + ui * eps;
-                    }
-                    b.spring_forces(&xp, &mut fp);
-                    for ((p, x0), ui) in xp.iter_mut().zip(&x).zip(u) {
-                        *p = x0 - ui * eps;
-                    }
-                    b.spring_forces(&xp, &mut fm);
-                    for ((o, a), m) in out.iter_mut().zip(&fp).zip(&fm) {
-                        *o = (m - a) / (2.0 * eps);
-                    }
-                };
-                ReducedModel::project(
-                    cage.cage(),
-                    &coords,
-                    PreciseOperators {
-                        masses,
-                        fixed,
-                        stiffness: &mut mul,
-                        damping: (0.0, 0.0, b.config().damping),
-                        free,
-                    },
+                let x = &x;
+                (
+                    Box::new(move |u: &[Vec3], out: &mut [Vec3]| {
+                        let umax = u.iter().map(|v| v.amax()).fold(0.0, f64::max);
+                        if umax == 0.0 {
+                            out.fill(Vec3::zeros());
+                            return;
+                        }
+                        let eps = 1e-6 * size / umax;
+                        for ((p, x0), ui) in xp.iter_mut().zip(x).zip(u) {
+                            *p = x0 + ui * eps;
+                        }
+                        b.spring_forces(&xp, &mut fp);
+                        for ((p, x0), ui) in xp.iter_mut().zip(x).zip(u) {
+                            *p = x0 - ui * eps;
+                        }
+                        b.spring_forces(&xp, &mut fm);
+                        for ((o, a), m) in out.iter_mut().zip(&fp).zip(&fm) {
+                            *o = (m - a) / (2.0 * eps);
+                        }
+                    }),
+                    (0.0, 0.0, b.config().damping),
                 )
             }
-        }
+        };
+        ReducedModel::project(
+            cage.cage(),
+            &coords,
+            PreciseOperators {
+                masses,
+                fixed,
+                stiffness: &mut *mul,
+                damping,
+                free,
+            },
+        )
     })?;
     Ok(model)
 }
