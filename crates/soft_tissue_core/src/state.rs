@@ -195,6 +195,74 @@ pub trait NodalBody {
     }
 }
 
+/// BDF2's memory of the last step: `x_n - x_{n-1}` and `v_n - v_{n-1}` (empty until BDF2 is
+/// first used). A BDF2 step is a backward Euler step of `2 dt / 3` from the extrapolated state
+/// `x_n + (x_n - x_{n-1}) / 3`, `v_n + (v_n - v_{n-1}) / 3`; FEM and MSD bodies share this
+/// bookkeeping.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Bdf2History {
+    dx: Vec<Vec3>,
+    dv: Vec<Vec3>,
+    /// Whether the differences belong to the current state (false after building, a reset,
+    /// a change of model, step or integrator, a rotation sync, a level switch).
+    pub(crate) valid: bool,
+}
+
+impl Bdf2History {
+    /// Makes it hold `n` nodes (a new size forgets the history; allocates only then) and
+    /// says whether a history must be started.
+    pub(crate) fn needs_start(&mut self, n: usize) -> bool {
+        if self.dx.len() != n {
+            self.dx = vec![Vec3::zeros(); n];
+            self.dv = vec![Vec3::zeros(); n];
+            self.valid = false;
+        }
+        !self.valid
+    }
+
+    /// A buffer of one vector per node for the caller's accelerations (taken from the
+    /// history; give it back through [`Bdf2History::start`]).
+    pub(crate) fn take_buffer(&mut self) -> Vec<Vec3> {
+        std::mem::take(&mut self.dv)
+    }
+
+    /// Starts a history for a state without one: `dt v_n` and `dt a_n` (`acc` the current
+    /// accelerations, the buffer from [`Bdf2History::take_buffer`]); fixed components zero.
+    /// Errors of order `dt^2`, so the method stays second order; exact at rest.
+    pub(crate) fn start(&mut self, nodes: &Nodes, mut acc: Vec<Vec3>, h: f64) {
+        for (i, a) in acc.iter_mut().enumerate() {
+            for k in 0..3 {
+                let held = nodes.fixed[i][k];
+                a[k] = if held { 0.0 } else { h * a[k] };
+                self.dx[i][k] = if held { 0.0 } else { h * nodes.v[i][k] };
+            }
+        }
+        self.dv = acc;
+        self.valid = true;
+    }
+
+    /// Moves the free components of the state to the extrapolated start of the step.
+    pub(crate) fn extrapolate(&self, nodes: &mut Nodes) {
+        for i in 0..nodes.x.len() {
+            for k in 0..3 {
+                if !nodes.fixed[i][k] {
+                    nodes.x[i][k] += self.dx[i][k] / 3.0;
+                    nodes.v[i][k] += self.dv[i][k] / 3.0;
+                }
+            }
+        }
+    }
+
+    /// Records the step just taken, from `before_x`, `before_v` to the nodes' state.
+    pub(crate) fn record(&mut self, nodes: &Nodes, before_x: &[Vec3], before_v: &[Vec3]) {
+        for i in 0..nodes.x.len() {
+            self.dx[i] = nodes.x[i] - before_x[i];
+            self.dv[i] = nodes.v[i] - before_v[i];
+        }
+        self.valid = true;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -465,13 +465,8 @@ pub struct FemBody {
     /// Per stale element, the change of its upper blocks, when they are computed in
     /// parallel (sized the first time).
     assembly_deltas: Vec<[[f64; 9]; 10]>,
-    /// BDF2 history: `x_n - x_{n-1}` and `v_n - v_{n-1}` of the last step (empty until BDF2
-    /// is first used).
-    history_dx: Vec<Vec3>,
-    history_dv: Vec<Vec3>,
-    /// Whether `history_dx` and `history_dv` belong to the current state (false after
-    /// building, a reset, a change of model, step or integrator, a rotation sync).
-    history: bool,
+    /// BDF2 history (see [`crate::state::Bdf2History`]).
+    bdf2: crate::state::Bdf2History,
 }
 
 impl NodalBody for FemBody {
@@ -601,9 +596,7 @@ impl FemBody {
             static_system: None,
             prefactored: None,
             assembly_deltas: Vec::new(),
-            history_dx: Vec::new(),
-            history_dv: Vec::new(),
-            history: false,
+            bdf2: Default::default(),
         };
         if config.model == FemModel::CorotationalPrefactored {
             body.prefactored = Some(prefactored::Prefactored::new(&body)?);
@@ -635,7 +628,7 @@ impl FemBody {
             }
             self.config.model = model;
             self.dv.fill(Vec3::zeros());
-            self.history = false;
+            self.bdf2.valid = false;
             // The linear model leaves the system matrix as it was: still the warped stiffness
             // of `quats_assembled`, updated element by element from the next step on.
             if model.is_corotational() {
@@ -682,7 +675,7 @@ impl FemBody {
         // The last velocity change is no guess for a state from elsewhere, nor the last
         // step's history.
         self.dv.fill(Vec3::zeros());
-        self.history = false;
+        self.bdf2.valid = false;
     }
 
     /// Changes the time step: a numeric refactorization of the system (no allocation).
@@ -691,7 +684,7 @@ impl FemBody {
         c.dt = dt;
         c.validate()?;
         self.config = c;
-        self.history = false;
+        self.bdf2.valid = false;
         self.refactor_rest()
     }
 
@@ -711,7 +704,7 @@ impl FemBody {
             c.validate()?;
             let old = self.config.integrator;
             self.config.integrator = integrator;
-            self.history = false;
+            self.bdf2.valid = false;
             if let Err(e) = self.refactor_rest() {
                 // Back to the integrator (and factorization) that worked.
                 self.config.integrator = old;
@@ -727,7 +720,7 @@ impl FemBody {
     /// last step (state transfer); small edits between steps (contact corrections,
     /// kinematic moves) need not.
     pub fn restart_history(&mut self) {
-        self.history = false;
+        self.bdf2.valid = false;
     }
 
     /// Changes gravity.
@@ -836,7 +829,7 @@ impl FemBody {
     pub fn reset(&mut self) {
         self.nodes.reset();
         self.dv.fill(Vec3::zeros());
-        self.history = false;
+        self.bdf2.valid = false;
         self.quats.fill(UnitQuaternion::identity());
         self.rots.fill(Matrix3::identity());
         // Back to the system matrix the body was built with (the rest system, the warped
@@ -956,11 +949,8 @@ impl FemBody {
         match self.step_from_current() {
             Ok(stats) => {
                 if bdf2 {
-                    for i in 0..self.nodes.x.len() {
-                        self.history_dx[i] = self.nodes.x[i] - self.backup_x[i];
-                        self.history_dv[i] = self.nodes.v[i] - self.backup_v[i];
-                    }
-                    self.history = true;
+                    self.bdf2
+                        .record(&self.nodes, &self.backup_x, &self.backup_v);
                 }
                 self.nodes.f_ext.fill(Vec3::zeros());
                 self.stats = stats;
@@ -978,23 +968,10 @@ impl FemBody {
     /// BDF2: moves the state to the extrapolated start of the step (see [`FemBody::step`]),
     /// starting the history first when there is none.
     fn extrapolate(&mut self) {
-        let n = self.nodes.x.len();
-        if self.history_dx.len() != n {
-            self.history_dx = vec![Vec3::zeros(); n];
-            self.history_dv = vec![Vec3::zeros(); n];
-            self.history = false;
-        }
-        if !self.history {
+        if self.bdf2.needs_start(self.nodes.x.len()) {
             self.start_history();
         }
-        for i in 0..n {
-            for a in 0..3 {
-                if !self.nodes.fixed[i][a] {
-                    self.nodes.x[i][a] += self.history_dx[i][a] / 3.0;
-                    self.nodes.v[i][a] += self.history_dv[i][a] / 3.0;
-                }
-            }
-        }
+        self.bdf2.extrapolate(&mut self.nodes);
     }
 
     /// A history for a state without one: `dt v_n` and `dt a_n`, `a_n` the acceleration of
@@ -1004,7 +981,7 @@ impl FemBody {
     fn start_history(&mut self) {
         let h = self.config.dt;
         let model = self.config.model;
-        let mut f = std::mem::take(&mut self.history_dv);
+        let mut f = self.bdf2.take_buffer();
         self.forces_and_energy(&self.nodes.x, model, &mut f);
         let (alpha, beta) = (self.config.mass_damping, self.config.stiffness_damping);
         if beta > 0.0 {
@@ -1026,15 +1003,9 @@ impl FemBody {
         let g = self.config.gravity;
         for i in 0..f.len() {
             let m = self.nodes.mass[i];
-            let a = (f[i] + self.nodes.f_ext[i]) / m + g - alpha * self.nodes.v[i];
-            for k in 0..3 {
-                let held = self.nodes.fixed[i][k];
-                f[i][k] = if held { 0.0 } else { h * a[k] };
-                self.history_dx[i][k] = if held { 0.0 } else { h * self.nodes.v[i][k] };
-            }
+            f[i] = (f[i] + self.nodes.f_ext[i]) / m + g - alpha * self.nodes.v[i];
         }
-        self.history_dv = f;
-        self.history = true;
+        self.bdf2.start(&self.nodes, f, h);
     }
 
     /// One backward Euler step of `config().system_dt()` from the current state; on error

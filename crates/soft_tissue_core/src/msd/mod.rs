@@ -315,11 +315,8 @@ pub struct MsdBody {
     implicit: Option<Implicit>,
     limit_row: Vec<f64>,
     stats: MsdStepStats,
-    /// BDF2 history: `x_n - x_{n-1}` and `v_n - v_{n-1}` of the last step (empty until BDF2
-    /// is first used) and whether it belongs to the current state.
-    history_dx: Vec<Vec3>,
-    history_dv: Vec<Vec3>,
-    history: bool,
+    /// BDF2 history (see [`crate::state::Bdf2History`]).
+    bdf2: crate::state::Bdf2History,
 }
 
 #[derive(Debug)]
@@ -524,9 +521,7 @@ impl MsdBody {
             implicit: None,
             limit_row: Vec::with_capacity(n),
             stats: MsdStepStats::default(),
-            history_dx: Vec::new(),
-            history_dv: Vec::new(),
-            history: false,
+            bdf2: Default::default(),
         };
         body.estimate_limits();
         if config.integrator.is_implicit() {
@@ -774,7 +769,7 @@ impl MsdBody {
             return Ok(());
         }
         self.config.integrator = integrator;
-        self.history = false;
+        self.bdf2.valid = false;
         let result = if !integrator.is_implicit() {
             Ok(())
         } else if self.implicit.is_none() {
@@ -794,7 +789,7 @@ impl MsdBody {
     /// Forgets the BDF2 history: the next step starts it again from the current state. Call
     /// after replacing the state with one that does not continue the last step.
     pub fn restart_history(&mut self) {
-        self.history = false;
+        self.bdf2.valid = false;
     }
 
     /// The rest-state preconditioner for the current system step, refactorized.
@@ -814,7 +809,7 @@ impl MsdBody {
         c.dt = dt;
         c.validate()?;
         self.config = c;
-        self.history = false;
+        self.bdf2.valid = false;
         self.refactor_implicit()
     }
 
@@ -939,7 +934,7 @@ impl MsdBody {
     /// Puts the body back at rest in its rest shape.
     pub fn reset(&mut self) {
         self.nodes.reset();
-        self.history = false;
+        self.bdf2.valid = false;
         if let Some(imp) = &mut self.implicit {
             imp.dv.fill(Vec3::zeros());
         }
@@ -1059,11 +1054,8 @@ impl MsdBody {
             let bad = state::first_non_finite_state(&self.nodes.x, &self.nodes.v);
             if result.is_ok() && bad.is_none() {
                 if self.config.integrator == MsdIntegrator::ImplicitBdf2 {
-                    for i in 0..self.nodes.x.len() {
-                        self.history_dx[i] = self.nodes.x[i] - self.backup_x[i];
-                        self.history_dv[i] = self.nodes.v[i] - self.backup_v[i];
-                    }
-                    self.history = true;
+                    self.bdf2
+                        .record(&self.nodes, &self.backup_x, &self.backup_v);
                 }
                 self.nodes.f_ext.fill(Vec3::zeros());
                 self.stats = stats;
@@ -1139,34 +1131,12 @@ impl MsdBody {
     /// BDF2: moves the state to the extrapolated start of the step, starting the history
     /// first when there is none (see [`MsdBody::step`]).
     fn extrapolate(&mut self) {
-        let n = self.nodes.x.len();
-        if self.history_dx.len() != n {
-            self.history_dx = vec![Vec3::zeros(); n];
-            self.history_dv = vec![Vec3::zeros(); n];
-            self.history = false;
-        }
-        if !self.history {
-            let h = self.config.dt;
-            let mut acc = std::mem::take(&mut self.history_dv);
+        if self.bdf2.needs_start(self.nodes.x.len()) {
+            let mut acc = self.bdf2.take_buffer();
             self.accelerations(&self.nodes.x, &self.nodes.v, &mut acc);
-            for i in 0..n {
-                for a in 0..3 {
-                    let held = self.nodes.fixed[i][a];
-                    acc[i][a] = if held { 0.0 } else { h * acc[i][a] };
-                    self.history_dx[i][a] = if held { 0.0 } else { h * self.nodes.v[i][a] };
-                }
-            }
-            self.history_dv = acc;
-            self.history = true;
+            self.bdf2.start(&self.nodes, acc, self.config.dt);
         }
-        for i in 0..n {
-            for a in 0..3 {
-                if !self.nodes.fixed[i][a] {
-                    self.nodes.x[i][a] += self.history_dx[i][a] / 3.0;
-                    self.nodes.v[i][a] += self.history_dv[i][a] / 3.0;
-                }
-            }
-        }
+        self.bdf2.extrapolate(&mut self.nodes);
     }
 
     fn implicit_step(&mut self) -> Result<CgStats, MsdError> {
