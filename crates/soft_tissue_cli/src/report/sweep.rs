@@ -339,23 +339,13 @@ pub(super) fn speed_against_error(
     };
     progress(&format!("reference check: {}", half.label));
     let (halved, _) = trajectory(scene, assets, script, &half, duration, Some((1e-8, 200)))?;
-    let (mut halving_max, mut halving_sum, mut halving_n) = (0.0f64, 0.0f64, 0usize);
-    for (k, r) in refs.iter().enumerate() {
-        let Some(h) = halved.get(2 * k + 1) else {
-            break;
-        };
-        let mut s = 0.0;
-        for (p, q) in r.iter().zip(h) {
-            let d = (p - q).norm();
-            s += d;
-            halving_max = halving_max.max(d);
-        }
-        halving_sum += s / r.len().max(1) as f64;
-        halving_n += 1;
-    }
+    let (halving_mean, halving_max) = gap(refs
+        .iter()
+        .enumerate()
+        .map_while(|(k, r)| Some((r.as_slice(), halved.get(2 * k + 1)?.as_slice()))));
     let reference = Reference {
         halving_max_pct: 100.0 * halving_max / scale,
-        halving_mean_pct: 100.0 * halving_sum / halving_n.max(1) as f64 / scale,
+        halving_mean_pct: 100.0 * halving_mean / scale,
         halved: half.label,
         config: reference,
     };
@@ -363,24 +353,15 @@ pub(super) fn speed_against_error(
     for c in configs {
         progress(&c.label);
         let (traj, median_us) = trajectory(scene, assets, script, c, duration, None)?;
-        let (mut sum, mut max, mut n) = (0.0f64, 0.0f64, 0usize);
-        for (k, x) in traj.iter().enumerate() {
+        let (mean, max) = gap(traj.iter().enumerate().map(|(k, x)| {
             let t = (k + 1) as f64 * c.dt;
             let j = ((t / reference.config.dt).round() as usize).clamp(1, refs.len()) - 1;
-            let r = &refs[j];
-            let mut s = 0.0;
-            for (p, q) in x.iter().zip(r) {
-                let d = (p - q).norm();
-                s += d;
-                max = max.max(d);
-            }
-            sum += s / x.len().max(1) as f64;
-            n += 1;
-        }
+            (x.as_slice(), refs[j].as_slice())
+        }));
         points.push(Point {
             config: c.clone(),
             median_us,
-            mean_pct: 100.0 * sum / n.max(1) as f64 / scale,
+            mean_pct: 100.0 * mean / scale,
             max_pct: 100.0 * max / scale,
             pareto: false,
         });
@@ -392,6 +373,23 @@ pub(super) fn speed_against_error(
             .any(|q| q.median_us <= t && q.max_pct <= e && (q.median_us < t || q.max_pct < e));
     }
     Ok((reference, points))
+}
+
+/// Over pairs of node sets (the same nodes in two runs at one time): the mean of their mean
+/// node distance, and the largest node distance.
+fn gap<'a>(pairs: impl Iterator<Item = (&'a [Vec3], &'a [Vec3])>) -> (f64, f64) {
+    let (mut sum, mut max, mut n) = (0.0f64, 0.0f64, 0usize);
+    for (a, b) in pairs {
+        let mut s = 0.0;
+        for (p, q) in a.iter().zip(b) {
+            let d = (p - q).norm();
+            s += d;
+            max = max.max(d);
+        }
+        sum += s / a.len().max(1) as f64;
+        n += 1;
+    }
+    (sum / n.max(1) as f64, max)
 }
 
 /// One row of the mesh-size scaling.
