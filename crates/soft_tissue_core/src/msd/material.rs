@@ -26,6 +26,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::Vec3;
+use crate::fem::element::{lame, shape_gradients};
 
 /// Where an MSD's spring stiffnesses come from (mesh constructor only).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
@@ -76,24 +77,11 @@ const EDGES: [[usize; 2]; 6] = [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]];
 /// order `01, 02, 03, 12, 13, 23`) against its linear FEM stiffness. A degenerate
 /// tetrahedron (no volume, or a zero-length edge) gets zeros.
 pub fn fit_tet_springs(p: [Vec3; 4], young_modulus: f64, poisson_ratio: f64) -> [f64; 6] {
-    let (e, nu) = (young_modulus, poisson_ratio);
-    let lambda = e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
-    let mu = e / (2.0 * (1.0 + nu));
-    let d = nalgebra::Matrix3::from_columns(&[p[1] - p[0], p[2] - p[0], p[3] - p[0]]);
-    let volume = d.determinant().abs() / 6.0;
-    let Some(inv) = d.try_inverse() else {
+    let (lambda, mu) = lame(young_modulus, poisson_ratio);
+    let Some((g, signed_volume)) = shape_gradients(&p) else {
         return [0.0; 6];
     };
-    if !(volume > 0.0 && volume.is_finite()) {
-        return [0.0; 6];
-    }
-    // Gradients of the barycentric coordinates: rows of D⁻¹ for nodes 1..3, minus their sum
-    // for node 0.
-    let mut g = [Vec3::zeros(); 4];
-    for i in 0..3 {
-        g[i + 1] = inv.row(i).transpose();
-    }
-    g[0] = -(g[1] + g[2] + g[3]);
+    let volume = signed_volume.abs();
     let mut dir = [Vec3::zeros(); 6];
     let mut rhs = [0.0; 6];
     for (k, &[a, b]) in EDGES.iter().enumerate() {
