@@ -17,7 +17,7 @@ use bevy_soft_tissue::core::scenario::{PreciseMethod, Scene};
 use bevy_soft_tissue::prelude::*;
 
 fn choose_methods(keys: Res<ButtonInput<KeyCode>>, mut bodies: Query<(&Name, &mut SoftBody)>) {
-    use PreciseMethodKind as M;
+    use PreciseMethod as M;
     let pair = if keys.just_pressed(KeyCode::Digit1) {
         (M::LinearFem, M::LinearFem)
     } else if keys.just_pressed(KeyCode::Digit2) {

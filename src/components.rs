@@ -9,10 +9,8 @@
 
 use bevy::prelude::*;
 use soft_tissue_core::contact::{Tool, ToolShape};
-use soft_tissue_core::fem::FemModel;
 use soft_tissue_core::heat::HeatParams;
-use soft_tissue_core::msd::MsdIntegrator;
-use soft_tissue_core::precision::{BodySettings, Level, PreciseMethod};
+use soft_tissue_core::precision::BodySettings;
 use soft_tissue_core::state::NodalBody;
 use soft_tissue_core::world::SimBody;
 
@@ -32,7 +30,7 @@ pub struct SoftBody {
     pub mesh: Handle<TetMeshAsset>,
     /// The precise method the body rises to when touched. Change it at run time: the body
     /// switches solver without a jump.
-    pub method: PreciseMethodKind,
+    pub method: PreciseMethod,
     /// Material, cage, boundary, gravity and step (`method` overrides `settings.precise`).
     /// The step must equal the plugin's [`crate::SoftTissueConfig::dt`].
     #[reflect(ignore)]
@@ -47,7 +45,7 @@ impl SoftBody {
     pub fn new(mesh: Handle<TetMeshAsset>, settings: BodySettings) -> Self {
         SoftBody {
             mesh,
-            method: settings.precise.into(),
+            method: settings.precise,
             settings,
             heat: None,
         }
@@ -60,114 +58,16 @@ impl SoftBody {
     }
 }
 
-/// The precise methods, as a reflectable choice.
-#[derive(Reflect, Clone, Copy, Debug, PartialEq, Eq, Default, Hash)]
-pub enum PreciseMethodKind {
-    /// Linear tetrahedral FEM, implicit Euler (the paper).
-    LinearFem,
-    /// Corotational tetrahedral FEM, implicit Euler (the default).
-    #[default]
-    CorotationalFem,
-    /// Corotational FEM with a constant prefactored system: a fixed, low cost per step on
-    /// large meshes, numerically damped in stiff, slow motion.
-    PrefactoredFem,
-    /// Mass-spring-damper, RK4 (the paper).
-    MsdRk4,
-    /// Mass-spring-damper, symplectic Euler.
-    MsdSymplectic,
-    /// Mass-spring-damper, linearised implicit Euler.
-    MsdImplicit,
-    /// Mass-spring-damper, linearised BDF2 (second order).
-    MsdBdf2,
-}
-
-impl PreciseMethodKind {
-    /// Every method, in display order.
-    pub const ALL: [PreciseMethodKind; 7] = [
-        PreciseMethodKind::LinearFem,
-        PreciseMethodKind::CorotationalFem,
-        PreciseMethodKind::PrefactoredFem,
-        PreciseMethodKind::MsdRk4,
-        PreciseMethodKind::MsdSymplectic,
-        PreciseMethodKind::MsdImplicit,
-        PreciseMethodKind::MsdBdf2,
-    ];
-
-    /// Short name (`fem-linear`, `fem-corotational`, `fem-corotational-prefactored`,
-    /// `msd-rk4`, `msd-symplectic`, `msd-implicit`, `msd-bdf2`).
-    pub fn name(self) -> &'static str {
-        PreciseMethod::from(self).name()
-    }
-}
-
-impl From<PreciseMethod> for PreciseMethodKind {
-    fn from(m: PreciseMethod) -> Self {
-        match m {
-            PreciseMethod::Fem(FemModel::Linear) => PreciseMethodKind::LinearFem,
-            PreciseMethod::Fem(FemModel::Corotational) => PreciseMethodKind::CorotationalFem,
-            PreciseMethod::Fem(FemModel::CorotationalPrefactored) => {
-                PreciseMethodKind::PrefactoredFem
-            }
-            PreciseMethod::Msd(MsdIntegrator::Rk4) => PreciseMethodKind::MsdRk4,
-            PreciseMethod::Msd(MsdIntegrator::SymplecticEuler) => PreciseMethodKind::MsdSymplectic,
-            PreciseMethod::Msd(MsdIntegrator::ImplicitEuler) => PreciseMethodKind::MsdImplicit,
-            PreciseMethod::Msd(MsdIntegrator::ImplicitBdf2) => PreciseMethodKind::MsdBdf2,
-        }
-    }
-}
-
-impl From<PreciseMethodKind> for PreciseMethod {
-    fn from(m: PreciseMethodKind) -> Self {
-        match m {
-            PreciseMethodKind::LinearFem => PreciseMethod::Fem(FemModel::Linear),
-            PreciseMethodKind::CorotationalFem => PreciseMethod::Fem(FemModel::Corotational),
-            PreciseMethodKind::PrefactoredFem => {
-                PreciseMethod::Fem(FemModel::CorotationalPrefactored)
-            }
-            PreciseMethodKind::MsdRk4 => PreciseMethod::Msd(MsdIntegrator::Rk4),
-            PreciseMethodKind::MsdSymplectic => PreciseMethod::Msd(MsdIntegrator::SymplecticEuler),
-            PreciseMethodKind::MsdImplicit => PreciseMethod::Msd(MsdIntegrator::ImplicitEuler),
-            PreciseMethodKind::MsdBdf2 => PreciseMethod::Msd(MsdIntegrator::ImplicitBdf2),
-        }
-    }
-}
-
-/// The level a body runs at.
-#[derive(Reflect, Clone, Copy, Debug, PartialEq, Eq, Default, Hash)]
-pub enum LevelKind {
-    /// Green coordinates of a cage driven by a small MSD.
-    #[default]
-    Cage,
-    /// The body's precise method.
-    Precise,
-}
-
-impl From<Level> for LevelKind {
-    fn from(l: Level) -> Self {
-        match l {
-            Level::Cage => LevelKind::Cage,
-            Level::Precise => LevelKind::Precise,
-        }
-    }
-}
-
-impl From<LevelKind> for Level {
-    fn from(l: LevelKind) -> Self {
-        match l {
-            LevelKind::Cage => Level::Cage,
-            LevelKind::Precise => Level::Precise,
-        }
-    }
-}
+pub use soft_tissue_core::precision::{Level, PreciseMethod};
 
 /// The level a body runs at now and what its switches did (written by the switcher).
 #[derive(Component, Reflect, Clone, Copy, Debug, PartialEq, Default)]
 #[reflect(Component)]
 pub struct PrecisionLevel {
     /// Current level.
-    pub level: LevelKind,
+    pub level: Level,
     /// The precise method the body rises to.
-    pub method: PreciseMethodKind,
+    pub method: PreciseMethod,
     /// Switches so far.
     pub switches: u64,
     /// Largest surface-vertex jump of the last switch, as a fraction of the body's smallest
@@ -179,7 +79,7 @@ pub struct PrecisionLevel {
 /// body switch again.
 #[derive(Component, Reflect, Clone, Copy, Debug, PartialEq, Eq)]
 #[reflect(Component)]
-pub struct PinnedLevel(pub LevelKind);
+pub struct PinnedLevel(pub Level);
 
 /// The body's cage: its triangles and current vertex positions (world coordinates, updated
 /// while the body is at the cage level), for display.
@@ -213,7 +113,7 @@ pub struct FemState {
 #[reflect(Component)]
 pub struct MsdState {
     /// The integrator.
-    pub integrator: PreciseMethodKind,
+    pub integrator: PreciseMethod,
     /// Substeps of the last precise step (explicit integrators).
     pub substeps: u32,
     /// Conjugate-gradient iterations of the last precise step (implicit integrator; 0

@@ -166,15 +166,15 @@ fn inspector_panel(
                 for (e, name, mut body, level, diag, temp) in rows {
                     ui.label(name.map_or_else(|| format!("{e}"), |n| n.as_str().to_owned()));
                     let (text, colour) = match level.level {
-                        LevelKind::Cage => ("cage", egui::Color32::from_rgb(90, 170, 255)),
-                        LevelKind::Precise => ("precise", egui::Color32::from_rgb(255, 150, 60)),
+                        Level::Cage => ("cage", egui::Color32::from_rgb(90, 170, 255)),
+                        Level::Precise => ("precise", egui::Color32::from_rgb(255, 150, 60)),
                     };
                     ui.colored_label(colour, text);
                     let mut method = body.method;
                     egui::ComboBox::from_id_salt(("method", e))
                         .selected_text(method.name())
                         .show_ui(ui, |ui| {
-                            for m in PreciseMethodKind::ALL {
+                            for m in PreciseMethod::ALL {
                                 ui.selectable_value(&mut method, m, m.name());
                             }
                         });

@@ -2,7 +2,7 @@
 
 use bevy::prelude::*;
 
-use crate::components::LevelKind;
+use crate::components::Level;
 
 /// A body changed level (written in the Writeback set of the step it switched).
 #[derive(Message, Clone, Copy, Debug, PartialEq)]
@@ -10,9 +10,9 @@ pub struct LevelChanged {
     /// The body.
     pub entity: Entity,
     /// Level before.
-    pub from: LevelKind,
+    pub from: Level,
     /// Level after.
-    pub to: LevelKind,
+    pub to: Level,
     /// Largest surface-vertex jump of the switch, as a fraction of the body's smallest
     /// bounding-box dimension.
     pub jump_ratio: f64,

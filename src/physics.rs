@@ -326,7 +326,7 @@ fn build_bodies(
         let name = name.map_or_else(|| format!("{entity}"), |n| n.as_str().to_owned());
         let result = (|| -> Result<SimBody, String> {
             let mut settings = spec.settings.clone();
-            settings.precise = spec.method.into();
+            settings.precise = spec.method;
             if (settings.dt - config.dt).abs() > 1e-12 * config.dt {
                 return Err(format!(
                     "its step {} s differs from the simulation's {} s (SoftTissueConfig::dt)",
@@ -341,9 +341,7 @@ fn build_bodies(
                 body.set_shadow(true).map_err(|e| e.to_string())?;
             }
             if let Some(p) = pin {
-                body.body_mut()
-                    .pin(Some(p.0.into()))
-                    .map_err(|e| e.to_string())?;
+                body.body_mut().pin(Some(p.0)).map_err(|e| e.to_string())?;
             }
             Ok(body)
         })();
@@ -351,11 +349,11 @@ fn build_bodies(
             Ok(body) => {
                 let placement = *transform;
                 *transform = Transform::IDENTITY;
-                let method: PreciseMethodKind = body.body().settings().precise.into();
+                let method: PreciseMethod = body.body().settings().precise;
                 let mut e = commands.entity(entity);
                 e.insert((
                     PrecisionLevel {
-                        level: body.body().level().into(),
+                        level: body.body().level(),
                         method,
                         switches: 0,
                         last_jump_ratio: None,
@@ -363,13 +361,10 @@ fn build_bodies(
                     GreenCage::default(),
                     SoftBodyDiagnostics::default(),
                 ));
-                match body.body().settings().precise {
-                    PreciseMethod::Fem(_) => {
-                        e.insert(FemState::default());
-                    }
-                    PreciseMethod::Msd(_) => {
-                        e.insert(MsdState::default());
-                    }
+                if body.body().settings().precise.is_fem() {
+                    e.insert(FemState::default());
+                } else {
+                    e.insert(MsdState::default());
                 }
                 if body.heat().is_some() {
                     e.insert(Temperature::default());
@@ -482,14 +477,14 @@ fn prepare_stage(
     let mut t = Instant::now();
     for (entity, spec, mut sim, pin, shadow) in &mut bodies {
         let b = &mut sim.body;
-        let want: PreciseMethod = spec.method.into();
+        let want: PreciseMethod = spec.method;
         if spec.is_changed() && b.body().settings().precise != want {
             let mesh = b.mesh().clone();
             if let Err(e) = b.body_mut().set_precise_method(&mesh, want) {
                 fail(&mut status, format!("{}: changing method: {e}", b.name()));
             }
         }
-        let pinned: Option<Level> = pin.as_ref().map(|p| p.0.into());
+        let pinned: Option<Level> = pin.as_ref().map(|p| p.0);
         if b.body().pinned() != pinned
             && let Err(e) = b.body_mut().pin(pinned)
         {
@@ -658,8 +653,8 @@ fn writeback_stage(
         let d = *b.diagnostics();
         let lb = b.body();
         let new_level = PrecisionLevel {
-            level: d.level.into(),
-            method: lb.settings().precise.into(),
+            level: d.level,
+            method: lb.settings().precise,
             switches: d.switch_count,
             last_jump_ratio: d.last_switch.map(|s| s.jump_ratio),
         };
@@ -687,8 +682,8 @@ fn writeback_stage(
         if let Some(s) = d.switched {
             level_changes.write(LevelChanged {
                 entity,
-                from: s.from.into(),
-                to: s.to.into(),
+                from: s.from,
+                to: s.to,
                 jump_ratio: s.jump_ratio,
             });
         }
@@ -730,7 +725,7 @@ fn writeback_stage(
         }
         if let (Some(mut m), Some(mb)) = (msd, lb.msd()) {
             m.set_if_neq(MsdState {
-                integrator: lb.settings().precise.into(),
+                integrator: lb.settings().precise,
                 substeps: mb.last_step().substeps,
                 cg_iterations: cg.map_or(0, |c| c.iterations),
                 cg_converged: cg.is_none_or(|c| c.converged),

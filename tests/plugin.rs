@@ -112,7 +112,7 @@ fn spawn_tool(app: &mut App, script: &Script) -> Entity {
         .id()
 }
 
-fn level(app: &App, e: Entity) -> LevelKind {
+fn level(app: &App, e: Entity) -> Level {
     app.world().get::<PrecisionLevel>(e).unwrap().level
 }
 
@@ -138,7 +138,7 @@ fn bodies_get_only_the_components_they_use() {
         .spawn(SoftBody::new(mesh.clone(), settings.clone()))
         .id();
     let mut msd_body = SoftBody::new(mesh.clone(), settings.clone());
-    msd_body.method = PreciseMethodKind::MsdImplicit;
+    msd_body.method = PreciseMethod::MsdImplicit;
     let msd = app
         .world_mut()
         .spawn((msd_body, Transform::from_xyz(3.0, 0.0, 0.0)))
@@ -162,11 +162,7 @@ fn bodies_get_only_the_components_they_use() {
         assert!(w.get::<PrecisionLevel>(e).is_some());
         assert!(w.get::<GreenCage>(e).is_some());
         assert!(w.get::<Mesh3d>(e).is_some(), "the render mesh is created");
-        assert_eq!(
-            level(&app, e),
-            LevelKind::Cage,
-            "every body starts at its cage"
-        );
+        assert_eq!(level(&app, e), Level::Cage, "every body starts at its cage");
         assert_eq!(*w.get::<Transform>(e).unwrap(), Transform::IDENTITY);
     }
     assert!(w.get::<FemState>(fem).is_some() && w.get::<MsdState>(fem).is_none());
@@ -291,8 +287,8 @@ fn a_tool_raises_a_body_its_release_returns_it_and_the_mesh_follows() {
     for k in 1..=900 {
         drive_tool(&mut app, tool, &script, k, dt);
         app.update();
-        raised |= level(&app, a) == LevelKind::Precise;
-        assert_eq!(level(&app, b), LevelKind::Cage, "B is never touched");
+        raised |= level(&app, a) == Level::Precise;
+        assert_eq!(level(&app, b), Level::Cage, "B is never touched");
         let now = positions(&app, &handle);
         moved = moved.max(
             now.iter()
@@ -304,14 +300,14 @@ fn a_tool_raises_a_body_its_release_returns_it_and_the_mesh_follows() {
         changes.extend(msgs.iter_current_update_messages().copied());
     }
     assert!(raised, "the poke raised A");
-    assert_eq!(level(&app, a), LevelKind::Cage, "A returned to its cage");
+    assert_eq!(level(&app, a), Level::Cage, "A returned to its cage");
     assert!(
         moved > 0.01,
         "the rendered mesh followed the poke ({moved})"
     );
     assert_eq!(changes.len(), 2, "{changes:?}");
-    assert_eq!((changes[0].entity, changes[0].to), (a, LevelKind::Precise));
-    assert_eq!((changes[1].entity, changes[1].to), (a, LevelKind::Cage));
+    assert_eq!((changes[0].entity, changes[0].to), (a, Level::Precise));
+    assert_eq!((changes[1].entity, changes[1].to), (a, Level::Cage));
     assert!(changes.iter().all(|c| c.jump_ratio < 0.005));
     let reaction = app.world().get::<ToolReaction>(tool).unwrap();
     assert!(reaction.force.is_finite());
@@ -493,16 +489,16 @@ fn pause_single_step_method_change_and_reset() {
     app.world_mut()
         .get_mut::<SoftBody>(bodies[0])
         .unwrap()
-        .method = PreciseMethodKind::CorotationalFem;
+        .method = PreciseMethod::CorotationalFem;
     app.update();
     let pl = *app.world().get::<PrecisionLevel>(bodies[0]).unwrap();
-    assert_eq!(pl.method, PreciseMethodKind::CorotationalFem);
+    assert_eq!(pl.method, PreciseMethod::CorotationalFem);
     // Pinned up, then reset.
     app.world_mut()
         .entity_mut(bodies[1])
-        .insert(PinnedLevel(LevelKind::Precise));
+        .insert(PinnedLevel(Level::Precise));
     app.update();
-    assert_eq!(level(&app, bodies[1]), LevelKind::Precise);
+    assert_eq!(level(&app, bodies[1]), Level::Precise);
     // Unpinned it stays up until it rests; a reset brings everything back to the start.
     app.world_mut()
         .entity_mut(bodies[1])
@@ -511,7 +507,7 @@ fn pause_single_step_method_change_and_reset() {
     app.world_mut().write_message(ResetSimulation);
     app.update();
     assert_eq!(steps(&app), 1, "reset, then one step");
-    assert_eq!(level(&app, bodies[1]), LevelKind::Cage);
+    assert_eq!(level(&app, bodies[1]), Level::Cage);
     assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
     // The read-out components follow the reset though the body now sleeps: its cage is the
     // active level again, at rest.
@@ -537,7 +533,7 @@ fn a_failed_stage_stops_the_step_there_and_no_nan_reaches_a_mesh() {
     let a = bodies[0];
     app.update();
     let mut k = 0;
-    while level(&app, a) != LevelKind::Precise {
+    while level(&app, a) != Level::Precise {
         k += 1;
         assert!(k < 400, "the poke never raised A");
         drive_tool(&mut app, tool, &script, k, dt);
@@ -678,7 +674,7 @@ fn finer_visual_meshes_follow_the_simulation() {
         "visual {visual_moved} vs surface {surface_moved}"
     );
     // Back at rest, the visual mesh is back where it started.
-    assert_eq!(level(&app, a), LevelKind::Cage);
+    assert_eq!(level(&app, a), Level::Cage);
     let back = max_distance(&positions(&app, &drawn), &initial);
     let surface_back = max_distance(&surfaces(&app, &[a])[0], &surface0);
     assert!(
@@ -788,7 +784,7 @@ fn a_haptic_device_pokes_through_the_haptic_thread_and_feels_the_tissue() {
         handle.set(outside + (inside - outside) * s, 0);
         app.update();
         std::thread::sleep(Duration::from_millis(2));
-        if s == 1.0 && level(&app, a) == LevelKind::Precise && handle.force().x < -0.1 {
+        if s == 1.0 && level(&app, a) == Level::Precise && handle.force().x < -0.1 {
             felt = true;
             break;
         }
@@ -903,7 +899,7 @@ fn a_non_manifold_mesh_simulates_and_draws_in_the_plugin() {
             .unwrap()
             .translation = start + dir * depth;
         app.update();
-        raised |= level(&app, body) == LevelKind::Precise;
+        raised |= level(&app, body) == Level::Precise;
         moved = moved.max(max_distance(&positions(&app, &drawn), &initial));
         // Energies on request: finite, and the pressed body stores elastic energy.
         let e = app.world().get::<SimulatedBody>(body).unwrap().energies();
@@ -914,5 +910,5 @@ fn a_non_manifold_mesh_simulates_and_draws_in_the_plugin() {
     assert!(raised, "the poke did not raise the body");
     assert!(moved > 0.01, "the drawn mesh did not follow ({moved})");
     assert!(elastic > 0.0, "no elastic energy while pressed");
-    assert_eq!(level(&app, body), LevelKind::Cage, "it did not come back");
+    assert_eq!(level(&app, body), Level::Cage, "it did not come back");
 }

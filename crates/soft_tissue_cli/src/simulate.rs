@@ -144,7 +144,7 @@ pub(crate) fn add_resting_copies(scene: &mut Scene, n: usize, world: &SoftTissue
 }
 
 fn level_name(world: &SoftTissueWorld, i: usize) -> &'static str {
-    world.bodies()[i].diagnostics().method
+    world.bodies()[i].diagnostics().running()
 }
 
 /// Puts tool `ti` where `script` has it at time `t` and applies the script's events of the

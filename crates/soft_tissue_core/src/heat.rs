@@ -37,6 +37,7 @@ pub const KELVIN_OFFSET: f64 = 273.15;
 
 /// Thermal parameters of a tissue (SI units, temperatures in degrees Celsius).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "bevy_reflect", derive(bevy_reflect::Reflect))]
 pub struct HeatParams {
     /// Thermal conductivity, W / (m K).
     pub conductivity: f64,

@@ -15,19 +15,7 @@ use crate::mesh::generate::Organ;
 use crate::msd::SpringStiffness;
 use serde::{Deserialize, Serialize};
 
-/// The precise method a body rises to when touched.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum PreciseMethod {
-    /// Linear tetrahedral FEM (as in the paper).
-    LinearFem,
-    /// Corotational tetrahedral FEM (correct under large rotations).
-    CorotationalFem,
-    /// Corotational FEM with the constant prefactored system (a fixed, low cost per step on
-    /// large meshes; see `FemModel::CorotationalPrefactored`).
-    PrefactoredFem,
-    /// Mass-spring-damper on the tetrahedra's edges.
-    Msd,
-}
+pub use crate::precision::PreciseMethod;
 
 /// FEM settings of a body.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -58,6 +46,7 @@ pub struct MsdLevel {
 
 /// The kind of cage used at the cheap level.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "bevy_reflect", derive(bevy_reflect::Reflect))]
 pub enum CageKind {
     /// The axis-aligned bounding box (8 vertices), as in the paper.
     BoundingBox,
@@ -381,9 +370,7 @@ impl Scene {
             };
             let dt_ok = |dt: f64| dt.is_finite() && dt > 0.0;
             match b.precise {
-                PreciseMethod::LinearFem
-                | PreciseMethod::CorotationalFem
-                | PreciseMethod::PrefactoredFem => {
+                m if m.is_fem() => {
                     let f = b
                         .fem
                         .ok_or_else(|| err("a FEM precise method needs `fem` settings".into()))?;
@@ -392,10 +379,10 @@ impl Scene {
                         return Err(err(format!("fem: dt must be positive, found {}", f.dt)));
                     }
                 }
-                PreciseMethod::Msd => {
+                _ => {
                     let m = b
                         .msd
-                        .ok_or_else(|| err("the Msd precise method needs `msd` settings".into()))?;
+                        .ok_or_else(|| err("an MSD precise method needs `msd` settings".into()))?;
                     m.params.validate().map_err(|e| err(format!("msd: {e}")))?;
                     m.spring_stiffness
                         .validate()
@@ -466,11 +453,24 @@ impl Scene {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn scene_files_naming_the_old_msd_method_read_as_implicit_msd() {
+        let mut s = Scene::paper_cylinders(PreciseMethod::LinearFem, PreciseMethod::MsdImplicit);
+        let text = ron::ser::to_string(&s).unwrap();
+        assert!(text.contains("precise:MsdImplicit"), "{text}");
+        let old = text.replace("precise:MsdImplicit", "precise:Msd");
+        let back: Scene = ron::from_str(&old).unwrap();
+        assert_eq!(back.bodies[1].precise, PreciseMethod::MsdImplicit);
+        s.bodies[1].precise = PreciseMethod::MsdRk4;
+        let back: Scene = ron::from_str(&ron::ser::to_string(&s).unwrap()).unwrap();
+        assert_eq!(back.bodies[1].precise, PreciseMethod::MsdRk4);
+    }
+
     use super::*;
 
     #[test]
     fn paper_parameters_are_as_published() {
-        let s = Scene::paper_cylinders(PreciseMethod::LinearFem, PreciseMethod::Msd);
+        let s = Scene::paper_cylinders(PreciseMethod::LinearFem, PreciseMethod::MsdImplicit);
         let a = &s.bodies[0];
         let fem = a.fem.unwrap();
         assert_eq!(

@@ -40,7 +40,7 @@ fn run(hold: Hold, steps: usize) -> (Vec<f64>, u64) {
                 body.pin(Some(Level::Cage)).unwrap();
             }
             Hold::Precise(model) => {
-                body.set_precise_method(&mesh, PreciseMethod::Fem(model))
+                body.set_precise_method(&mesh, PreciseMethod::fem(model))
                     .unwrap();
                 body.pin(Some(Level::Precise)).unwrap();
             }

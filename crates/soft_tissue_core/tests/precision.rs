@@ -5,7 +5,7 @@ use soft_tissue_core::boundary::Boundary;
 use soft_tissue_core::fem::FemModel;
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::io::read_tet_mesh;
-use soft_tissue_core::msd::MsdIntegrator;
+
 use soft_tissue_core::precision::{BodySettings, Level, LeveledBody, PreciseMethod};
 use soft_tissue_core::scenario::{CYLINDER_FEM, CYLINDER_MSD, CageKind, ORGAN_FEM};
 use soft_tissue_core::{NodalBody, Vec3};
@@ -33,9 +33,9 @@ fn top_nodes(mesh: &TetMesh) -> Vec<usize> {
 }
 
 const METHODS: [PreciseMethod; 3] = [
-    PreciseMethod::Fem(FemModel::Corotational),
-    PreciseMethod::Fem(FemModel::Linear),
-    PreciseMethod::Msd(MsdIntegrator::ImplicitEuler),
+    PreciseMethod::CorotationalFem,
+    PreciseMethod::LinearFem,
+    PreciseMethod::MsdImplicit,
 ];
 
 #[test]
@@ -206,11 +206,7 @@ fn body_cage_mut(body: &mut LeveledBody) -> &mut soft_tissue_core::msd::MsdBody 
 #[test]
 fn pins_and_hysteresis() {
     let mesh = asset("cylinder");
-    let s = cylinder_settings(
-        PreciseMethod::Fem(FemModel::Corotational),
-        CageKind::BoundingBox,
-        &mesh,
-    );
+    let s = cylinder_settings(PreciseMethod::CorotationalFem, CageKind::BoundingBox, &mesh);
     let min_steps = s.policy.min_precise_steps as u64;
     let mut body = LeveledBody::new(&mesh, s).unwrap();
     // Pinned to the cage: contact cannot raise it.
@@ -246,11 +242,7 @@ fn pins_and_hysteresis() {
 #[test]
 fn the_precise_method_changes_at_run_time_without_a_jump() {
     let mesh = asset("cylinder");
-    let s = cylinder_settings(
-        PreciseMethod::Fem(FemModel::Corotational),
-        CageKind::BoundingBox,
-        &mesh,
-    );
+    let s = cylinder_settings(PreciseMethod::CorotationalFem, CageKind::BoundingBox, &mesh);
     let mut body = LeveledBody::new(&mesh, s).unwrap();
     body.raise().unwrap();
     for _ in 0..20 {
@@ -259,16 +251,16 @@ fn the_precise_method_changes_at_run_time_without_a_jump() {
         body.step(true).unwrap();
     }
     for method in [
-        PreciseMethod::Msd(MsdIntegrator::ImplicitEuler),
-        PreciseMethod::Fem(FemModel::Linear),
-        PreciseMethod::Fem(FemModel::Corotational),
-        PreciseMethod::Msd(MsdIntegrator::Rk4),
+        PreciseMethod::MsdImplicit,
+        PreciseMethod::LinearFem,
+        PreciseMethod::CorotationalFem,
+        PreciseMethod::MsdRk4,
     ] {
         let before = body.node_positions().to_vec();
         body.set_precise_method(&mesh, method).unwrap();
         assert_eq!(body.settings().precise, method);
         assert_eq!(body.node_positions(), &before[..], "{method:?}");
-        assert!(body.msd().is_some() == matches!(method, PreciseMethod::Msd(_)));
+        assert!(body.msd().is_some() != method.is_fem());
         for _ in 0..10 {
             body.step(true).unwrap();
         }
@@ -366,7 +358,7 @@ fn a_shadow_is_the_precise_method_under_the_same_loads_and_leaves_the_cage_alone
 #[test]
 fn a_shadow_restarts_from_the_precise_state_at_a_down_switch() {
     let mesh = asset("cylinder");
-    let method = PreciseMethod::Fem(FemModel::Corotational);
+    let method = PreciseMethod::CorotationalFem;
     let settings = cylinder_settings(method, CageKind::BoundingBox, &mesh);
     let mut body = LeveledBody::new(&mesh, settings.clone()).unwrap();
     body.set_shadow(&mesh, true).unwrap();
@@ -432,10 +424,7 @@ fn a_free_calibrated_cage_accelerates_as_a_whole_by_newtons_law() {
     // gives, after k steps, the displacement `h^2 a k (k + 1) / 2`.
     let mesh = asset("liver");
     for cage in [CageKind::BoundingBox, CageKind::Fitted { vertices: 48 }] {
-        for method in [
-            PreciseMethod::Fem(FemModel::Corotational),
-            PreciseMethod::Msd(MsdIntegrator::ImplicitEuler),
-        ] {
+        for method in [PreciseMethod::CorotationalFem, PreciseMethod::MsdImplicit] {
             let mut fem = ORGAN_FEM.params;
             fem.damping = 0.0;
             let mut msd = CYLINDER_MSD.params;
@@ -516,7 +505,7 @@ fn a_calibrated_cage_resists_no_rigid_motion() {
 #[test]
 fn identical_bodies_share_a_calibrated_cage_and_the_paper_option_keeps_springs() {
     let mesh = asset("cylinder");
-    let method = PreciseMethod::Fem(FemModel::Corotational);
+    let method = PreciseMethod::CorotationalFem;
     let s = cylinder_settings(method, CageKind::BoundingBox, &mesh);
     let a = LeveledBody::new(&mesh, s.clone()).unwrap();
     let b = LeveledBody::new(&mesh, s.clone()).unwrap();
@@ -530,7 +519,7 @@ fn identical_bodies_share_a_calibrated_cage_and_the_paper_option_keeps_springs()
     // A run-time change of the precise method calibrates the cage again, against the new
     // method: the same model as a body built with it.
     let mut changed = LeveledBody::new(&mesh, s.clone()).unwrap();
-    let msd = PreciseMethod::Msd(MsdIntegrator::ImplicitEuler);
+    let msd = PreciseMethod::MsdImplicit;
     changed.set_precise_method(&mesh, msd).unwrap();
     let mut msd_settings = s.clone();
     msd_settings.precise = msd;
@@ -569,10 +558,7 @@ fn a_poked_cylinder_held_at_a_calibrated_cage_is_nearer_its_precise_shadow_than_
     // than the paper's cage MSD, on the worst and on the mean surface distance.
     let mesh = asset("cylinder");
     let top = top_nodes(&mesh);
-    for method in [
-        PreciseMethod::Fem(FemModel::Corotational),
-        PreciseMethod::Msd(MsdIntegrator::ImplicitEuler),
-    ] {
+    for method in [PreciseMethod::CorotationalFem, PreciseMethod::MsdImplicit] {
         let mut results = Vec::new();
         for dynamics in [CageDynamics::Calibrated, CageDynamics::Paper] {
             let mut s = cylinder_settings(method, CageKind::BoundingBox, &mesh);
@@ -642,7 +628,7 @@ fn a_calibrated_cage_reproduces_a_response_it_can_represent() {
     for model in [FemModel::Linear, FemModel::Corotational] {
         for cage in [CageKind::BoundingBox, CageKind::Fitted { vertices: 48 }] {
             let mut s = BodySettings::new(fem, CYLINDER_MSD.params, ORGAN_FEM.dt);
-            s.precise = PreciseMethod::Fem(model);
+            s.precise = PreciseMethod::fem(model);
             s.cage = cage;
             let body = LeveledBody::new(&mesh, s).unwrap();
             let reduced = body.cage().reduced().unwrap().clone();

@@ -452,7 +452,6 @@ fn resting_bodies_sleep_and_a_push_wakes_them() {
 #[test]
 fn a_collision_between_two_bodies_gains_no_energy() {
     use soft_tissue_core::contact::ContactConfig;
-    use soft_tissue_core::fem::FemModel;
     use soft_tissue_core::material::{FemParams, MsdParams};
     use soft_tissue_core::mesh::generate::block;
     use soft_tissue_core::precision::{BodySettings, PreciseMethod as Method};
@@ -483,7 +482,7 @@ fn a_collision_between_two_bodies_gains_no_energy() {
         )
         .unwrap();
         let mut s = BodySettings::new(fem, msd, dt);
-        s.precise = Method::Fem(FemModel::Corotational);
+        s.precise = Method::CorotationalFem;
         let body = SimBody::new(name, Arc::new(mesh), s, None).unwrap();
         world.add_body(body).unwrap();
     }
@@ -603,7 +602,6 @@ fn a_body_held_at_its_cage_level_follows_its_precise_twin_under_a_poke() {
 /// up and down run through its own solver); and the two models end in different states.
 #[test]
 fn replays_end_in_the_same_state_hash() {
-    use soft_tissue_core::fem::FemModel;
     use soft_tissue_core::precision::PreciseMethod;
     let end = |prefactored: bool| {
         let mut w = organs();
@@ -611,10 +609,7 @@ fn replays_end_in_the_same_state_hash() {
             for b in w.bodies_mut() {
                 let mesh = b.mesh().clone();
                 b.body_mut()
-                    .set_precise_method(
-                        &mesh,
-                        PreciseMethod::Fem(FemModel::CorotationalPrefactored),
-                    )
+                    .set_precise_method(&mesh, PreciseMethod::PrefactoredFem)
                     .unwrap();
             }
         }
@@ -645,7 +640,7 @@ fn one_and_several_threads_end_in_the_same_state_hash() {
             for b in w.bodies_mut() {
                 let mesh = b.mesh().clone();
                 let body = b.body_mut();
-                body.set_precise_method(&mesh, PreciseMethod::Fem(model))
+                body.set_precise_method(&mesh, PreciseMethod::fem(model))
                     .unwrap();
                 body.pin(Some(Level::Precise)).unwrap();
             }

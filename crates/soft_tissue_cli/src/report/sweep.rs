@@ -8,9 +8,9 @@ use soft_tissue_core::Vec3;
 use soft_tissue_core::bench::{BenchBody, BenchMethod};
 use soft_tissue_core::cage::CageDynamics;
 use soft_tissue_core::contact::Tool;
-use soft_tissue_core::fem::{FemIntegrator, FemModel};
+use soft_tissue_core::fem::FemIntegrator;
 use soft_tissue_core::mesh::generate::Organ;
-use soft_tissue_core::msd::{MsdIntegrator, SpringStiffness};
+use soft_tissue_core::msd::SpringStiffness;
 use soft_tissue_core::precision::{BodySettings, Level, PreciseMethod as Method};
 use soft_tissue_core::scenario::{CYLINDER_MSD, CageKind, ORGAN_FEM, Scene};
 use soft_tissue_core::world::{Script, SimBody, SoftTissueWorld, scene_bodies};
@@ -98,7 +98,7 @@ pub(super) fn configs(quick: bool, dt: f64) -> Vec<Config> {
     let cage = |kind, name: &str, dt: f64| Config {
         label: format!("cage {name} dt {dt}"),
         family: "cage",
-        method: Method::Fem(FemModel::Corotational),
+        method: Method::CorotationalFem,
         integrator: FemIntegrator::BackwardEuler,
         level: Level::Cage,
         cage: kind,
@@ -118,12 +118,12 @@ pub(super) fn configs(quick: bool, dt: f64) -> Vec<Config> {
         material_springs: true,
         ..precise(method, family, dt)
     };
-    let co = Method::Fem(FemModel::Corotational);
-    let pf = Method::Fem(FemModel::CorotationalPrefactored);
-    let li = Method::Fem(FemModel::Linear);
-    let rk4 = Method::Msd(MsdIntegrator::Rk4);
-    let implicit = Method::Msd(MsdIntegrator::ImplicitEuler);
-    let msd_bdf2 = Method::Msd(MsdIntegrator::ImplicitBdf2);
+    let co = Method::CorotationalFem;
+    let pf = Method::PrefactoredFem;
+    let li = Method::LinearFem;
+    let rk4 = Method::MsdRk4;
+    let implicit = Method::MsdImplicit;
+    let msd_bdf2 = Method::MsdBdf2;
     // The FEM methods with the second-order integrator.
     let bdf2 = |method, family, dt: f64| Config {
         integrator: FemIntegrator::Bdf2,
@@ -306,7 +306,7 @@ pub(super) fn speed_against_error(
     let reference = Config {
         label: format!("reference: FEM corotational BDF2 dt {}", base / 10.0),
         family: "reference",
-        method: Method::Fem(FemModel::Corotational),
+        method: Method::CorotationalFem,
         // Second order: at a tenth of the step its own time error is about a hundredth of
         // the settings' (backward Euler's would be a tenth of theirs, as large as BDF2's
         // error at the sweep's step).

@@ -57,36 +57,124 @@ mod undo;
 pub use undo::LevelSnapshot;
 
 /// The level a body runs at.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "bevy_reflect", derive(bevy_reflect::Reflect))]
 pub enum Level {
-    /// Green coordinates of an MSD-driven cage.
+    /// Green coordinates of an MSD-driven cage (where every body starts).
+    #[default]
     Cage,
     /// The body's precise method.
     Precise,
 }
 
-/// The precise method of a body.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+/// The precise method of a body: one type for the core, scene files, the plugin and the
+/// command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "bevy_reflect", derive(bevy_reflect::Reflect))]
 pub enum PreciseMethod {
-    /// Tetrahedral FEM with the given model.
-    Fem(FemModel),
-    /// Mass-spring-damper with the given integrator.
-    Msd(MsdIntegrator),
+    /// Linear tetrahedral FEM, implicit (the paper).
+    LinearFem,
+    /// Corotational tetrahedral FEM, implicit: right under large rotations (the default).
+    #[default]
+    CorotationalFem,
+    /// Corotational FEM with a constant prefactored system: a fixed, low cost per step on
+    /// large meshes, numerically damped in stiff, slow motion (see
+    /// [`FemModel::CorotationalPrefactored`]).
+    PrefactoredFem,
+    /// Mass-spring-damper, classical Runge-Kutta (the paper).
+    MsdRk4,
+    /// Mass-spring-damper, symplectic Euler.
+    MsdSymplectic,
+    /// Mass-spring-damper, linearised implicit Euler (stable at any step). Scene files
+    /// written before the methods were one type name it `Msd`.
+    #[serde(alias = "Msd")]
+    MsdImplicit,
+    /// Mass-spring-damper, linearised BDF2 (second order).
+    MsdBdf2,
 }
 
 impl PreciseMethod {
+    /// Every method, in display order.
+    pub const ALL: [PreciseMethod; 7] = [
+        PreciseMethod::LinearFem,
+        PreciseMethod::CorotationalFem,
+        PreciseMethod::PrefactoredFem,
+        PreciseMethod::MsdRk4,
+        PreciseMethod::MsdSymplectic,
+        PreciseMethod::MsdImplicit,
+        PreciseMethod::MsdBdf2,
+    ];
+
+    /// The FEM method of `model`.
+    pub fn fem(model: FemModel) -> Self {
+        match model {
+            FemModel::Linear => PreciseMethod::LinearFem,
+            FemModel::Corotational => PreciseMethod::CorotationalFem,
+            FemModel::CorotationalPrefactored => PreciseMethod::PrefactoredFem,
+        }
+    }
+
+    /// The MSD method of `integrator`.
+    pub fn msd(integrator: MsdIntegrator) -> Self {
+        match integrator {
+            MsdIntegrator::Rk4 => PreciseMethod::MsdRk4,
+            MsdIntegrator::SymplecticEuler => PreciseMethod::MsdSymplectic,
+            MsdIntegrator::ImplicitEuler => PreciseMethod::MsdImplicit,
+            MsdIntegrator::ImplicitBdf2 => PreciseMethod::MsdBdf2,
+        }
+    }
+
+    /// The solver of the method: a FEM model or an MSD integrator.
+    pub fn solver(self) -> Result<FemModel, MsdIntegrator> {
+        match self {
+            PreciseMethod::LinearFem => Ok(FemModel::Linear),
+            PreciseMethod::CorotationalFem => Ok(FemModel::Corotational),
+            PreciseMethod::PrefactoredFem => Ok(FemModel::CorotationalPrefactored),
+            PreciseMethod::MsdRk4 => Err(MsdIntegrator::Rk4),
+            PreciseMethod::MsdSymplectic => Err(MsdIntegrator::SymplecticEuler),
+            PreciseMethod::MsdImplicit => Err(MsdIntegrator::ImplicitEuler),
+            PreciseMethod::MsdBdf2 => Err(MsdIntegrator::ImplicitBdf2),
+        }
+    }
+
+    /// The FEM model, for a FEM method.
+    pub fn fem_model(self) -> Option<FemModel> {
+        self.solver().ok()
+    }
+
+    /// The MSD integrator, for an MSD method.
+    pub fn msd_integrator(self) -> Option<MsdIntegrator> {
+        self.solver().err()
+    }
+
+    /// Whether the method is a FEM one.
+    pub fn is_fem(self) -> bool {
+        self.fem_model().is_some()
+    }
+
     /// Short name: `fem-linear`, `fem-corotational`, `fem-corotational-prefactored`, `msd-rk4`,
     /// `msd-symplectic`, `msd-implicit`, `msd-bdf2`.
     pub fn name(self) -> &'static str {
         match self {
-            PreciseMethod::Fem(FemModel::Linear) => "fem-linear",
-            PreciseMethod::Fem(FemModel::Corotational) => "fem-corotational",
-            PreciseMethod::Fem(FemModel::CorotationalPrefactored) => "fem-corotational-prefactored",
-            PreciseMethod::Msd(MsdIntegrator::Rk4) => "msd-rk4",
-            PreciseMethod::Msd(MsdIntegrator::SymplecticEuler) => "msd-symplectic",
-            PreciseMethod::Msd(MsdIntegrator::ImplicitEuler) => "msd-implicit",
-            PreciseMethod::Msd(MsdIntegrator::ImplicitBdf2) => "msd-bdf2",
+            PreciseMethod::LinearFem => "fem-linear",
+            PreciseMethod::CorotationalFem => "fem-corotational",
+            PreciseMethod::PrefactoredFem => "fem-corotational-prefactored",
+            PreciseMethod::MsdRk4 => "msd-rk4",
+            PreciseMethod::MsdSymplectic => "msd-symplectic",
+            PreciseMethod::MsdImplicit => "msd-implicit",
+            PreciseMethod::MsdBdf2 => "msd-bdf2",
         }
+    }
+
+    /// The method of a short name ([`PreciseMethod::name`]).
+    pub fn from_name(name: &str) -> Option<Self> {
+        PreciseMethod::ALL.into_iter().find(|m| m.name() == name)
+    }
+}
+
+impl std::fmt::Display for PreciseMethod {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
     }
 }
 
@@ -154,7 +242,7 @@ impl BodySettings {
     /// [`CageDynamics::Paper`]), no gravity, a free body.
     pub fn new(fem: FemParams, msd: MsdParams, dt: f64) -> Self {
         BodySettings {
-            precise: PreciseMethod::Fem(FemModel::Corotational),
+            precise: PreciseMethod::CorotationalFem,
             fem,
             msd,
             msd_spring_stiffness: SpringStiffness::Constant,
@@ -397,9 +485,10 @@ fn build_cage(
     // total stiffness over the body's mass, or for fixed nodes the cage springs' own rate.
     let nv = cage_shape.vertices().len();
     let vertex_mass = settings.cage_msd.mass / nv as f64;
-    let body_mass = match settings.precise {
-        PreciseMethod::Fem(_) => settings.fem.mass,
-        PreciseMethod::Msd(_) => settings.msd.mass,
+    let body_mass = if settings.precise.is_fem() {
+        settings.fem.mass
+    } else {
+        settings.msd.mass
     };
     let anchor_total: f64 = settings
         .boundary
@@ -545,15 +634,15 @@ fn calibrated_model(
 }
 
 fn build_precise(mesh: &TetMesh, s: &BodySettings) -> Result<Precise, PrecisionError> {
-    Ok(match s.precise {
-        PreciseMethod::Fem(model) => {
+    Ok(match s.precise.solver() {
+        Ok(model) => {
             let mut c = FemConfig::paper(&s.fem, s.dt);
             c.model = model;
             c.gravity = s.gravity;
             c.integrator = s.fem_integrator;
             Precise::Fem(Box::new(FemBody::new(mesh, c, &s.boundary)?))
         }
-        PreciseMethod::Msd(integrator) => {
+        Err(integrator) => {
             let mut c = MsdConfig::paper(&s.msd, s.dt);
             c.integrator = integrator;
             c.spring_stiffness = s.msd_spring_stiffness;
@@ -872,7 +961,7 @@ impl LeveledBody {
             return Ok(());
         }
         // Between FEM models: same FEM body.
-        if let (Precise::Fem(b), PreciseMethod::Fem(model)) = (&mut self.precise, method) {
+        if let (Precise::Fem(b), Some(model)) = (&mut self.precise, method.fem_model()) {
             b.set_model(model)?;
             if let Some(Precise::Fem(s)) = self.shadow.as_deref_mut() {
                 s.set_model(model)?;

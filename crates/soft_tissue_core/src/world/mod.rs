@@ -134,8 +134,8 @@ pub struct WorldConfig {
 pub struct BodyDiagnostics {
     /// Level after the step.
     pub level: Level,
-    /// Name of the method now running: `cage`, `fem` or `msd`.
-    pub method: &'static str,
+    /// The body's precise method (running when `level` is [`Level::Precise`]).
+    pub method: crate::precision::PreciseMethod,
     /// Wall time of this body's solver step (level and heat, a down-switch included),
     /// microseconds.
     pub step_us: f64,
@@ -166,6 +166,17 @@ pub struct BodyDiagnostics {
     /// Distance of the cage level from its shadow precise simulation after this step
     /// (`None` unless [`SimBody::set_shadow`] turned it on and the body is at its cage).
     pub shadow: Option<ShadowError>,
+}
+
+impl BodyDiagnostics {
+    /// What runs now: `cage`, `fem` or `msd`.
+    pub fn running(&self) -> &'static str {
+        match (self.level, self.method.is_fem()) {
+            (Level::Cage, _) => "cage",
+            (Level::Precise, true) => "fem",
+            (Level::Precise, false) => "msd",
+        }
+    }
 }
 
 /// Most precise steps [`SimBody::new`] spends settling a body under gravity.
@@ -217,6 +228,7 @@ impl SimBody {
             body: name.clone(),
             source,
         };
+        let settings_method = settings.precise;
         let mut body = LeveledBody::new(&mesh, settings).map_err(precision)?;
         // Under gravity the cage level starts from the equilibrium the precise method finds.
         let (_, settled) = body.settle(&mesh, SETTLE_STEPS).map_err(precision)?;
@@ -248,7 +260,7 @@ impl SimBody {
             rest_surface,
             diagnostics: BodyDiagnostics {
                 level: Level::Cage,
-                method: "cage",
+                method: settings_method,
                 step_us: 0.0,
                 switch_us: 0.0,
                 cg: None,
@@ -371,7 +383,6 @@ impl SimBody {
         self.diagnostics.last_switch = self.body.last_switch();
         if self.heat.is_none() && self.body.is_asleep() && self.written_asleep {
             // Asleep and already written: the surface has not changed.
-            self.diagnostics.method = "cage";
             self.surface_written = false;
             return Ok(());
         }
@@ -405,13 +416,7 @@ impl SimBody {
         }
         self.diagnostics.max_displacement = max_d;
         self.diagnostics.level = self.body.level();
-        self.diagnostics.method = match self.body.level() {
-            Level::Cage => "cage",
-            Level::Precise => match self.body.settings().precise {
-                crate::precision::PreciseMethod::Fem(_) => "fem",
-                crate::precision::PreciseMethod::Msd(_) => "msd",
-            },
-        };
+        self.diagnostics.method = self.body.settings().precise;
         self.diagnostics.switch_count = self.body.switch_count();
         self.diagnostics.last_switch = self.body.last_switch();
         self.diagnostics.max_temperature = self.heat.as_ref().map(|h| max_of(h.temperatures()));

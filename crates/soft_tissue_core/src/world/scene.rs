@@ -9,16 +9,12 @@ use super::{SimBody, SoftTissueWorld, WorldConfig, WorldError};
 use crate::Vec3;
 use crate::boundary::Boundary;
 use crate::contact::ContactConfig;
-use crate::fem::FemModel;
 use crate::heat::HeatBoundary;
 use crate::material::{FemParams, MsdParams};
 use crate::mesh::TetMesh;
 use crate::mesh::io::read_tet_mesh;
-use crate::msd::MsdIntegrator;
-use crate::precision::{BodySettings, PreciseMethod as LevelMethod};
-use crate::scenario::{
-    Anchor, BodySpec, CYLINDER_FEM, CYLINDER_MSD, MeshSource, Placement, PreciseMethod, Scene,
-};
+use crate::precision::BodySettings;
+use crate::scenario::{Anchor, BodySpec, CYLINDER_FEM, CYLINDER_MSD, MeshSource, Placement, Scene};
 
 /// `mesh` rotated (XYZ Euler angles in degrees: about x, then y, then z) and translated.
 pub fn placed_mesh(mesh: &TetMesh, placement: &Placement) -> Result<TetMesh, String> {
@@ -118,26 +114,15 @@ pub fn body_settings(
         body: spec.name.clone(),
         message: message.into(),
     };
-    let (method, dt) = match spec.precise {
-        PreciseMethod::LinearFem
-        | PreciseMethod::CorotationalFem
-        | PreciseMethod::PrefactoredFem => {
-            let fem = spec
-                .fem
-                .ok_or_else(|| bad("a FEM precise method needs `fem` settings"))?;
-            let model = match spec.precise {
-                PreciseMethod::LinearFem => FemModel::Linear,
-                PreciseMethod::PrefactoredFem => FemModel::CorotationalPrefactored,
-                _ => FemModel::Corotational,
-            };
-            (LevelMethod::Fem(model), fem.dt)
-        }
-        PreciseMethod::Msd => {
-            let msd = spec
-                .msd
-                .ok_or_else(|| bad("the MSD precise method needs `msd` settings"))?;
-            (LevelMethod::Msd(MsdIntegrator::ImplicitEuler), msd.dt)
-        }
+    let method = spec.precise;
+    let dt = if method.is_fem() {
+        spec.fem
+            .ok_or_else(|| bad("a FEM precise method needs `fem` settings"))?
+            .dt
+    } else {
+        spec.msd
+            .ok_or_else(|| bad("an MSD precise method needs `msd` settings"))?
+            .dt
     };
     let fem: FemParams = spec.fem.map(|f| f.params).unwrap_or(CYLINDER_FEM.params);
     let msd: MsdParams = spec.msd.map(|m| m.params).unwrap_or(CYLINDER_MSD.params);
