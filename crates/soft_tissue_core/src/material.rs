@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 
 /// Linear-elastic tetrahedral FEM parameters (paper section III-B).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "bevy_reflect", derive(bevy_reflect::Reflect))]
 pub struct FemParams {
     /// Young's modulus, force / length^2.
     pub young_modulus: f64,
@@ -21,6 +22,7 @@ pub struct FemParams {
 
 /// Mass-spring-damper parameters (paper section III-C, eq. 6-7).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "bevy_reflect", derive(bevy_reflect::Reflect))]
 pub struct MsdParams {
     /// Spring stiffness, force / length.
     pub stiffness: f64,

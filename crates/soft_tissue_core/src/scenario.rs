@@ -86,6 +86,7 @@ pub enum MeshSource {
 
 /// How a body is held in place.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "bevy_reflect", derive(bevy_reflect::Reflect))]
 pub enum Anchor {
     /// Free body.
     None,
@@ -101,6 +102,36 @@ pub enum Anchor {
         /// Stiffness per unit mass, 1 / s^2.
         stiffness: f64,
     },
+}
+
+impl Anchor {
+    /// The supports this anchor gives a body of `mesh` (in the coordinates it is simulated
+    /// in: "bottom" is along -y there).
+    pub fn boundary(&self, mesh: &crate::mesh::TetMesh) -> crate::boundary::Boundary {
+        use crate::boundary::Boundary;
+        match *self {
+            Anchor::None => Boundary::free(),
+            Anchor::FixedBottom { fraction } => {
+                Boundary::fixed_below(mesh.positions(), 1, fraction)
+            }
+            Anchor::SoftToRest { stiffness } => Boundary::anchored(mesh.node_count(), stiffness),
+        }
+    }
+
+    /// Why the anchor's number is out of range, if it is.
+    pub fn validate(&self) -> Result<(), String> {
+        match *self {
+            Anchor::FixedBottom { fraction } if !(fraction > 0.0 && fraction < 1.0) => Err(
+                format!("anchor: fraction must be in (0, 1), found {fraction}"),
+            ),
+            Anchor::SoftToRest { stiffness } if !(stiffness.is_finite() && stiffness >= 0.0) => {
+                Err(format!(
+                    "anchor: stiffness must be non-negative, found {stiffness}"
+                ))
+            }
+            _ => Ok(()),
+        }
+    }
 }
 
 /// Placement of a body in the scene.
@@ -431,21 +462,7 @@ impl Scene {
             if let Some(h) = &b.heat {
                 h.validate().map_err(|e| err(format!("heat: {e}")))?;
             }
-            match b.anchor {
-                Anchor::FixedBottom { fraction } if !(fraction > 0.0 && fraction < 1.0) => {
-                    return Err(err(format!(
-                        "anchor: fraction must be in (0, 1), found {fraction}"
-                    )));
-                }
-                Anchor::SoftToRest { stiffness }
-                    if !(stiffness.is_finite() && stiffness >= 0.0) =>
-                {
-                    return Err(err(format!(
-                        "anchor: stiffness must be non-negative, found {stiffness}"
-                    )));
-                }
-                _ => {}
-            }
+            b.anchor.validate().map_err(err)?;
         }
         Ok(())
     }

@@ -676,3 +676,82 @@ fn a_calibrated_cage_reproduces_a_response_it_can_represent() {
         }
     }
 }
+
+/// A material changed at run time acts from then on exactly as a body built with it: the
+/// same state, stepped under the same loads, gives the same positions, and the change
+/// itself moves nothing.
+#[test]
+fn a_material_changed_at_run_time_acts_as_one_built_with_it() {
+    let mesh = asset("cylinder");
+    let top = top_nodes(&mesh);
+    for method in [PreciseMethod::CorotationalFem, PreciseMethod::MsdImplicit] {
+        let soft = cylinder_settings(method, CageKind::BoundingBox, &mesh);
+        let mut stiff = soft.clone();
+        stiff.fem.young_modulus *= 4.0;
+        stiff.msd.stiffness *= 4.0;
+        let mut changed = LeveledBody::new(&mesh, soft.clone()).unwrap();
+        let mut built = LeveledBody::new(&mesh, stiff.clone()).unwrap();
+        changed.raise().unwrap();
+        built.raise().unwrap();
+        let push = |b: &mut LeveledBody| {
+            for &i in &top {
+                b.add_force(i, Vec3::new(2.0, 0.0, 0.0)).unwrap();
+            }
+            b.step(true).unwrap();
+        };
+        let before = changed.node_positions().to_vec();
+        changed
+            .set_materials(&mesh, stiff.fem, stiff.msd, stiff.msd_spring_stiffness)
+            .unwrap();
+        assert_eq!(changed.node_positions(), &before[..], "{method:?}: a jump");
+        assert_eq!(changed.settings().fem, stiff.fem);
+        for _ in 0..30 {
+            push(&mut changed);
+            push(&mut built);
+        }
+        let gap = changed
+            .node_positions()
+            .iter()
+            .zip(built.node_positions())
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        let moved = built
+            .node_positions()
+            .iter()
+            .zip(mesh.positions())
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        assert!(
+            moved > 1e-3,
+            "{method:?}: the push must move the body ({moved})"
+        );
+        assert!(
+            gap < 1e-9 * moved.max(1.0),
+            "{method:?}: {gap} from a stiff-built body"
+        );
+        // A softer body under the same push moves farther.
+        let mut plain = LeveledBody::new(&mesh, soft.clone()).unwrap();
+        plain.raise().unwrap();
+        for _ in 0..30 {
+            push(&mut plain);
+        }
+        let soft_moved = plain
+            .node_positions()
+            .iter()
+            .zip(mesh.positions())
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        assert!(
+            soft_moved > 1.5 * moved,
+            "{method:?}: soft {soft_moved}, stiff {moved}"
+        );
+        // Refused materials leave the body as it was.
+        let mut bad = stiff.fem;
+        bad.poisson_ratio = 0.7;
+        let refused = changed
+            .set_materials(&mesh, bad, stiff.msd, stiff.msd_spring_stiffness)
+            .unwrap_err();
+        assert!(refused.to_string().contains("poisson"), "{refused}");
+        assert_eq!(changed.settings().fem, stiff.fem);
+    }
+}

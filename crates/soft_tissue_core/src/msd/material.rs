@@ -30,6 +30,7 @@ use crate::fem::element::{lame, shape_gradients};
 
 /// Where an MSD's spring stiffnesses come from (mesh constructor only).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "bevy_reflect", derive(bevy_reflect::Reflect))]
 pub enum SpringStiffness {
     /// Every spring gets [`MsdConfig::stiffness`](super::MsdConfig::stiffness) (the paper).
     #[default]

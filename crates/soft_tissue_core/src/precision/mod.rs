@@ -284,6 +284,9 @@ pub enum PrecisionError {
     /// The cage fit could not be solved.
     #[error("the cage fit is singular")]
     SingularFit,
+    /// A material refused (the field and why).
+    #[error("material: {0}")]
+    Material(String),
     /// A switch met a non-finite state (the level is left as it was).
     #[error("switch from the {from:?} level: non-finite {what} at node {node}")]
     NonFiniteSwitch {
@@ -971,6 +974,50 @@ impl LeveledBody {
         }
         let mut settings = self.settings.clone();
         settings.precise = method;
+        self.rebuild_precise(mesh, settings)
+    }
+
+    /// Changes the materials at run time: the FEM parameters, the MSD parameters and where
+    /// the MSD's springs come from. The precise solver (its shadow too) is built again from
+    /// them and, at the precise level, takes the current positions and velocities (no jump);
+    /// a calibrated cage is projected again from the new model. Fails, keeping the old
+    /// materials, when the new ones are refused.
+    pub fn set_materials(
+        &mut self,
+        mesh: &TetMesh,
+        fem: FemParams,
+        msd: MsdParams,
+        springs: SpringStiffness,
+    ) -> Result<(), PrecisionError> {
+        if (fem, msd, springs)
+            == (
+                self.settings.fem,
+                self.settings.msd,
+                self.settings.msd_spring_stiffness,
+            )
+        {
+            return Ok(());
+        }
+        fem.validate()
+            .map_err(|e| PrecisionError::Material(format!("fem: {e}")))?;
+        msd.validate()
+            .map_err(|e| PrecisionError::Material(format!("msd: {e}")))?;
+        springs
+            .validate()
+            .map_err(|(field, e)| PrecisionError::Material(format!("msd springs: {field} {e}")))?;
+        let mut settings = self.settings.clone();
+        settings.fem = fem;
+        settings.msd = msd;
+        settings.msd_spring_stiffness = springs;
+        self.rebuild_precise(mesh, settings)
+    }
+
+    /// The precise solver built again from `settings`, taking the current state.
+    fn rebuild_precise(
+        &mut self,
+        mesh: &TetMesh,
+        settings: BodySettings,
+    ) -> Result<(), PrecisionError> {
         let mut next = build_precise(mesh, &settings)?;
         if self.level == Level::Precise {
             let old = self.precise.body();

@@ -370,6 +370,40 @@ impl SimBody {
         Ok(())
     }
 
+    /// Changes the body's materials at run time (see [`LeveledBody::set_materials`]: no
+    /// jump, the precise solver built again).
+    pub fn set_materials(
+        &mut self,
+        fem: crate::material::FemParams,
+        msd: crate::material::MsdParams,
+        springs: crate::msd::SpringStiffness,
+    ) -> Result<(), WorldError> {
+        let mesh = self.mesh.clone();
+        self.body
+            .set_materials(&mesh, fem, msd, springs)
+            .map_err(|e| self.precision_err(e))?;
+        self.written_asleep = false;
+        Ok(())
+    }
+
+    /// Gives the body a new temperature field, or removes it (`None`). A new field starts
+    /// at its parameters' initial temperature, with no damage.
+    pub fn set_heat(&mut self, heat: Option<(HeatParams, HeatBoundary)>) -> Result<(), WorldError> {
+        self.heat = match heat {
+            Some((params, boundary)) => Some(
+                HeatField::new(&self.mesh, params, self.body.settings().dt, &boundary).map_err(
+                    |source| WorldError::Heat {
+                        body: self.name.clone(),
+                        source,
+                    },
+                )?,
+            ),
+            None => None,
+        };
+        self.written_asleep = false;
+        Ok(())
+    }
+
     /// Writes the surface positions and the diagnostics. A non-finite surface position is
     /// never written: the surface keeps its last positions and the error names the node.
     fn write_surface(&mut self) -> Result<(), WorldError> {

@@ -7,14 +7,13 @@ use nalgebra::Rotation3;
 
 use super::{SimBody, SoftTissueWorld, WorldConfig, WorldError};
 use crate::Vec3;
-use crate::boundary::Boundary;
 use crate::contact::ContactConfig;
 use crate::heat::HeatBoundary;
 use crate::material::{FemParams, MsdParams};
 use crate::mesh::TetMesh;
 use crate::mesh::io::read_tet_mesh;
 use crate::precision::BodySettings;
-use crate::scenario::{Anchor, BodySpec, CYLINDER_FEM, CYLINDER_MSD, MeshSource, Placement, Scene};
+use crate::scenario::{BodySpec, CYLINDER_FEM, CYLINDER_MSD, MeshSource, Placement, Scene};
 
 /// `mesh` rotated (XYZ Euler angles in degrees: about x, then y, then z) and translated.
 pub fn placed_mesh(mesh: &TetMesh, placement: &Placement) -> Result<TetMesh, String> {
@@ -138,11 +137,7 @@ pub fn body_settings(
     s.cage_msd = spec.cage.msd.params;
     s.cage_dynamics = spec.cage.dynamics;
     s.gravity = gravity;
-    s.boundary = match spec.anchor {
-        Anchor::None => Boundary::free(),
-        Anchor::FixedBottom { fraction } => Boundary::fixed_below(mesh.positions(), 1, fraction),
-        Anchor::SoftToRest { stiffness } => Boundary::anchored(mesh.node_count(), stiffness),
-    };
+    s.boundary = spec.anchor.boundary(mesh);
     Ok(s)
 }
 
