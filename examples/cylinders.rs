@@ -13,7 +13,7 @@
 mod common;
 
 use bevy::prelude::*;
-use bevy_soft_tissue::core::scenario::{PreciseMethod, Scene};
+use bevy_soft_tissue::core::precision::PreciseMethod;
 use bevy_soft_tissue::prelude::*;
 
 fn choose_methods(keys: Res<ButtonInput<KeyCode>>, mut bodies: Query<(&Name, &mut SoftBody)>) {
@@ -44,7 +44,7 @@ fn main() -> AppExit {
     common::run(
         common::ExampleScene {
             title: "bevy_soft_tissue: cylinders (levels of precision)",
-            scene: Scene::paper_cylinders(PreciseMethod::LinearFem, PreciseMethod::LinearFem),
+            scene: "scenes/cylinders.scene.ron",
             colours: vec![Color::srgb(0.80, 0.45, 0.40), Color::srgb(0.40, 0.55, 0.80)],
             script: "push-a-into-b",
             cautery_watts: 10.0,

@@ -14,13 +14,12 @@
 mod common;
 
 use bevy::prelude::*;
-use bevy_soft_tissue::core::scenario::Scene;
 
 fn main() -> AppExit {
     common::run(
         common::ExampleScene {
             title: "bevy_soft_tissue: organs (levels of precision)",
-            scene: Scene::paper_organs(),
+            scene: "scenes/organs.scene.ron",
             colours: vec![
                 Color::srgb(0.62, 0.22, 0.20),
                 Color::srgb(0.45, 0.18, 0.32),

@@ -63,11 +63,16 @@ fn args() -> Result<Args, String> {
     Ok(a)
 }
 
+/// The scene file, relative to the assets folder.
+fn scene_file(a: &Args) -> String {
+    match a.scene.as_str() {
+        "organs" | "cylinders" => format!("scenes/{}.scene.ron", a.scene),
+        file => file.to_owned(),
+    }
+}
+
 fn load_scene(a: &Args) -> Result<Scene, Box<dyn std::error::Error>> {
-    let path = match a.scene.as_str() {
-        "organs" | "cylinders" => a.assets.join(format!("scenes/{}.scene.ron", a.scene)),
-        file => PathBuf::from(file),
-    };
+    let path = a.assets.join(scene_file(a));
     let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     Ok(Scene::from_ron(&text, &path.display().to_string())?)
 }
@@ -136,7 +141,6 @@ fn tool_transform(script: &Script, t: f64) -> Transform {
 /// The plugin's steps: its physics step (`First`..`Last`, as stage times with the whole
 /// step measured around them) and its whole frame.
 fn run_plugin(
-    scene: &Scene,
     script: &Script,
     dt: f64,
     a: &Args,
@@ -168,7 +172,7 @@ fn run_plugin(
         ),
     );
     app.update();
-    bevy_soft_tissue::spawn_scene(app.world_mut(), scene, &a.assets)?;
+    bevy_soft_tissue::spawn_scene_and_wait(&mut app, &scene_file(a))?;
     let tool = app
         .world_mut()
         .spawn((
@@ -264,7 +268,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut bare = Vec::with_capacity(a.steps * a.runs);
     for _ in 0..a.runs {
         run_core(&scene, &script, &a, &mut core)?;
-        run_plugin(&scene, &script, dt, &a, &mut plugin, &mut frames)?;
+        run_plugin(&script, dt, &a, &mut plugin, &mut frames)?;
         run_bare(dt, a.steps, &mut bare);
     }
     let (c, p) = (core.summary(), plugin.summary());

@@ -6,10 +6,14 @@ use std::sync::Arc;
 use bevy::asset::io::Reader;
 use bevy::asset::{AssetLoader, LoadContext};
 use bevy::prelude::*;
+use soft_tissue_core::contact::ContactConfig;
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::io::{FormatError, MeshFormat, parse_tet_mesh, parse_tetgen};
-use soft_tissue_core::scenario::{Scene, SceneError};
-use soft_tissue_core::world::{SceneOptions, WorldError, check_mesh_path};
+use soft_tissue_core::scenario::{CYLINDER_FEM, CYLINDER_MSD, MeshSource, Scene, SceneError};
+use soft_tissue_core::world::{SceneOptions, WorldError, check_mesh_path, placed_mesh};
+
+use crate::components::{MsdMaterial, SoftBody, SoftBodyTuning, TissueHeat, TissueMaterial};
+use crate::physics::SoftTissueConfig;
 
 /// A tetrahedral mesh, shared (`Arc`) with every body built from it.
 #[derive(Asset, TypePath, Clone, Debug)]
@@ -37,6 +41,37 @@ pub enum TetMeshLoadError {
     Format(#[from] FormatError),
 }
 
+/// Parses the mesh file `path` of contents `bytes` (reading the `.ele` beside a `.node`).
+async fn parse_mesh(
+    bytes: &[u8],
+    path: &std::path::Path,
+    load_context: &mut LoadContext<'_>,
+) -> Result<TetMesh, TetMeshLoadError> {
+    let name = path.display().to_string();
+    let format = MeshFormat::from_path(path).ok_or_else(|| TetMeshLoadError::Read {
+        path: name.clone(),
+        message: "unknown extension: expected .msh, .vtk, .vtu or .node".into(),
+    })?;
+    let loaded = match format {
+        MeshFormat::TetGen => {
+            let ele_path = path.with_extension("ele");
+            let ele_name = ele_path.display().to_string();
+            let ele = load_context.read_asset_bytes(ele_path).await.map_err(|e| {
+                TetMeshLoadError::Read {
+                    path: ele_name.clone(),
+                    message: e.to_string(),
+                }
+            })?;
+            parse_tetgen(bytes, &name, &ele, &ele_name)?
+        }
+        _ => parse_tet_mesh(bytes, format, &name)?,
+    };
+    for note in &loaded.notes {
+        info!("{name}: {note}");
+    }
+    Ok(loaded.mesh)
+}
+
 /// Loads `.msh` (Gmsh 1, 2.2, 4.1), `.vtk`, `.vtu` and `.node` (with the `.ele` beside it).
 #[derive(Default, TypePath)]
 pub struct TetMeshLoader;
@@ -52,38 +87,18 @@ impl AssetLoader for TetMeshLoader {
         _settings: &(),
         load_context: &mut LoadContext<'_>,
     ) -> Result<TetMeshAsset, TetMeshLoadError> {
-        let path = load_context.path().clone();
-        let name = path.to_string();
+        let path = load_context.path().path().to_path_buf();
         let mut bytes = Vec::new();
         reader
             .read_to_end(&mut bytes)
             .await
             .map_err(|e| TetMeshLoadError::Read {
-                path: name.clone(),
+                path: path.display().to_string(),
                 message: e.to_string(),
             })?;
-        let format = MeshFormat::from_path(path.path()).ok_or_else(|| TetMeshLoadError::Read {
-            path: name.clone(),
-            message: "unknown extension: expected .msh, .vtk, .vtu or .node".into(),
-        })?;
-        let loaded = match format {
-            MeshFormat::TetGen => {
-                let ele_path = path.path().with_extension("ele");
-                let ele_name = ele_path.display().to_string();
-                let ele = load_context.read_asset_bytes(ele_path).await.map_err(|e| {
-                    TetMeshLoadError::Read {
-                        path: ele_name.clone(),
-                        message: e.to_string(),
-                    }
-                })?;
-                parse_tetgen(&bytes, &name, &ele, &ele_name)?
-            }
-            _ => parse_tet_mesh(&bytes, format, &name)?,
-        };
-        for note in &loaded.notes {
-            info!("{name}: {note}");
-        }
-        Ok(TetMeshAsset(Arc::new(loaded.mesh)))
+        Ok(TetMeshAsset(Arc::new(
+            parse_mesh(&bytes, &path, load_context).await?,
+        )))
     }
 
     fn extensions(&self) -> &[&str] {
@@ -91,10 +106,18 @@ impl AssetLoader for TetMeshLoader {
     }
 }
 
-/// A scene file: the bodies of a scene, their meshes and settings (see
-/// [`soft_tissue_core::scenario::Scene`]).
+/// A scene file: the bodies of a scene and their settings (see
+/// [`soft_tissue_core::scenario::Scene`]), with every body's mesh, read or generated and
+/// placed where the scene puts it, loaded with it (labelled sub-assets `Body0`, `Body1`, …).
+/// Spawn its bodies with a [`SoftTissueSceneRoot`].
 #[derive(Asset, TypePath, Clone, Debug)]
-pub struct SceneAsset(pub Scene);
+pub struct SceneAsset {
+    /// The scene.
+    pub scene: Scene,
+    /// Every body's placed mesh, in scene order.
+    #[dependency]
+    pub meshes: Vec<Handle<TetMeshAsset>>,
+}
 
 /// Why a scene file did not load.
 #[derive(Debug, thiserror::Error)]
@@ -113,6 +136,14 @@ pub enum SceneLoadError {
     /// A body's mesh path leaves the assets folder (the message names the body and path).
     #[error(transparent)]
     Path(#[from] WorldError),
+    /// A body's mesh did not load (the error names the file).
+    #[error("body `{body}`: {source}")]
+    Mesh {
+        /// The body.
+        body: String,
+        /// Why.
+        source: TetMeshLoadError,
+    },
 }
 
 /// Settings of the scene loader (in an asset's `.meta` file).
@@ -156,10 +187,49 @@ impl AssetLoader for SceneLoader {
         let options = SceneOptions {
             allow_outside_assets: settings.allow_outside_assets,
         };
-        for body in &scene.bodies {
+        let mut meshes = Vec::with_capacity(scene.bodies.len());
+        for (i, body) in scene.bodies.iter().enumerate() {
             check_mesh_path(body, options)?;
+            let mesh_err = |source| SceneLoadError::Mesh {
+                body: body.name.clone(),
+                source,
+            };
+            let mesh = match &body.mesh {
+                MeshSource::File(file) => {
+                    let path = std::path::PathBuf::from(file);
+                    let bytes = load_context
+                        .read_asset_bytes(path.clone())
+                        .await
+                        .map_err(|e| {
+                            mesh_err(TetMeshLoadError::Read {
+                                path: file.clone(),
+                                message: e.to_string(),
+                            })
+                        })?;
+                    parse_mesh(&bytes, &path, load_context)
+                        .await
+                        .map_err(mesh_err)?
+                }
+                MeshSource::Generated { organ, resolution } => {
+                    organ.generate(*resolution).map_err(|e| WorldError::Mesh {
+                        body: body.name.clone(),
+                        message: format!(
+                            "generating {} at resolution {resolution}: {e}",
+                            organ.name()
+                        ),
+                    })?
+                }
+            };
+            let placed =
+                placed_mesh(&mesh, &body.placement).map_err(|message| WorldError::Mesh {
+                    body: body.name.clone(),
+                    message,
+                })?;
+            meshes.push(
+                load_context.add_labeled_asset(format!("Body{i}"), TetMeshAsset::from(placed)),
+            );
         }
-        Ok(SceneAsset(scene))
+        Ok(SceneAsset { scene, meshes })
     }
 
     fn extensions(&self) -> &[&str] {
@@ -167,15 +237,152 @@ impl AssetLoader for SceneLoader {
     }
 }
 
-/// Registers the mesh and scene assets and their loaders.
+/// Spawns the bodies of a scene asset as children of this entity once it has loaded, and
+/// sets [`SoftTissueConfig`]'s step, contact scale and gravity to the scene's. The bodies
+/// keep the scene's placements; the entity's own transform moves them all.
+#[derive(Component, Reflect, Clone, Debug, Default)]
+#[reflect(Component)]
+#[require(Transform)]
+pub struct SoftTissueSceneRoot(pub Handle<SceneAsset>);
+
+/// The bodies a [`SoftTissueSceneRoot`] spawned, in scene order.
+#[derive(Component, Clone, Debug, Default)]
+pub struct SceneBodies(pub Vec<Entity>);
+
+/// The components of scene body `i` (its mesh already placed by the loader).
+fn scene_body(asset: &SceneAsset, i: usize) -> (Name, SoftBody, TissueMaterial, SoftBodyTuning) {
+    let spec = &asset.scene.bodies[i];
+    let fem = spec.fem.map_or(CYLINDER_FEM.params, |f| f.params);
+    let msd = spec.msd.map_or(CYLINDER_MSD.params, |m| m.params);
+    let springs = spec.msd.map(|m| m.spring_stiffness).unwrap_or_default();
+    let body = SoftBody::new(asset.meshes[i].clone())
+        .with_method(spec.precise)
+        .with_cage(spec.cage.kind)
+        .with_anchor(spec.anchor);
+    let mut tuning = SoftBodyTuning {
+        cage_dynamics: spec.cage.dynamics,
+        cage_msd: spec.cage.msd.params,
+        ..SoftBodyTuning::default()
+    };
+    if let Some(f) = spec.fem {
+        tuning.fem_integrator = f.integrator;
+    }
+    (
+        Name::new(spec.name.clone()),
+        body,
+        TissueMaterial {
+            fem,
+            msd: MsdMaterial::Own {
+                params: msd,
+                springs,
+            },
+        },
+        tuning,
+    )
+}
+
+/// Spawns the bodies of every scene root whose scene has loaded.
+fn spawn_scenes(
+    mut commands: Commands,
+    roots: Query<(Entity, &SoftTissueSceneRoot), Without<SceneBodies>>,
+    scenes: Res<Assets<SceneAsset>>,
+    meshes: Res<Assets<TetMeshAsset>>,
+    mut config: ResMut<SoftTissueConfig>,
+) {
+    for (root, handle) in &roots {
+        let Some(asset) = scenes.get(&handle.0) else {
+            continue;
+        };
+        let Some(placed) = asset
+            .meshes
+            .iter()
+            .map(|h| meshes.get(h))
+            .collect::<Option<Vec<_>>>()
+        else {
+            continue;
+        };
+        let scene = &asset.scene;
+        if let Some(first) = scene.bodies.first() {
+            let dt = if first.precise.is_fem() {
+                first.fem.map(|f| f.dt)
+            } else {
+                first.msd.map(|m| m.dt)
+            };
+            config.dt = dt.or(config.dt);
+        }
+        let scale = placed
+            .iter()
+            .map(|m| m.0.bbox().smallest_dimension())
+            .fold(f64::INFINITY, f64::min);
+        if scale.is_finite() {
+            config.contact = ContactConfig::for_scale(scale);
+        }
+        config.gravity = bevy::math::DVec3::from_array(scene.gravity);
+        let mut bodies = Vec::with_capacity(scene.bodies.len());
+        for (i, spec) in scene.bodies.iter().enumerate() {
+            let mut e = commands.spawn((scene_body(asset, i), ChildOf(root)));
+            if let Some(h) = spec.heat {
+                e.insert(TissueHeat(h));
+            }
+            bodies.push(e.id());
+        }
+        let mut r = commands.entity(root);
+        r.insert(SceneBodies(bodies));
+        #[cfg(feature = "render")]
+        r.insert_if_new(Visibility::default());
+    }
+}
+
+/// Spawns the scene file `path` (relative to the assets folder) through the asset server
+/// and updates `app` until its bodies are spawned, with the simulation paused meanwhile
+/// (no step runs, none is counted); returns the bodies in scene order, the simulation
+/// unpaused. For tests, benchmarks and headless tools: an app spawns a
+/// [`SoftTissueSceneRoot`] and carries on.
+pub fn spawn_scene_and_wait(app: &mut App, path: &str) -> Result<Vec<Entity>, String> {
+    use crate::physics::SoftTissueStatus;
+    let handle: Handle<SceneAsset> = app.world().resource::<AssetServer>().load(path.to_owned());
+    let root = app
+        .world_mut()
+        .spawn(SoftTissueSceneRoot(handle.clone()))
+        .id();
+    let was_paused = std::mem::replace(
+        &mut app.world_mut().resource_mut::<SoftTissueStatus>().paused,
+        true,
+    );
+    let start = std::time::Instant::now();
+    let result = loop {
+        app.update();
+        if let Some(bodies) = app.world().get::<SceneBodies>(root) {
+            break Ok(bodies.0.clone());
+        }
+        if let Some(bevy::asset::LoadState::Failed(e)) = app
+            .world()
+            .resource::<AssetServer>()
+            .get_load_state(&handle)
+        {
+            break Err(format!("{path}: {e}"));
+        }
+        if start.elapsed() > std::time::Duration::from_secs(120) {
+            break Err(format!("{path}: not loaded after 120 s"));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    };
+    app.world_mut().resource_mut::<SoftTissueStatus>().paused = was_paused;
+    result
+}
+
+/// Registers the mesh and scene assets and their loaders, and spawns scene roots.
 #[derive(Default)]
 pub struct SoftTissueAssetPlugin;
 
 impl Plugin for SoftTissueAssetPlugin {
     fn build(&self, app: &mut App) {
-        app.init_asset::<TetMeshAsset>()
+        app.init_resource::<SoftTissueConfig>()
+            .init_asset::<TetMeshAsset>()
             .init_asset::<SceneAsset>()
             .register_asset_loader(TetMeshLoader)
-            .register_asset_loader(SceneLoader);
+            .register_asset_loader(SceneLoader)
+            .register_type::<SoftTissueSceneRoot>()
+            .add_systems(PreUpdate, spawn_scenes);
     }
 }

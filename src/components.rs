@@ -8,55 +8,191 @@
 //! Writeback stage reads out of it for games, the inspector and the renderer.
 
 use bevy::prelude::*;
+use soft_tissue_core::cage::CageDynamics;
 use soft_tissue_core::contact::{Tool, ToolShape};
+use soft_tissue_core::fem::FemIntegrator;
 use soft_tissue_core::heat::HeatParams;
-use soft_tissue_core::precision::BodySettings;
+use soft_tissue_core::material::{FemParams, MsdParams};
+use soft_tissue_core::msd::SpringStiffness;
+use soft_tissue_core::precision::{BodySettings, PrecisionPolicy};
+use soft_tissue_core::scenario::{Anchor, CageKind, ORGAN_FEM};
 use soft_tissue_core::state::NodalBody;
 use soft_tissue_core::world::SimBody;
 
 use crate::assets::TetMeshAsset;
 
-/// A soft body: its tetrahedral mesh and its settings. What a user spawns; the plugin builds
-/// the simulation once the mesh asset is loaded.
+/// A soft body: what a user spawns. `SoftBody::new(mesh)` is a whole body: the default
+/// [`TissueMaterial`] (an organ), corotational FEM when touched, a box cage at rest, free
+/// (no supports). The plugin builds the simulation once the mesh asset has loaded.
 ///
-/// The entity's `Transform` at that moment places the mesh (its scale, rotation and
-/// translation are baked into the simulation mesh) and is then set to identity: from then on
-/// the simulation owns the shape, and the rendered mesh is written in world coordinates.
+/// The entity's global transform at that moment places the mesh (scale, rotation and
+/// translation are baked into the simulation, which runs in world coordinates); the
+/// rendered mesh is written in the entity's own frame, so parents and the `Transform` stay
+/// as the user set them. Moving the entity (or a parent) later places the body again: it
+/// is rebuilt at rest at its new global pose.
+///
+/// Every field, and the optional components [`TissueMaterial`], [`TissueHeat`],
+/// [`SoftBodyTuning`] and [`PinnedLevel`], may be written at run time and takes effect at
+/// the next step: the method and the material without a jump, the cage, anchor and tuning
+/// by building the body again.
 #[derive(Component, Reflect, Clone, Debug)]
 #[reflect(Component, from_reflect = false)]
-#[require(Transform)]
+#[require(Transform, TissueMaterial)]
 pub struct SoftBody {
     /// The tetrahedral mesh.
     pub mesh: Handle<TetMeshAsset>,
-    /// The precise method the body rises to when touched. Change it at run time: the body
-    /// switches solver without a jump.
+    /// The precise method the body rises to when touched (default corotational FEM).
     pub method: PreciseMethod,
-    /// Material, cage, boundary, gravity and step (`method` overrides `settings.precise`).
-    /// The step must equal the plugin's [`crate::SoftTissueConfig::dt`].
-    #[reflect(ignore)]
-    pub settings: BodySettings,
-    /// Heat parameters: `Some` gives the body a temperature field (and a [`Temperature`]).
-    #[reflect(ignore)]
-    pub heat: Option<HeatParams>,
+    /// The cage of the cheap level (default the mesh's bounding box).
+    pub cage: CageKind,
+    /// How the body is held (default free).
+    pub anchor: Anchor,
 }
 
 impl SoftBody {
-    /// A body of `mesh` with `settings` (its precise method taken from them), no heat.
-    pub fn new(mesh: Handle<TetMeshAsset>, settings: BodySettings) -> Self {
+    /// A body of `mesh` with the defaults: corotational FEM, a box cage, free.
+    pub fn new(mesh: Handle<TetMeshAsset>) -> Self {
         SoftBody {
             mesh,
-            method: settings.precise,
-            settings,
-            heat: None,
+            method: PreciseMethod::CorotationalFem,
+            cage: CageKind::BoundingBox,
+            anchor: Anchor::None,
         }
     }
 
-    /// The same body with a temperature field.
-    pub fn with_heat(mut self, heat: HeatParams) -> Self {
-        self.heat = Some(heat);
+    /// The same body with another precise method.
+    pub fn with_method(mut self, method: PreciseMethod) -> Self {
+        self.method = method;
+        self
+    }
+
+    /// The same body with another cage.
+    pub fn with_cage(mut self, cage: CageKind) -> Self {
+        self.cage = cage;
+        self
+    }
+
+    /// The same body held by `anchor`.
+    pub fn with_anchor(mut self, anchor: Anchor) -> Self {
+        self.anchor = anchor;
         self
     }
 }
+
+/// The tissue's material: the FEM parameters, and what an MSD method uses. Units are the
+/// scene's: lengths in scene units (our organs: 1 unit is about 10 cm), masses in mass
+/// units, time in seconds, so Young's modulus is mass / (unit s^2).
+///
+/// The default is the paper's organ (section IV-B): Young's modulus 140, Poisson ratio
+/// 0.23, total mass 10, damping 10 / s, and for an MSD springs fitted to that material with
+/// the same mass and damping. Written at run time, it takes effect at the next step without
+/// a jump (the precise solver is built again).
+#[derive(Component, Reflect, Clone, Copy, Debug, PartialEq)]
+#[reflect(Component)]
+pub struct TissueMaterial {
+    /// Young's modulus, Poisson ratio, total mass and (mass-proportional) damping.
+    pub fem: FemParams,
+    /// What an MSD precise method uses.
+    pub msd: MsdMaterial,
+}
+
+impl Default for TissueMaterial {
+    fn default() -> Self {
+        TissueMaterial {
+            fem: ORGAN_FEM.params,
+            msd: MsdMaterial::FromFem,
+        }
+    }
+}
+
+/// The springs, mass and damping of a body whose precise method is MSD.
+#[derive(Reflect, Clone, Copy, Debug, PartialEq, Default)]
+pub enum MsdMaterial {
+    /// Springs fitted to the FEM material's Young's modulus and Poisson ratio
+    /// ([`SpringStiffness::Material`]), the FEM mass, and per-node damping equal to the FEM
+    /// damping rate times the node's share of the mass.
+    #[default]
+    FromFem,
+    /// Parameters of their own (the paper's MSD: one stiffness for every spring).
+    Own {
+        /// Spring stiffness, mass and per-node damping.
+        params: MsdParams,
+        /// Where the spring stiffnesses come from.
+        springs: SpringStiffness,
+    },
+}
+
+impl TissueMaterial {
+    /// The MSD parameters and springs this material gives a mesh of `nodes` nodes.
+    pub fn msd_params(&self, nodes: usize) -> (MsdParams, SpringStiffness) {
+        match self.msd {
+            MsdMaterial::FromFem => (
+                MsdParams {
+                    // Not used by fitted springs; a valid value.
+                    stiffness: self.fem.young_modulus,
+                    mass: self.fem.mass,
+                    damping: self.fem.damping * self.fem.mass / nodes.max(1) as f64,
+                },
+                SpringStiffness::Material {
+                    young_modulus: self.fem.young_modulus,
+                    poisson_ratio: self.fem.poisson_ratio,
+                },
+            ),
+            MsdMaterial::Own { params, springs } => (params, springs),
+        }
+    }
+}
+
+/// Gives a body a temperature field with these parameters (and a [`Temperature`]): an
+/// electrocautery tool heats it and it shows thermal damage. Added, changed or removed at
+/// run time, the field starts again at the initial temperature.
+#[derive(Component, Reflect, Clone, Copy, Debug, PartialEq)]
+#[reflect(Component)]
+pub struct TissueHeat(pub HeatParams);
+
+impl Default for TissueHeat {
+    fn default() -> Self {
+        TissueHeat(HeatParams::liver())
+    }
+}
+
+/// Settings most bodies never need (defaults: those of [`BodySettings::new`]). Written at
+/// run time, the body is built again.
+#[derive(Component, Reflect, Clone, Copy, Debug, PartialEq)]
+#[reflect(Component)]
+pub struct SoftBodyTuning {
+    /// Time integrator of the FEM methods (default backward Euler).
+    #[reflect(ignore)]
+    pub fem_integrator: FemIntegrator,
+    /// How the cage moves: calibrated against the precise model (default) or the paper's
+    /// cage MSD.
+    #[reflect(ignore)]
+    pub cage_dynamics: CageDynamics,
+    /// The paper's cage MSD parameters (used with [`CageDynamics::Paper`] only).
+    pub cage_msd: MsdParams,
+    /// When the body may return to its cage.
+    #[reflect(ignore)]
+    pub policy: PrecisionPolicy,
+}
+
+impl Default for SoftBodyTuning {
+    fn default() -> Self {
+        let s = BodySettings::new(ORGAN_FEM.params, ORGAN_FEM_MSD, 0.01);
+        SoftBodyTuning {
+            fem_integrator: s.fem_integrator,
+            cage_dynamics: s.cage_dynamics,
+            cage_msd: s.cage_msd,
+            policy: s.policy,
+        }
+    }
+}
+
+/// Placeholder MSD parameters for settings built only to read their defaults.
+const ORGAN_FEM_MSD: MsdParams = MsdParams {
+    stiffness: 1.0,
+    mass: 1.0,
+    damping: 0.0,
+};
 
 pub use soft_tissue_core::precision::{Level, PreciseMethod};
 
@@ -196,9 +332,27 @@ impl VisualMesh {
 
 /// Why a body's [`VisualMesh`] could not be used (the body is drawn with its simulation
 /// surface instead; the reason is also logged).
-#[derive(Component, Reflect, Clone, Debug, PartialEq)]
+#[derive(Component, Reflect, Clone, Debug, PartialEq, thiserror::Error)]
 #[reflect(Component)]
-pub struct VisualMeshError(pub String);
+pub enum VisualMeshError {
+    /// The mesh is not a triangle list, or its indices or positions are unusable.
+    #[error("visual mesh of soft body `{body}`: {message}")]
+    BadMesh {
+        /// The body's name (or entity).
+        body: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// Vertices could not be embedded in the body's tetrahedra (too far, or the
+    /// subdivision failed).
+    #[error("visual mesh of soft body `{body}` cannot follow its tetrahedra: {message}")]
+    Embedding {
+        /// The body's name (or entity).
+        body: String,
+        /// What is wrong.
+        message: String,
+    },
+}
 
 /// Runs a shadow precise simulation beside the body's cage level while present, to measure
 /// the cage level's error ([`SoftBodyDiagnostics::shadow_error_ratio`]). Costs a precise step
@@ -224,8 +378,12 @@ pub struct SimulatedBody {
     pub(crate) order: u64,
     /// The surface changed since the rendered mesh was last written.
     pub(crate) dirty: bool,
-    /// The entity's `Transform` baked into the simulation mesh when the body was built.
-    pub(crate) placement: Transform,
+    /// The entity's global transform baked into the simulation mesh when the body was built.
+    pub(crate) placement: GlobalTransform,
+    /// Its inverse: world to the entity's frame, for the rendered mesh (`None`: identity).
+    pub(crate) to_local: Option<bevy::math::Affine3A>,
+    /// What it was built from, beyond what changes in place.
+    pub(crate) built_from: crate::physics::BuiltFrom,
 }
 
 impl SimulatedBody {
@@ -234,9 +392,16 @@ impl SimulatedBody {
         &self.body
     }
 
-    /// The entity's `Transform` when the body was built, baked into the simulation mesh
-    /// (it maps the mesh file's coordinates to the simulation's).
-    pub fn placement(&self) -> Transform {
+    /// The core body, to act on it where no component does (external loads, for example
+    /// `body_mut().body_mut().add_force(..)`, which lasts one step).
+    pub fn body_mut(&mut self) -> &mut SimBody {
+        self.dirty = true;
+        &mut self.body
+    }
+
+    /// The entity's global transform when the body was built, baked into the simulation
+    /// mesh (it maps the mesh file's coordinates to the simulation's, world coordinates).
+    pub fn placement(&self) -> GlobalTransform {
         self.placement
     }
 

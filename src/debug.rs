@@ -129,19 +129,17 @@ fn draw_contacts(
     if !settings.contacts {
         return;
     }
-    // Contacts name bodies by build order.
-    let mut sims: Vec<&SimulatedBody> = bodies.iter().collect();
-    sims.sort_unstable_by_key(|s| s.order);
     let size = settings.contact_size;
     let point = |body: u32, vertices: [u32; 3], weights: [f64; 3]| -> Option<Vec3> {
-        let p = sims.get(body as usize)?.body().collider().positions();
+        let sim = bodies.get(contacts.body_entity(body)?).ok()?;
+        let p = sim.body().collider().positions();
         let mut x = Vec3::ZERO;
         for (v, w) in vertices.iter().zip(weights) {
             x += to_bevy(p.get(*v as usize)?) * w as f32;
         }
         Some(x)
     };
-    let c = &contacts.0;
+    let c = contacts.core();
     for t in c.tool_contacts.iter().filter(|t| t.depth > 0.0) {
         if let Some(x) = point(t.body, t.vertices, t.weights) {
             let colour = Color::srgb(1.0, 0.9, 0.2);

@@ -146,11 +146,11 @@ fn publish_models(
     if haptics.is_empty() {
         return;
     }
-    // Contacts name tools by build order.
-    let mut order: Vec<(u64, Entity)> = tools.iter().map(|(e, t)| (t.order, e)).collect();
-    order.sort_unstable();
     for (entity, mut haptic) in &mut haptics {
-        let Some(index) = order.iter().position(|&(_, e)| e == entity) else {
+        let Some(index) = (0..)
+            .map_while(|i| contacts.tool_entity(i))
+            .position(|e| e == entity)
+        else {
             continue;
         };
         let Ok((_, state)) = tools.get(entity) else {
@@ -159,7 +159,7 @@ fn publish_models(
         let model = contact_model(
             &state.tool,
             index as u32,
-            &contacts.0,
+            contacts.core(),
             &haptic.model,
             haptic.nominal_stiffness,
             status.steps,

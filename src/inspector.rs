@@ -13,7 +13,7 @@ use egui_plot::{Legend, Line, Plot, PlotPoints};
 
 use crate::components::*;
 use crate::core::timing::StageTimes;
-use crate::physics::{ResetSimulation, SoftTissueConfig, SoftTissueStatus};
+use crate::physics::{ResetSimulation, SoftPhysics, SoftTissueStatus};
 
 /// Adds the panel (and `EguiPlugin` when the app has none).
 pub struct SoftTissueInspectorPlugin;
@@ -76,12 +76,13 @@ fn record_history(
 fn inspector_panel(
     mut contexts: EguiContexts,
     mut status: ResMut<SoftTissueStatus>,
-    config: Res<SoftTissueConfig>,
+    mut clock: ResMut<Time<SoftPhysics>>,
     history: Res<StepHistory>,
     mut bodies: Query<(
         Entity,
         Option<&Name>,
         &mut SoftBody,
+        &mut TissueMaterial,
         &PrecisionLevel,
         &SoftBodyDiagnostics,
         Option<&Temperature>,
@@ -94,13 +95,22 @@ fn inspector_panel(
         .default_width(560.0)
         .show(ctx, |ui| {
             let t = status.times;
+            let dt = status.dt.unwrap_or(f64::NAN);
             ui.label(format!(
-                "physics {:.0} Hz (dt {} s), step {}: {:.0} us",
-                1.0 / config.dt,
-                config.dt,
+                "physics {:.0} Hz (dt {} s), step {}: {:.0} us, simulated {:.2} s",
+                1.0 / dt,
+                dt,
                 status.steps,
                 t.total_us(),
+                clock.elapsed_secs_f64(),
             ));
+            let mut speed = clock.context().speed;
+            if ui
+                .add(egui::Slider::new(&mut speed, 0.0..=2.0).text("speed"))
+                .changed()
+            {
+                clock.context_mut().speed = speed;
+            }
             // Real time is decided by the worst step: the last one, and the median, 99th
             // percentile and largest of the last steps, whole and per stage.
             let stats = status.recent.summary();
@@ -144,13 +154,14 @@ fn inspector_panel(
                 }
             });
             if let Some(e) = &status.error {
-                ui.colored_label(egui::Color32::LIGHT_RED, e);
+                ui.colored_label(egui::Color32::LIGHT_RED, e.to_string());
             }
             egui::Grid::new("bodies").striped(true).show(ui, |ui| {
                 for h in [
                     "body",
                     "level",
                     "method",
+                    "E",
                     "step us",
                     "switches",
                     "last jump %",
@@ -163,7 +174,7 @@ fn inspector_panel(
                 ui.end_row();
                 let mut rows: Vec<_> = bodies.iter_mut().collect();
                 rows.sort_by_key(|r| r.0);
-                for (e, name, mut body, level, diag, temp) in rows {
+                for (e, name, mut body, mut material, level, diag, temp) in rows {
                     ui.label(name.map_or_else(|| format!("{e}"), |n| n.as_str().to_owned()));
                     let (text, colour) = match level.level {
                         Level::Cage => ("cage", egui::Color32::from_rgb(90, 170, 255)),
@@ -180,6 +191,18 @@ fn inspector_panel(
                         });
                     if method != body.method {
                         body.method = method;
+                    }
+                    // Young's modulus: the material is the body's data, edited in place.
+                    let mut young = material.fem.young_modulus;
+                    if ui
+                        .add(
+                            egui::DragValue::new(&mut young)
+                                .speed(1.0)
+                                .range(1e-3..=1e9),
+                        )
+                        .changed()
+                    {
+                        material.fem.young_modulus = young;
                     }
                     ui.label(format!("{:.0}", diag.step_us));
                     ui.label(format!("{}", level.switches));

@@ -16,17 +16,14 @@
 //! use bevy_soft_tissue::prelude::*;
 //!
 //! fn setup(mut commands: Commands, assets: Res<AssetServer>) {
-//!     let settings = BodySettings::new(
-//!         bevy_soft_tissue::core::scenario::ORGAN_FEM.params,
-//!         bevy_soft_tissue::core::scenario::CYLINDER_MSD.params,
-//!         0.02,
-//!     );
+//!     // A liver with the default organ material, a box cage and corotational FEM.
 //!     commands.spawn((
-//!         Name::new("liver"),
-//!         SoftBody::new(assets.load("meshes/liver.vtk"), settings),
-//!         MeshMaterial3d::<StandardMaterial>::default(),
+//!         SoftBody::new(assets.load("meshes/liver.vtk")),
+//!         Transform::from_xyz(0.0, 0.5, 0.0),
 //!     ));
-//!     commands.spawn((SoftTool::sphere(0.05), Transform::from_xyz(0.0, 1.0, 0.0)));
+//!     // A whole scene file: its bodies become children of this entity.
+//!     commands.spawn(SoftTissueSceneRoot(assets.load("scenes/organs.scene.ron")));
+//!     commands.spawn((SoftTool::sphere(0.05), Transform::from_xyz(0.0, 1.2, 0.0)));
 //! }
 //!
 //! App::new()
@@ -34,6 +31,13 @@
 //!     .add_systems(Startup, setup)
 //!     .run();
 //! ```
+//!
+//! Optional components change a body: [`TissueMaterial`], [`TissueHeat`],
+//! [`SoftBodyTuning`], [`PinnedLevel`], [`ShadowSimulation`], [`VisualMesh`]. Written at
+//! run time, they take effect at the next step. The simulation steps at
+//! [`SoftTissueConfig::dt`] (by default the app's fixed timestep) on its own clock,
+//! `Time<`[`SoftPhysics`]`>`, with pause and speed; contacts name entities
+//! ([`SoftTissueContacts`]), and so do the messages [`LevelChanged`] and [`BodyTouched`].
 //!
 //! ## Features
 //! - `render` (default): windowed 3D rendering for the example apps.
@@ -44,8 +48,6 @@
 //! - `serialize`: Bevy's reflection serialisation.
 //!
 //! A headless build (`default-features = false`) needs only Bevy's ECS, assets and meshes.
-
-use std::path::Path;
 
 use bevy::app::PluginGroupBuilder;
 use bevy::ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
@@ -67,27 +69,33 @@ pub mod physics;
 pub mod render;
 
 pub use assets::{
-    SceneAsset, SceneLoadError, SceneLoader, SceneLoaderSettings, SoftTissueAssetPlugin,
-    TetMeshAsset,
+    SceneAsset, SceneBodies, SceneLoadError, SceneLoader, SceneLoaderSettings,
+    SoftTissueAssetPlugin, SoftTissueSceneRoot, TetMeshAsset, spawn_scene_and_wait,
 };
 pub use components::*;
 pub use messages::{BodyTouched, LevelChanged};
 pub use physics::{
-    ResetSimulation, SoftBodyError, SoftTissueConfig, SoftTissueContacts, SoftTissuePhysicsPlugin,
-    SoftTissueSchedule, SoftTissueStatus, SoftTissueStep, SoftTissueSystems, SoftTissueThreads,
+    ContactPartner, ResetSimulation, SoftBodyError, SoftContact, SoftPhysics, SoftTissueConfig,
+    SoftTissueContacts, SoftTissueError, SoftTissuePhysicsPlugin, SoftTissueSchedule,
+    SoftTissueStatus, SoftTissueStep, SoftTissueSystems, SoftTissueThreads,
 };
 pub use render::{EmbeddedVisual, SoftBodyMesh, SoftTissueMeshPlugin, SoftTissueMeshSystems};
 
 /// What a game needs in one `use`.
 pub mod prelude {
+    pub use crate::SoftTissuePlugins;
+    pub use crate::assets::{SceneAsset, SceneBodies, SoftTissueSceneRoot, TetMeshAsset};
     pub use crate::components::*;
-    pub use crate::core::precision::BodySettings;
+    pub use crate::core::heat::HeatParams;
+    pub use crate::core::material::{FemParams, MsdParams};
+    pub use crate::core::msd::SpringStiffness;
+    pub use crate::core::scenario::{Anchor, CageKind};
     pub use crate::messages::{BodyTouched, LevelChanged};
     pub use crate::physics::{
-        ResetSimulation, SoftTissueConfig, SoftTissueSchedule, SoftTissueStatus, SoftTissueStep,
+        ContactPartner, ResetSimulation, SoftContact, SoftPhysics, SoftTissueConfig,
+        SoftTissueContacts, SoftTissueSchedule, SoftTissueStatus, SoftTissueStep,
         SoftTissueSystems,
     };
-    pub use crate::{SoftTissuePlugins, TetMeshAsset, spawn_scene};
 }
 
 /// Every plugin of the crate (each replaceable through `PluginGroupBuilder`): assets,
@@ -127,33 +135,4 @@ impl PluginGroup for SoftTissuePlugins {
         let group = group.add(haptics::SoftTissueHapticsPlugin);
         group
     }
-}
-
-/// Spawns the bodies of a scene (mesh files relative to `assets_dir`, or generated) with their
-/// names, and sets [`SoftTissueConfig`] to the scene's step and contact scale. Returns the
-/// entities in scene order. The meshes are added to `Assets<TetMeshAsset>` directly.
-pub fn spawn_scene(
-    world: &mut World,
-    scene: &core::scenario::Scene,
-    assets_dir: &Path,
-) -> Result<Vec<Entity>, core::world::WorldError> {
-    let (config, bodies) = core::world::scene_bodies(scene, assets_dir)?;
-    let threads = world
-        .get_resource::<SoftTissueConfig>()
-        .map_or(0, |c| c.threads);
-    world.insert_resource(SoftTissueConfig {
-        dt: config.dt,
-        contact: config.contact,
-        threads,
-    });
-    let mut entities = Vec::with_capacity(bodies.len());
-    for b in bodies {
-        let handle = world
-            .resource_mut::<Assets<TetMeshAsset>>()
-            .add(TetMeshAsset::from(b.mesh));
-        let mut body = SoftBody::new(handle, b.settings);
-        body.heat = b.heat.map(|(p, _)| p);
-        entities.push(world.spawn((Name::new(b.name), body)).id());
-    }
-    Ok(entities)
 }

@@ -12,7 +12,7 @@ use smallvec::SmallVec;
 use soft_tissue_core::contact::{ContactConfig, Tool};
 use soft_tissue_core::heat::HeatBoundary;
 use soft_tissue_core::mesh::TetMesh;
-use soft_tissue_core::precision::{Level, PreciseMethod};
+use soft_tissue_core::precision::{BodySettings, Level};
 use soft_tissue_core::timing::StageRecorder;
 use soft_tissue_core::world::{
     ContactState, SimBody, StageTimes, WorldError, collide, detect_contacts, prepare, step_solvers,
@@ -64,10 +64,23 @@ pub struct SoftTissueStep;
 /// Settings of the simulation.
 #[derive(Resource, Clone, Copy, Debug)]
 pub struct SoftTissueConfig {
-    /// Fixed step, s (default 0.02, the paper's cylinders). Every body's step must equal it.
-    /// When the plugin runs in `FixedUpdate` (the default), the plugin sets
-    /// `Time<Fixed>` to it.
-    pub dt: f64,
+    /// Simulation step, s. `None` (the default): the app's fixed timestep (`Time<Fixed>`,
+    /// 1/64 s unless the app sets it). Every run of the host schedule advances the
+    /// simulation by the host's elapsed time (times [`SoftPhysics::speed`]) in steps of
+    /// this size, so a body steps at it whatever the host schedule's rate; a body whose
+    /// method needs a smaller step (an explicit MSD) substeps inside it. Changing the step
+    /// builds every body again.
+    pub dt: Option<f64>,
+    /// Most steps one run of the host schedule takes; elapsed time beyond them is dropped
+    /// (default 4), so a slow frame cannot snowball.
+    pub max_steps_per_run: u32,
+    /// Set `Time<Fixed>` to [`SoftTissueConfig::dt`] (default off: the plugin leaves the
+    /// app's fixed timestep alone). With it, the default `FixedUpdate` runs exactly one
+    /// step per fixed run.
+    pub drive_fixed_timestep: bool,
+    /// Gravity on the precise level, scene units / s^2 (default none; double precision, as
+    /// the simulation). Read when a body is built: a change builds every body again.
+    pub gravity: bevy::math::DVec3,
     /// Contact settings (thickness, search radius, margins, scene units; default for bodies
     /// about 1 unit across).
     pub contact: ContactConfig,
@@ -81,9 +94,31 @@ pub struct SoftTissueConfig {
 impl Default for SoftTissueConfig {
     fn default() -> Self {
         SoftTissueConfig {
-            dt: 0.02,
+            dt: None,
+            max_steps_per_run: 4,
+            drive_fixed_timestep: false,
+            gravity: bevy::math::DVec3::ZERO,
             contact: ContactConfig::for_scale(1.0),
             threads: 0,
+        }
+    }
+}
+
+/// The simulation's clock, `Time<SoftPhysics>`: its elapsed time is simulated time (it
+/// advances by one step per step), its context the speed and the time not yet stepped.
+#[derive(Clone, Copy, Debug)]
+pub struct SoftPhysics {
+    /// Simulated seconds per host second (default 1; 0.5 is slow motion).
+    pub speed: f64,
+    /// Host time not yet stepped, s.
+    pending: f64,
+}
+
+impl Default for SoftPhysics {
+    fn default() -> Self {
+        SoftPhysics {
+            speed: 1.0,
+            pending: 0.0,
         }
     }
 }
@@ -112,6 +147,8 @@ pub struct SoftTissueStatus {
     pub step_once: bool,
     /// Steps run so far.
     pub steps: u64,
+    /// The step in use, s (resolved from [`SoftTissueConfig::dt`] at the first step).
+    pub dt: Option<f64>,
     /// Wall time of each stage of the last step (this machine).
     pub times: StageTimes,
     /// Stage times of the last [`STAGE_WINDOW`] steps: their median, 99th percentile and
@@ -123,7 +160,19 @@ pub struct SoftTissueStatus {
     /// non-finite position reaches a mesh, and the simulation pauses. No step runs while it
     /// is set: a [`ResetSimulation`] clears it, or set it to `None` (and unpause) to carry on
     /// from the state the failed step left.
-    pub error: Option<String>,
+    pub error: Option<SoftTissueError>,
+}
+
+/// Why a step failed: the stage, the body when one is to blame, and the core's message.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{stage}{}: {message}", body.map(|e| format!(" ({e})")).unwrap_or_default())]
+pub struct SoftTissueError {
+    /// The stage that failed (`stepping the solvers`, `collisions`, …).
+    pub stage: &'static str,
+    /// The body the error names, if it names one.
+    pub body: Option<Entity>,
+    /// What went wrong.
+    pub message: String,
 }
 
 /// Steps [`SoftTissueStatus::recent`] keeps.
@@ -135,6 +184,7 @@ impl Default for SoftTissueStatus {
             paused: false,
             step_once: false,
             steps: 0,
+            dt: None,
             times: StageTimes::default(),
             recent: StageRecorder::windowed(STAGE_WINDOW),
             error: None,
@@ -146,19 +196,159 @@ impl SoftTissueStatus {
     fn running(&self) -> bool {
         (!self.paused || self.step_once) && self.error.is_none()
     }
+
+    /// Whether a step stopped on an error (see [`SoftTissueStatus::error`]).
+    pub fn failed(&self) -> bool {
+        self.error.is_some()
+    }
 }
 
-/// Contacts of the last step (the core's contact state, indices in body build order).
+/// Contacts of the last step, by entity ([`SoftTissueContacts::iter`]).
 #[derive(Resource, Default)]
-pub struct SoftTissueContacts(pub ContactState);
+pub struct SoftTissueContacts {
+    /// The core's contact state (bodies and tools by their index in `bodies` / `tools`).
+    pub(crate) state: ContactState,
+    /// The body entities in the order the core's stage functions see them.
+    pub(crate) bodies: Vec<Entity>,
+    /// The tool entities in that order.
+    pub(crate) tools: Vec<Entity>,
+    /// The contacts by pair.
+    pairs: Vec<SoftContact>,
+}
+
+/// What a body touches.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ContactPartner {
+    /// A tool entity ([`SoftTool`]).
+    Tool(Entity),
+    /// Another body's entity ([`SoftBody`]).
+    Body(Entity),
+}
+
+/// The contacts between a body and one partner this step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SoftContact {
+    /// The body (for two bodies: the one whose vertices were tested).
+    pub body: Entity,
+    /// What it touches.
+    pub partner: ContactPartner,
+    /// Contact points (tool: surface triangles under the tip; bodies: vertex-triangle
+    /// pairs).
+    pub points: u32,
+    /// Deepest penetration at detection, scene units.
+    pub max_depth: f64,
+}
+
+impl SoftTissueContacts {
+    /// Every body-partner pair in contact this step.
+    pub fn iter(&self) -> impl Iterator<Item = &SoftContact> {
+        self.pairs.iter()
+    }
+
+    /// The contacts `entity` (a body or a tool) takes part in.
+    pub fn involving(&self, entity: Entity) -> impl Iterator<Item = &SoftContact> {
+        self.pairs.iter().filter(move |c| {
+            c.body == entity
+                || matches!(c.partner, ContactPartner::Tool(t) | ContactPartner::Body(t) if t == entity)
+        })
+    }
+
+    /// The core's contact state, for drawing or analysis; map its indices with
+    /// [`SoftTissueContacts::body_entity`] and [`SoftTissueContacts::tool_entity`].
+    pub fn core(&self) -> &ContactState {
+        &self.state
+    }
+
+    /// The entity of the core's body index `index`.
+    pub fn body_entity(&self, index: u32) -> Option<Entity> {
+        self.bodies.get(index as usize).copied()
+    }
+
+    /// The entity of the core's tool index `index`.
+    pub fn tool_entity(&self, index: u32) -> Option<Entity> {
+        self.tools.get(index as usize).copied()
+    }
+
+    /// The pairs gathered from the core's state.
+    fn gather(&mut self) {
+        self.pairs.clear();
+        let mut add = |body: Option<Entity>, partner: Option<ContactPartner>, depth: f64| {
+            let (Some(body), Some(partner)) = (body, partner) else {
+                return;
+            };
+            match self
+                .pairs
+                .iter_mut()
+                .find(|c| c.body == body && c.partner == partner)
+            {
+                Some(c) => {
+                    c.points += 1;
+                    c.max_depth = c.max_depth.max(depth);
+                }
+                None => self.pairs.push(SoftContact {
+                    body,
+                    partner,
+                    points: 1,
+                    max_depth: depth,
+                }),
+            }
+        };
+        for t in &self.state.tool_contacts {
+            add(
+                self.bodies.get(t.body as usize).copied(),
+                self.tools
+                    .get(t.tool as usize)
+                    .copied()
+                    .map(ContactPartner::Tool),
+                t.depth,
+            );
+        }
+        for b in &self.state.body_contacts {
+            add(
+                self.bodies.get(b.a as usize).copied(),
+                self.bodies
+                    .get(b.b as usize)
+                    .copied()
+                    .map(ContactPartner::Body),
+                b.depth,
+            );
+        }
+    }
+
+    fn clear(&mut self) {
+        self.state.clear();
+        self.pairs.clear();
+    }
+}
 
 /// Asks for every body and tool to go back to its initial state at the next step.
 #[derive(Message, Clone, Copy, Debug, Default)]
 pub struct ResetSimulation;
 
-/// A body that could not be built, and why (the entity keeps its [`SoftBody`]).
-#[derive(Component, Clone, Debug)]
-pub struct SoftBodyError(pub String);
+/// A body that could not be built, and why (the entity keeps its [`SoftBody`]; writing
+/// any of its inputs tries again).
+#[derive(Component, Debug, thiserror::Error)]
+pub enum SoftBodyError {
+    /// The mesh could not be placed at the entity's global transform.
+    #[error("soft body `{body}`: placing its mesh: {message}")]
+    Placement {
+        /// The body's name (or entity).
+        body: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A setting is out of range (the message names it).
+    #[error("soft body `{body}`: {message}")]
+    Settings {
+        /// The body's name (or entity).
+        body: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// The core refused to build it (its error names the level and what failed).
+    #[error(transparent)]
+    Build(#[from] WorldError),
+}
 
 /// The simulation: resources, messages, [`SoftTissueSchedule`] with the step's system sets
 /// and systems, run from `schedule` (the host schedule, `FixedUpdate` by default).
@@ -188,10 +378,14 @@ impl Plugin for SoftTissuePhysicsPlugin {
             .init_resource::<SoftTissueThreads>()
             .init_resource::<SoftTissueStatus>()
             .init_resource::<SoftTissueContacts>()
+            .insert_resource(Time::<SoftPhysics>::default())
             .add_message::<LevelChanged>()
             .add_message::<BodyTouched>()
             .add_message::<ResetSimulation>()
             .register_type::<SoftBody>()
+            .register_type::<TissueMaterial>()
+            .register_type::<TissueHeat>()
+            .register_type::<SoftBodyTuning>()
             .register_type::<PrecisionLevel>()
             .register_type::<PinnedLevel>()
             .register_type::<GreenCage>()
@@ -235,7 +429,12 @@ impl Plugin for SoftTissuePhysicsPlugin {
         app.add_systems(
             SoftTissueSchedule,
             (
-                (build_bodies, build_tools, prepare_stage)
+                (
+                    retry_failed_bodies,
+                    build_bodies,
+                    build_tools,
+                    prepare_stage,
+                )
                     .chain()
                     .in_set(S::Prepare),
                 detect_stage.in_set(S::DetectContact),
@@ -245,47 +444,113 @@ impl Plugin for SoftTissuePhysicsPlugin {
                 writeback_stage.in_set(S::Writeback),
             ),
         );
-        let running = |s: Res<SoftTissueStatus>| s.running();
         app.add_systems(
             self.schedule,
-            (
-                reset_simulation,
-                run_step.in_set(SoftTissueStep).run_if(running),
-            )
-                .chain(),
+            (reset_simulation, run_steps.in_set(SoftTissueStep)).chain(),
         );
-        if self.schedule == FixedUpdate.intern() {
-            app.add_systems(PreUpdate, sync_fixed_timestep);
+        app.add_systems(PreUpdate, drive_fixed_timestep);
+    }
+}
+
+/// The step a run uses: the configured one, or the app's fixed timestep.
+fn resolved_dt(world: &World) -> f64 {
+    let config = world.resource::<SoftTissueConfig>();
+    config.dt.unwrap_or_else(|| {
+        world
+            .get_resource::<Time<Fixed>>()
+            .map_or(1.0 / 64.0, |t| t.timestep().as_secs_f64())
+    })
+}
+
+/// Runs the simulation steps the host's elapsed time asks for ([`SoftTissueSchedule`] once
+/// per step), or one while paused with `step_once`.
+fn run_steps(world: &mut World) {
+    let dt = resolved_dt(world);
+    let host = world.resource::<Time>().delta_secs_f64();
+    let max_steps = world.resource::<SoftTissueConfig>().max_steps_per_run;
+    let mut status = world.resource_mut::<SoftTissueStatus>();
+    if !(dt.is_finite() && dt > 0.0) {
+        if status.error.is_none() {
+            fail(
+                &mut status,
+                SoftTissueError {
+                    stage: "the step",
+                    body: None,
+                    message: format!("the step must be positive and finite, found {dt} s"),
+                },
+            );
+        }
+        return;
+    }
+    status.dt = Some(dt);
+    if !status.running() {
+        return;
+    }
+    let steps = if status.paused {
+        1
+    } else {
+        let mut clock = world.resource_mut::<Time<SoftPhysics>>();
+        let c = clock.context_mut();
+        let pending = c.pending + host * c.speed.max(0.0);
+        // A step is due when its time has come, to rounding.
+        let due = ((pending + 1e-9 * dt) / dt).floor().max(0.0) as u64;
+        let steps = due.min(u64::from(max_steps));
+        c.pending = if steps < due {
+            0.0
+        } else {
+            (pending - steps as f64 * dt).max(0.0)
+        };
+        steps
+    };
+    for _ in 0..steps {
+        world.run_schedule(SoftTissueSchedule);
+        world
+            .resource_mut::<Time<SoftPhysics>>()
+            .advance_by(std::time::Duration::from_secs_f64(dt));
+        if world.resource::<SoftTissueStatus>().error.is_some() {
+            break;
         }
     }
 }
 
-/// Runs one simulation step: [`SoftTissueSchedule`].
-fn run_step(world: &mut World) {
-    world.run_schedule(SoftTissueSchedule);
-}
-
-/// Keeps `Time<Fixed>` at the configured step.
-fn sync_fixed_timestep(config: Res<SoftTissueConfig>, mut time: ResMut<Time<Fixed>>) {
-    let want = std::time::Duration::from_secs_f64(config.dt);
-    if config.is_changed() && time.timestep() != want && config.dt > 0.0 && config.dt.is_finite() {
+/// Sets `Time<Fixed>` to the configured step when [`SoftTissueConfig::drive_fixed_timestep`]
+/// asks for it.
+fn drive_fixed_timestep(config: Res<SoftTissueConfig>, time: Option<ResMut<Time<Fixed>>>) {
+    let (Some(dt), true, Some(mut time)) = (config.dt, config.drive_fixed_timestep, time) else {
+        return;
+    };
+    let want = std::time::Duration::from_secs_f64(dt);
+    if dt > 0.0 && dt.is_finite() && time.timestep() != want {
         time.set_timestep(want);
     }
 }
 
-fn fail(status: &mut SoftTissueStatus, message: String) {
-    error!("soft tissue: {message}; the simulation is paused");
-    status.error = Some(message);
+fn fail(status: &mut SoftTissueStatus, error: SoftTissueError) {
+    error!("soft tissue: {error}; the simulation is paused");
+    status.error = Some(error);
     status.paused = true;
     status.step_once = false;
 }
 
-/// The body's mesh with `transform` applied (the same `Arc` when it is the identity).
-fn placed(mesh: &Arc<TetMesh>, transform: &Transform) -> Result<Arc<TetMesh>, String> {
-    if *transform == Transform::IDENTITY {
+/// A stage's error about `body` (or the whole step).
+fn stage_error(
+    stage: &'static str,
+    body: Option<Entity>,
+    message: impl ToString,
+) -> SoftTissueError {
+    SoftTissueError {
+        stage,
+        body,
+        message: message.to_string(),
+    }
+}
+
+/// The body's mesh with `placement` applied (the same `Arc` when it is the identity).
+fn placed(mesh: &Arc<TetMesh>, placement: &GlobalTransform) -> Result<Arc<TetMesh>, String> {
+    if placement.affine() == bevy::math::Affine3A::IDENTITY {
         return Ok(mesh.clone());
     }
-    let m = transform.to_matrix().as_dmat4();
+    let m = placement.to_matrix().as_dmat4();
     let positions = mesh
         .positions()
         .iter()
@@ -297,7 +562,45 @@ fn placed(mesh: &Arc<TetMesh>, transform: &Transform) -> Result<Arc<TetMesh>, St
     let tets = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
     TetMesh::new(positions, tets)
         .map(Arc::new)
-        .map_err(|e| format!("placing the mesh: {e}"))
+        .map_err(|e| e.to_string())
+}
+
+/// The core settings of a body from its components.
+fn body_settings(
+    spec: &SoftBody,
+    material: &TissueMaterial,
+    tuning: Option<&SoftBodyTuning>,
+    mesh: &TetMesh,
+    dt: f64,
+    gravity: bevy::math::DVec3,
+) -> Result<BodySettings, String> {
+    spec.anchor.validate()?;
+    let (msd, springs) = material.msd_params(mesh.node_count());
+    let mut s = BodySettings::new(material.fem, msd, dt);
+    s.precise = spec.method;
+    s.msd_spring_stiffness = springs;
+    s.cage = spec.cage;
+    s.boundary = spec.anchor.boundary(mesh);
+    s.gravity = soft_tissue_core::Vec3::new(gravity.x, gravity.y, gravity.z);
+    if let Some(t) = tuning {
+        s.fem_integrator = t.fem_integrator;
+        s.cage_dynamics = t.cage_dynamics;
+        s.cage_msd = t.cage_msd;
+        s.policy = t.policy;
+    }
+    Ok(s)
+}
+
+/// What a built body was built from, beyond what changes in place (method, material,
+/// heat, pin, shadow): a change of any of it builds the body again.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct BuiltFrom {
+    mesh: AssetId<TetMeshAsset>,
+    cage: soft_tissue_core::scenario::CageKind,
+    anchor: soft_tissue_core::scenario::Anchor,
+    tuning: Option<SoftBodyTuning>,
+    dt: f64,
+    gravity: bevy::math::DVec3,
 }
 
 /// Builds the simulation of every [`SoftBody`] whose mesh has loaded.
@@ -305,51 +608,63 @@ fn placed(mesh: &Arc<TetMesh>, transform: &Transform) -> Result<Arc<TetMesh>, St
 fn build_bodies(
     mut commands: Commands,
     config: Res<SoftTissueConfig>,
+    status: Res<SoftTissueStatus>,
     meshes: Res<Assets<TetMeshAsset>>,
-    mut new: Query<
+    new: Query<
         (
             Entity,
             &SoftBody,
-            &mut Transform,
+            &TissueMaterial,
+            Option<&TissueHeat>,
+            Option<&SoftBodyTuning>,
             Option<&Name>,
             Has<ShadowSimulation>,
             Option<&PinnedLevel>,
         ),
         (Without<SimulatedBody>, Without<SoftBodyError>),
     >,
+    poses: TransformHelper,
     mut next: Local<u64>,
 ) {
-    for (entity, spec, mut transform, name, shadow, pin) in &mut new {
+    let Some(dt) = status.dt else {
+        return;
+    };
+    for (entity, spec, material, heat, tuning, name, shadow, pin) in &new {
         let Some(asset) = meshes.get(&spec.mesh) else {
             continue;
         };
         let name = name.map_or_else(|| format!("{entity}"), |n| n.as_str().to_owned());
-        let result = (|| -> Result<SimBody, String> {
-            let mut settings = spec.settings.clone();
-            settings.precise = spec.method;
-            if (settings.dt - config.dt).abs() > 1e-12 * config.dt {
-                return Err(format!(
-                    "its step {} s differs from the simulation's {} s (SoftTissueConfig::dt)",
-                    settings.dt, config.dt
-                ));
-            }
-            let mesh = placed(&asset.0, &transform)?;
-            let heat = spec.heat.map(|h| (h, HeatBoundary::insulated()));
-            let mut body =
-                SimBody::new(name.clone(), mesh, settings, heat).map_err(|e| e.to_string())?;
+        // Computed now, not the one propagated at the end of the last frame.
+        let placement = poses.compute_global_transform(entity).unwrap_or_default();
+        let result = (|| -> Result<SimBody, SoftBodyError> {
+            let mesh =
+                placed(&asset.0, &placement).map_err(|message| SoftBodyError::Placement {
+                    body: name.clone(),
+                    message,
+                })?;
+            let settings = body_settings(spec, material, tuning, &mesh, dt, config.gravity)
+                .map_err(|message| SoftBodyError::Settings {
+                    body: name.clone(),
+                    message,
+                })?;
+            let heat = heat.map(|h| (h.0, HeatBoundary::insulated()));
+            let mut body = SimBody::new(name.clone(), mesh, settings, heat)?;
             if shadow {
-                body.set_shadow(true).map_err(|e| e.to_string())?;
+                body.set_shadow(true)?;
             }
             if let Some(p) = pin {
-                body.body_mut().pin(Some(p.0)).map_err(|e| e.to_string())?;
+                body.body_mut()
+                    .pin(Some(p.0))
+                    .map_err(|e| SoftBodyError::Settings {
+                        body: name.clone(),
+                        message: format!("pinning: {e}"),
+                    })?;
             }
             Ok(body)
         })();
         match result {
             Ok(body) => {
-                let placement = *transform;
-                *transform = Transform::IDENTITY;
-                let method: PreciseMethod = body.body().settings().precise;
+                let method = body.body().settings().precise;
                 let mut e = commands.entity(entity);
                 e.insert((
                     PrecisionLevel {
@@ -361,27 +676,62 @@ fn build_bodies(
                     GreenCage::default(),
                     SoftBodyDiagnostics::default(),
                 ));
-                if body.body().settings().precise.is_fem() {
-                    e.insert(FemState::default());
+                if method.is_fem() {
+                    e.insert(FemState::default()).remove::<MsdState>();
                 } else {
-                    e.insert(MsdState::default());
+                    e.insert(MsdState::default()).remove::<FemState>();
                 }
                 if body.heat().is_some() {
                     e.insert(Temperature::default());
+                } else {
+                    e.remove::<Temperature>();
                 }
+                let to_local = (placement.affine() != bevy::math::Affine3A::IDENTITY)
+                    .then(|| placement.affine().inverse());
                 e.insert(SimulatedBody {
                     body,
                     order: *next,
                     dirty: true,
                     placement,
+                    to_local,
+                    built_from: BuiltFrom {
+                        mesh: spec.mesh.id(),
+                        cage: spec.cage,
+                        anchor: spec.anchor,
+                        tuning: tuning.copied(),
+                        dt,
+                        gravity: config.gravity,
+                    },
                 });
                 *next += 1;
             }
-            Err(message) => {
-                error!("soft body `{name}` was not built: {message}");
-                commands.entity(entity).insert(SoftBodyError(message));
+            Err(error) => {
+                error!("{error}; the body is not simulated");
+                commands.entity(entity).insert(error);
             }
         }
+    }
+}
+
+/// A body whose inputs changed after an error is tried again.
+#[allow(clippy::type_complexity)]
+fn retry_failed_bodies(
+    mut commands: Commands,
+    failed: Query<
+        Entity,
+        (
+            With<SoftBodyError>,
+            Or<(
+                Changed<SoftBody>,
+                Changed<TissueMaterial>,
+                Changed<SoftBodyTuning>,
+                Changed<Transform>,
+            )>,
+        ),
+    >,
+) {
+    for e in &failed {
+        commands.entity(e).remove::<SoftBodyError>();
     }
 }
 
@@ -446,7 +796,7 @@ fn reset_simulation(
     status.recent.clear();
     for (e, mut b) in &mut bodies {
         if let Err(err) = b.body.reset() {
-            fail(&mut status, format!("resetting {e}: {err}"));
+            fail(&mut status, stage_error("resetting", Some(e), err));
         }
         b.dirty = true;
     }
@@ -454,46 +804,118 @@ fn reset_simulation(
         tool.tool.reset();
         tool.grabbing = false;
     }
-    contacts.0.clear();
+    contacts.clear();
 }
 
-/// The prepare stage: run-time changes (precise method, pins,
-/// shadows, tool poses and actions), then the core's `prepare`. One system, so the step pays
-/// one system's dispatch for all of it.
+/// Whether two placements are the same to rounding.
+fn same_placement(a: &GlobalTransform, b: &GlobalTransform) -> bool {
+    a.affine().abs_diff_eq(b.affine(), 1e-6)
+}
+
+/// The prepare stage: run-time changes of the bodies' inputs (those that need a new body
+/// are queued for building again), tool poses and actions, then the core's `prepare`. One
+/// system, so the step pays one system's dispatch for all of it.
 #[allow(clippy::type_complexity, clippy::too_many_arguments)]
 fn prepare_stage(
+    mut commands: Commands,
     mut bodies: Query<(
         Entity,
-        Ref<SoftBody>,
+        (
+            Ref<SoftBody>,
+            Ref<TissueMaterial>,
+            Option<&TissueHeat>,
+            Option<&SoftBodyTuning>,
+            Option<&PinnedLevel>,
+            Has<ShadowSimulation>,
+        ),
         &mut SimulatedBody,
-        Option<Ref<PinnedLevel>>,
-        Has<ShadowSimulation>,
     )>,
     mut tools: Query<(Entity, &SoftTool, &mut ToolState)>,
     poses: TransformHelper,
     config: Res<SoftTissueConfig>,
+    mut contacts: ResMut<SoftTissueContacts>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let mut t = Instant::now();
-    for (entity, spec, mut sim, pin, shadow) in &mut bodies {
+    let dt = status.dt.unwrap_or_default();
+    for (entity, (spec, material, heat, tuning, pin, shadow), mut sim) in &mut bodies {
+        let now = BuiltFrom {
+            mesh: spec.mesh.id(),
+            cage: spec.cage,
+            anchor: spec.anchor,
+            tuning: tuning.copied(),
+            dt,
+            gravity: config.gravity,
+        };
+        // Computed from the transforms now (the entity's or a parent's may have been written
+        // since the last propagation).
+        let moved = poses
+            .compute_global_transform(entity)
+            .is_ok_and(|g| !same_placement(&g, &sim.placement));
+        if now != sim.built_from || moved {
+            // Built again at the next step, at rest, from the inputs then.
+            commands.entity(entity).remove::<SimulatedBody>();
+            continue;
+        }
         let b = &mut sim.body;
-        let want: PreciseMethod = spec.method;
-        if spec.is_changed() && b.body().settings().precise != want {
+        if spec.method != b.body().settings().precise {
             let mesh = b.mesh().clone();
-            if let Err(e) = b.body_mut().set_precise_method(&mesh, want) {
-                fail(&mut status, format!("{}: changing method: {e}", b.name()));
+            let was_fem = b.body().settings().precise.is_fem();
+            match b.body_mut().set_precise_method(&mesh, spec.method) {
+                // The state component follows the solver's kind.
+                Ok(()) if was_fem != spec.method.is_fem() => {
+                    let mut e = commands.entity(entity);
+                    if spec.method.is_fem() {
+                        e.insert(FemState::default()).remove::<MsdState>();
+                    } else {
+                        e.insert(MsdState::default()).remove::<FemState>();
+                    }
+                }
+                Ok(()) => {}
+                Err(e) => fail(
+                    &mut status,
+                    stage_error("changing the method", Some(entity), e),
+                ),
             }
         }
-        let pinned: Option<Level> = pin.as_ref().map(|p| p.0);
+        if material.is_changed() {
+            let (msd, springs) = material.msd_params(b.mesh().node_count());
+            if let Err(e) = b.set_materials(material.fem, msd, springs) {
+                fail(
+                    &mut status,
+                    stage_error("changing the material", Some(entity), e),
+                );
+            }
+        }
+        let want_heat = heat.map(|h| h.0);
+        if want_heat != b.heat().map(|h| *h.params()) {
+            let had = b.heat().is_some();
+            match b.set_heat(want_heat.map(|p| (p, HeatBoundary::insulated()))) {
+                Ok(()) if want_heat.is_some() && !had => {
+                    commands.entity(entity).insert(Temperature::default());
+                }
+                Ok(()) if want_heat.is_none() => {
+                    commands.entity(entity).remove::<Temperature>();
+                }
+                Ok(()) => {}
+                Err(e) => fail(
+                    &mut status,
+                    stage_error("changing the heat", Some(entity), e),
+                ),
+            }
+            sim.dirty = true;
+        }
+        let b = &mut sim.body;
+        let pinned: Option<Level> = pin.map(|p| p.0);
         if b.body().pinned() != pinned
             && let Err(e) = b.body_mut().pin(pinned)
         {
-            fail(&mut status, format!("{}: pinning: {e}", b.name()));
+            fail(&mut status, stage_error("pinning", Some(entity), e));
         }
         if b.body().has_shadow() != shadow
             && let Err(e) = b.set_shadow(shadow)
         {
-            fail(&mut status, format!("{entity}: shadow: {e}"));
+            fail(&mut status, stage_error("shadow", Some(entity), e));
         }
     }
     for (entity, spec, mut state) in &mut tools {
@@ -502,11 +924,14 @@ fn prepare_stage(
         };
         let t = &mut state.tool;
         if let Err(e) = t.set_pose(position, axis) {
-            fail(&mut status, format!("tool {}: {e}", t.name()));
+            fail(&mut status, stage_error("moving a tool", Some(entity), e));
             continue;
         }
         if let Err(e) = t.set_cautery(spec.cautery_watts) {
-            fail(&mut status, format!("tool {}: {e}", t.name()));
+            fail(
+                &mut status,
+                stage_error("a tool's cautery", Some(entity), e),
+            );
         }
         if spec.grab != state.grabbing {
             if spec.grab {
@@ -517,27 +942,39 @@ fn prepare_stage(
             state.grabbing = spec.grab;
         }
     }
+    let contacts = &mut *contacts;
     in_order(
-        bodies.iter_mut().map(|(_, _, b, _, _)| b),
-        tools.iter_mut().map(|(_, _, t)| t),
-        |b, tl| prepare(b, tl, config.dt),
+        bodies.iter_mut().map(|(e, _, b)| (e, b)),
+        tools.iter_mut().map(|(e, _, t)| (e, t)),
+        Some((&mut contacts.bodies, &mut contacts.tools)),
+        |b, tl| prepare(b, tl, dt),
     );
     status.times.prepare_us = lap(&mut t);
 }
 
 /// Runs `f` on the built bodies and the tools, each in build order, as the core's stage
 /// functions take them (slices of `&mut`, so indices in the contact state stay valid).
+/// With `entities`, writes the bodies' and tools' entities in that order.
 fn in_order<'a, R>(
-    bodies: impl Iterator<Item = Mut<'a, SimulatedBody>>,
-    tools: impl Iterator<Item = Mut<'a, ToolState>>,
+    bodies: impl Iterator<Item = (Entity, Mut<'a, SimulatedBody>)>,
+    tools: impl Iterator<Item = (Entity, Mut<'a, ToolState>)>,
+    entities: Option<(&mut Vec<Entity>, &mut Vec<Entity>)>,
     f: impl FnOnce(&mut [&mut SimBody], &mut [&mut Tool]) -> R,
 ) -> R {
-    let mut b: SmallVec<[&mut SimulatedBody; 16]> = bodies.map(Mut::into_inner).collect();
-    b.sort_unstable_by_key(|b| b.order);
-    let mut b: SmallVec<[&mut SimBody; 16]> = b.into_iter().map(|b| &mut b.body).collect();
-    let mut t: SmallVec<[&mut ToolState; 4]> = tools.map(Mut::into_inner).collect();
-    t.sort_unstable_by_key(|t| t.order);
-    let mut t: SmallVec<[&mut Tool; 4]> = t.into_iter().map(|t| &mut t.tool).collect();
+    let mut b: SmallVec<[(Entity, &mut SimulatedBody); 16]> =
+        bodies.map(|(e, b)| (e, b.into_inner())).collect();
+    b.sort_unstable_by_key(|(_, b)| b.order);
+    let mut t: SmallVec<[(Entity, &mut ToolState); 4]> =
+        tools.map(|(e, t)| (e, t.into_inner())).collect();
+    t.sort_unstable_by_key(|(_, t)| t.order);
+    if let Some((be, te)) = entities {
+        be.clear();
+        be.extend(b.iter().map(|(e, _)| *e));
+        te.clear();
+        te.extend(t.iter().map(|(e, _)| *e));
+    }
+    let mut b: SmallVec<[&mut SimBody; 16]> = b.into_iter().map(|(_, b)| &mut b.body).collect();
+    let mut t: SmallVec<[&mut Tool; 4]> = t.into_iter().map(|(_, t)| &mut t.tool).collect();
     f(&mut b, &mut t)
 }
 
@@ -547,42 +984,51 @@ fn lap(t: &mut Instant) -> f64 {
     e
 }
 
-fn report(status: &mut SoftTissueStatus, stage: &str, r: Result<(), WorldError>) {
+/// A stage's result: a failure names the body the core's error names, by entity.
+fn report<'a>(
+    status: &mut SoftTissueStatus,
+    stage: &'static str,
+    r: Result<(), WorldError>,
+    mut bodies: impl Iterator<Item = (Entity, &'a SimulatedBody)>,
+) {
     if let Err(e) = r {
-        fail(status, format!("{stage}: {e}"));
+        let body = e
+            .subject()
+            .and_then(|n| bodies.find(|(_, b)| b.body.name() == n).map(|(e, _)| e));
+        fail(status, stage_error(stage, body, e));
     }
 }
 
 fn detect_stage(
-    mut bodies: Query<&mut SimulatedBody>,
-    mut tools: Query<&mut ToolState>,
+    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut tools: Query<(Entity, &mut ToolState)>,
     config: Res<SoftTissueConfig>,
     mut contacts: ResMut<SoftTissueContacts>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let mut t = Instant::now();
-    in_order(bodies.iter_mut(), tools.iter_mut(), |b, tl| {
-        detect_contacts(b, tl, &config.contact, &mut contacts.0)
+    in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, tl| {
+        detect_contacts(b, tl, &config.contact, &mut contacts.state)
     });
     status.times.detect_us = lap(&mut t);
 }
 
 fn switch_stage(
-    mut bodies: Query<&mut SimulatedBody>,
-    mut tools: Query<&mut ToolState>,
+    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut tools: Query<(Entity, &mut ToolState)>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let mut t = Instant::now();
-    let r = in_order(bodies.iter_mut(), tools.iter_mut(), |b, _| {
+    let r = in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, _| {
         switch_precision(b)
     });
-    report(&mut status, "switching precision", r);
+    report(&mut status, "switching precision", r, bodies.iter());
     status.times.switch_us = lap(&mut t);
 }
 
 fn solve_stage(
-    mut bodies: Query<&mut SimulatedBody>,
-    mut tools: Query<&mut ToolState>,
+    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut tools: Query<(Entity, &mut ToolState)>,
     contacts: Res<SoftTissueContacts>,
     config: Res<SoftTissueConfig>,
     mut pool: ResMut<SoftTissueThreads>,
@@ -594,32 +1040,34 @@ fn solve_stage(
             soft_tissue_core::parallel::Threads::new(config.threads).unwrap_or_else(|e| {
                 fail(
                     &mut status,
-                    format!("thread pool: {e}; stepping on one thread"),
+                    stage_error("thread pool", None, format!("{e}; stepping on one thread")),
                 );
                 soft_tissue_core::parallel::Threads::single()
             });
         pool.threads = Some((config.threads, threads));
     }
     let threads = &pool.threads.as_ref().expect("set above").1;
-    let r = in_order(bodies.iter_mut(), tools.iter_mut(), |b, tl| {
-        threads.run(|| step_solvers(b, tl, &contacts.0))
+    let r = in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, tl| {
+        threads.run(|| step_solvers(b, tl, &contacts.state))
     });
-    report(&mut status, "stepping the solvers", r);
+    report(&mut status, "stepping the solvers", r, bodies.iter());
     status.times.solve_us = lap(&mut t);
 }
 
 fn collide_stage(
-    mut bodies: Query<&mut SimulatedBody>,
-    mut tools: Query<&mut ToolState>,
+    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut tools: Query<(Entity, &mut ToolState)>,
     config: Res<SoftTissueConfig>,
     mut contacts: ResMut<SoftTissueContacts>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let mut t = Instant::now();
-    let r = in_order(bodies.iter_mut(), tools.iter_mut(), |b, tl| {
-        collide(b, tl, &config.contact, &mut contacts.0, config.dt)
+    let dt = status.dt.unwrap_or_default();
+    let r = in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, tl| {
+        collide(b, tl, &config.contact, &mut contacts.state, dt)
     });
-    report(&mut status, "collisions", r);
+    contacts.gather();
+    report(&mut status, "collisions", r, bodies.iter());
     status.times.collide_us = lap(&mut t);
 }
 
@@ -646,7 +1094,7 @@ fn writeback_stage(
         // is not finite is not written (the mesh keeps its last positions) and stops the
         // simulation.
         if let Err(e) = sim.body.writeback() {
-            fail(&mut status, format!("writeback: {e}"));
+            fail(&mut status, stage_error("writeback", Some(entity), e));
             continue;
         }
         let b = &sim.body;

@@ -125,7 +125,16 @@ fn visual_mesh(
     visual: &VisualMesh,
     sim: &SimulatedBody,
     meshes: &Assets<Mesh>,
-) -> Result<Option<(Mesh, EmbeddedVisual)>, String> {
+    body_name: &str,
+) -> Result<Option<(Mesh, EmbeddedVisual)>, VisualMeshError> {
+    let bad = |message: String| VisualMeshError::BadMesh {
+        body: body_name.to_owned(),
+        message,
+    };
+    let embed = |message: String| VisualMeshError::Embedding {
+        body: body_name.to_owned(),
+        message,
+    };
     let body = sim.body();
     let tets = body.mesh();
     let (mut mesh, points, limit) = match visual {
@@ -136,7 +145,7 @@ fn visual_mesh(
             let Some(VertexAttributeValues::Float32x3(p)) =
                 source.attribute(Mesh::ATTRIBUTE_POSITION)
             else {
-                return Err("the mesh has no Float32x3 positions".into());
+                return Err(bad("the mesh has no Float32x3 positions".into()));
             };
             let place = sim.placement().to_matrix().as_dmat4();
             let points: Vec<_> = p
@@ -155,7 +164,7 @@ fn visual_mesh(
                 tets.surface().triangles(),
                 u32::from(*levels),
             )
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| embed(e.to_string()))?;
             let mut mesh = Mesh::new(
                 PrimitiveTopology::TriangleList,
                 RenderAssetUsages::default(),
@@ -170,13 +179,14 @@ fn visual_mesh(
             (mesh, points, limit)
         }
     };
-    let triangles = mesh_triangles(&mesh)?;
-    let embedding = Embedding::new(tets, &points, limit).map_err(|e| e.to_string())?;
+    let triangles = mesh_triangles(&mesh).map_err(bad)?;
+    let embedding = Embedding::new(tets, &points, limit).map_err(|e| embed(e.to_string()))?;
     let n = embedding.len();
     let mut scratch = vec![[0.0; 3]; n];
     embedding
         .apply(body.body().node_positions(), &mut scratch)
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| embed(e.to_string()))?;
+    to_local(sim, &mut scratch);
     let mut normal = Vec::new();
     normals(&scratch, &triangles, &mut normal);
     mesh.insert_attribute(Mesh::ATTRIBUTE_POSITION, scratch);
@@ -193,10 +203,21 @@ fn visual_mesh(
     )))
 }
 
+/// Maps world positions into the body entity's own frame (the rendered mesh is drawn with
+/// the entity's transform).
+fn to_local(sim: &SimulatedBody, positions: &mut [[f32; 3]]) {
+    if let Some(m) = sim.to_local {
+        for p in positions {
+            *p = m.transform_point3(Vec3::from_array(*p)).to_array();
+        }
+    }
+}
+
 /// The simulation surface as a render mesh.
 fn surface_mesh(sim: &SimulatedBody) -> Mesh {
     let b = sim.body();
-    let positions = b.surface_positions().to_vec();
+    let mut positions = b.surface_positions().to_vec();
+    to_local(sim, &mut positions);
     let mut n = Vec::new();
     normals(&positions, b.surface_triangles(), &mut n);
     let mut mesh = Mesh::new(
@@ -237,17 +258,16 @@ fn create_meshes(
         if let Some(visual) = visual
             && !failed
         {
-            match visual_mesh(visual, sim, &meshes) {
+            let name = name.map_or_else(|| format!("{entity}"), |n| n.to_string());
+            match visual_mesh(visual, sim, &meshes, &name) {
                 Ok(None) => continue,
                 Ok(Some((mesh, embedded))) => {
                     e.insert((Mesh3d(meshes.add(mesh)), embedded, SoftBodyMesh));
                     continue;
                 }
                 Err(why) => {
-                    let name = name.map_or_else(|| format!("{entity}"), |n| n.to_string());
-                    let why = format!("visual mesh of soft body `{name}` not used: {why}");
                     error!("{why}; drawing its simulation surface");
-                    e.insert(VisualMeshError(why));
+                    e.insert(why);
                 }
             }
         }
@@ -303,6 +323,7 @@ fn upload_meshes(
             {
                 continue;
             }
+            to_local(&sim, positions);
             normals(positions, &v.triangles, normal);
             write3(&mut mesh, Mesh::ATTRIBUTE_POSITION, positions);
             write3(&mut mesh, Mesh::ATTRIBUTE_NORMAL, normal);
@@ -323,9 +344,17 @@ fn upload_meshes(
             }
             continue;
         }
-        normals(b.surface_positions(), b.surface_triangles(), normal);
+        let surface: &[[f32; 3]] = if sim.to_local.is_some() {
+            positions.clear();
+            positions.extend_from_slice(b.surface_positions());
+            to_local(&sim, positions);
+            positions
+        } else {
+            b.surface_positions()
+        };
+        normals(surface, b.surface_triangles(), normal);
         // Written in place: the attribute buffers keep their allocation.
-        write3(&mut mesh, Mesh::ATTRIBUTE_POSITION, b.surface_positions());
+        write3(&mut mesh, Mesh::ATTRIBUTE_POSITION, surface);
         write3(&mut mesh, Mesh::ATTRIBUTE_NORMAL, normal);
         if let Some(t) = temp {
             write_colours(&mut mesh, &t.surface, &t.damage);

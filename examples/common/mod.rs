@@ -101,8 +101,8 @@ impl ExampleOptions {
 pub struct ExampleScene {
     /// Window title.
     pub title: &'static str,
-    /// The scene.
-    pub scene: Scene,
+    /// The scene file, relative to the assets folder (spawned through the asset server).
+    pub scene: &'static str,
     /// Body colours, in scene order (cycled).
     pub colours: Vec<Color>,
     /// Built-in script for the screenshot mode.
@@ -152,7 +152,7 @@ fn assets_dir() -> PathBuf {
 }
 
 /// Builds and runs an example app.
-pub fn run(mut example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
+pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
     let options = match ExampleOptions::from_args() {
         Ok(o) => o,
         Err(e) => {
@@ -160,23 +160,29 @@ pub fn run(mut example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppEx
             return AppExit::error();
         }
     };
-    if let Some(file) = &options.scene {
-        let path = assets_dir().join(file);
+    let scene_file = options
+        .scene
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(example.scene));
+    // The scene is read here too: the core world of the same scene places the built-in
+    // script and the camera around the bodies. The app's bodies come through the asset
+    // server.
+    let scene = {
+        let path = assets_dir().join(&scene_file);
         let loaded = std::fs::read_to_string(&path)
             .map_err(|e| e.to_string())
             .and_then(|text| {
                 Scene::from_ron(&text, &path.display().to_string()).map_err(|e| e.to_string())
             });
         match loaded {
-            Ok(scene) => example.scene = scene,
+            Ok(scene) => scene,
             Err(e) => {
                 eprintln!("{}: {e}", path.display());
                 return AppExit::error();
             }
         }
-    }
-    // The core world of the same scene places the built-in script around the bodies.
-    let world = match SoftTissueWorld::from_scene(&example.scene, &assets_dir()) {
+    };
+    let world = match SoftTissueWorld::from_scene(&scene, &assets_dir()) {
         Ok(w) => w,
         Err(e) => {
             eprintln!("building the scene: {e}");
@@ -214,6 +220,7 @@ pub fn run(mut example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppEx
         * 0.09;
     let dt = world.config().dt;
     drop(world);
+    drop(scene);
 
     let mut app = App::new();
     app.add_plugins(
@@ -232,6 +239,11 @@ pub fn run(mut example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppEx
             }),
     )
     .add_plugins(SoftTissuePlugins::default())
+    // One simulation step per fixed run, at the scene's step.
+    .insert_resource(SoftTissueConfig {
+        drive_fixed_timestep: true,
+        ..default()
+    })
     .insert_resource(options.clone())
     .insert_resource(Controls(example.extra_controls.clone()))
     .insert_resource(ClearColor(Color::srgb(0.08, 0.09, 0.11)));
@@ -245,34 +257,14 @@ pub fn run(mut example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppEx
         ));
     }
     let tool_shape = script.as_ref().map(|s| s.tool);
-    let scene = example.scene.clone();
     let colours = example.colours.clone();
     let cautery_watts = example.cautery_watts;
     let smooth = options.smooth;
     app.add_systems(Startup, move |world: &mut World| {
-        let bodies = match bevy_soft_tissue::spawn_scene(world, &scene, &assets_dir()) {
-            Ok(b) => b,
-            Err(e) => {
-                error!("spawning the scene: {e}");
-                world.write_message(AppExit::error());
-                return;
-            }
-        };
-        for (i, e) in bodies.iter().enumerate() {
-            let colour = colours[i % colours.len()];
-            let material = world
-                .resource_mut::<Assets<StandardMaterial>>()
-                .add(StandardMaterial {
-                    base_color: colour,
-                    perceptual_roughness: 0.55,
-                    ..default()
-                });
-            let mut body = world.entity_mut(*e);
-            body.insert(MeshMaterial3d(material));
-            if smooth > 0 {
-                body.insert(VisualMesh::Subdivided { levels: smooth });
-            }
-        }
+        let handle = world
+            .resource::<AssetServer>()
+            .load(scene_file.to_string_lossy().into_owned());
+        world.spawn((Name::new("scene"), SoftTissueSceneRoot(handle)));
         // The orbit centre sits left of the scene's centre so the bodies clear the inspector.
         let focus = 0.5 * (lo + hi) - Vec3::X * 0.22 * scale;
         let distance = 1.6 * scale;
@@ -340,9 +332,11 @@ pub fn run(mut example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppEx
             touching: false,
         });
     });
+    app.insert_resource(BodyLook { colours, smooth });
     app.add_systems(
         Update,
         (
+            paint_bodies,
             orbit_camera.run_if(not(egui_wants_any_pointer_input)),
             mouse_tool.run_if(not(egui_wants_any_pointer_input)),
             scripted_tool,
@@ -354,6 +348,39 @@ pub fn run(mut example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppEx
     .add_systems(EguiPrimaryContextPass, controls_panel);
     configure(&mut app);
     app.run()
+}
+
+/// How the scene's bodies are drawn.
+#[derive(Resource)]
+struct BodyLook {
+    colours: Vec<Color>,
+    smooth: u8,
+}
+
+/// Gives a scene's bodies their colours (in scene order) and smoothed surfaces once the
+/// scene has spawned them.
+fn paint_bodies(
+    mut commands: Commands,
+    look: Res<BodyLook>,
+    scenes: Query<&SceneBodies, Added<SceneBodies>>,
+    mut materials: ResMut<Assets<StandardMaterial>>,
+) {
+    for bodies in &scenes {
+        for (i, e) in bodies.0.iter().enumerate() {
+            let material = materials.add(StandardMaterial {
+                base_color: look.colours[i % look.colours.len()],
+                perceptual_roughness: 0.55,
+                ..default()
+            });
+            let mut body = commands.entity(*e);
+            body.insert(MeshMaterial3d(material));
+            if look.smooth > 0 {
+                body.insert(VisualMesh::Subdivided {
+                    levels: look.smooth,
+                });
+            }
+        }
+    }
 }
 
 fn orbit_camera(

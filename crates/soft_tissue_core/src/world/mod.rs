@@ -168,6 +168,20 @@ pub struct BodyDiagnostics {
     pub shadow: Option<ShadowError>,
 }
 
+impl WorldError {
+    /// The body (or tool) the error names, if it names one.
+    pub fn subject(&self) -> Option<&str> {
+        match self {
+            WorldError::Precision { body, .. }
+            | WorldError::Heat { body, .. }
+            | WorldError::Mesh { body, .. }
+            | WorldError::NonFinite { body, .. } => Some(body),
+            WorldError::Contact { name, .. } => Some(name),
+            _ => None,
+        }
+    }
+}
+
 impl BodyDiagnostics {
     /// What runs now: `cage`, `fem` or `msd`.
     pub fn running(&self) -> &'static str {
