@@ -2,7 +2,8 @@
 //! base, with the paper's parameters; each rises from its Green-coordinate cage to its precise
 //! method when touched and returns when it rests. Keys choose the method combination.
 //!
-//! Run: `cargo run --release --example cylinders [-- --screenshot FILE --frames N]`
+//! Run: `cargo run --profile test --example cylinders [-- --screenshot FILE --frames N]` (the
+//! build `cargo test` made; `--release` for the fastest frames after a long build)
 //!
 //! Controls: right mouse drag orbits, shift + wheel zooms; the tool follows the mouse in the
 //! screen plane and the wheel moves it nearer or farther, poking what it meets; hold the left

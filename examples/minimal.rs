@@ -1,7 +1,8 @@
 //! The smallest app: the plugin, one organ from `assets/` with every default, and a tool
 //! that follows the mouse (hold the left button to push it into the liver).
 //!
-//! Run: `cargo run --profile apps --example minimal` (see README, "Run the examples").
+//! Run: `cargo run --profile test --example minimal` (the build the tests made; see
+//! docs/plugin.md, "Running the examples").
 
 use bevy::prelude::*;
 use bevy_soft_tissue::prelude::*;

@@ -2,7 +2,8 @@
 //! each other, gravity off, each at its cage level until the tool touches it. The liver has a
 //! temperature field: the electrocautery heats it and thermal damage shows on its surface.
 //!
-//! Run: `cargo run --release --example organs [-- --screenshot FILE --frames N]`; add
+//! Run: `cargo run --profile test --example organs [-- --screenshot FILE --frames N]` (the build
+//! `cargo test` made; `--release` for the fastest frames after a long build); add
 //! `--large` for the organs at segmentation sizes (`assets/scenes/organs-large.scene.ron`,
 //! 27k tetrahedra, the prefactored corotational model), or `--scene FILE` for any scene.
 //!

@@ -1,0 +1,261 @@
+//! Building bodies and tools from their components, and why a body was not built.
+
+use super::*;
+
+/// A body that could not be built, and why (the entity keeps its [`SoftBody`]; writing
+/// any of its inputs tries again).
+#[derive(Component, Debug, thiserror::Error)]
+pub enum SoftBodyError {
+    /// The mesh could not be placed at the entity's global transform.
+    #[error("soft body `{body}`: placing its mesh: {message}")]
+    Placement {
+        /// The body's name (or entity).
+        body: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A setting is out of range (the message names it).
+    #[error("soft body `{body}`: {message}")]
+    Settings {
+        /// The body's name (or entity).
+        body: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// The core refused to build it (its error names the level and what failed).
+    #[error(transparent)]
+    Build(#[from] WorldError),
+}
+
+/// The body's mesh with `placement` applied (the same `Arc` when it is the identity).
+fn placed(mesh: &Arc<TetMesh>, placement: &GlobalTransform) -> Result<Arc<TetMesh>, String> {
+    if placement.affine() == bevy::math::Affine3A::IDENTITY {
+        return Ok(mesh.clone());
+    }
+    let m = placement.to_matrix().as_dmat4();
+    let positions = mesh
+        .positions()
+        .iter()
+        .map(|p| {
+            let q = m.transform_point3(bevy::math::DVec3::new(p.x, p.y, p.z));
+            soft_tissue_core::Vec3::new(q.x, q.y, q.z)
+        })
+        .collect();
+    let tets = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
+    TetMesh::new(positions, tets)
+        .map(Arc::new)
+        .map_err(|e| e.to_string())
+}
+
+/// The core settings of a body from its components.
+fn body_settings(
+    spec: &SoftBody,
+    material: &TissueMaterial,
+    tuning: Option<&SoftBodyTuning>,
+    mesh: &TetMesh,
+    dt: f64,
+    gravity: bevy::math::DVec3,
+) -> Result<BodySettings, String> {
+    spec.anchor.validate()?;
+    let (msd, springs) = material.msd_params(mesh.node_count());
+    let mut s = BodySettings::new(material.fem, msd, dt);
+    s.precise = spec.method;
+    s.msd_spring_stiffness = springs;
+    s.cage = spec.cage;
+    s.boundary = spec.anchor.boundary(mesh);
+    s.gravity = soft_tissue_core::Vec3::new(gravity.x, gravity.y, gravity.z);
+    if let Some(t) = tuning {
+        s.fem_integrator = t.fem_integrator;
+        s.cage_dynamics = t.cage_dynamics;
+        s.cage_msd = t.cage_msd;
+        s.policy = t.policy;
+    }
+    Ok(s)
+}
+
+/// What a built body was built from, beyond what changes in place (method, material,
+/// heat, pin, shadow): a change of any of it builds the body again.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct BuiltFrom {
+    pub(super) mesh: AssetId<TetMeshAsset>,
+    pub(super) cage: soft_tissue_core::scenario::CageKind,
+    pub(super) anchor: soft_tissue_core::scenario::Anchor,
+    pub(super) tuning: Option<SoftBodyTuning>,
+    pub(super) dt: f64,
+    pub(super) gravity: bevy::math::DVec3,
+}
+
+/// Builds the simulation of every [`SoftBody`] whose mesh has loaded.
+#[allow(clippy::type_complexity)]
+pub(super) fn build_bodies(
+    mut commands: Commands,
+    config: Res<SoftTissueConfig>,
+    status: Res<SoftTissueStatus>,
+    meshes: Res<Assets<TetMeshAsset>>,
+    new: Query<
+        (
+            Entity,
+            &SoftBody,
+            &TissueMaterial,
+            Option<&TissueHeat>,
+            Option<&SoftBodyTuning>,
+            Option<&Name>,
+            Has<ShadowSimulation>,
+            Option<&PinnedLevel>,
+        ),
+        (Without<SimulatedBody>, Without<SoftBodyError>),
+    >,
+    poses: TransformHelper,
+    mut next: Local<u64>,
+) {
+    let Some(dt) = status.dt else {
+        return;
+    };
+    for (entity, spec, material, heat, tuning, name, shadow, pin) in &new {
+        let Some(asset) = meshes.get(&spec.mesh) else {
+            continue;
+        };
+        let name = name.map_or_else(|| format!("{entity}"), |n| n.as_str().to_owned());
+        // Computed now, not the one propagated at the end of the last frame.
+        let placement = poses.compute_global_transform(entity).unwrap_or_default();
+        let result = (|| -> Result<SimBody, SoftBodyError> {
+            let mesh =
+                placed(&asset.0, &placement).map_err(|message| SoftBodyError::Placement {
+                    body: name.clone(),
+                    message,
+                })?;
+            let settings = body_settings(spec, material, tuning, &mesh, dt, config.gravity)
+                .map_err(|message| SoftBodyError::Settings {
+                    body: name.clone(),
+                    message,
+                })?;
+            let heat = heat.map(|h| (h.0, HeatBoundary::insulated()));
+            let mut body = SimBody::new(name.clone(), mesh, settings, heat)?;
+            if shadow {
+                body.set_shadow(true)?;
+            }
+            if let Some(p) = pin {
+                body.body_mut()
+                    .pin(Some(p.0))
+                    .map_err(|e| SoftBodyError::Settings {
+                        body: name.clone(),
+                        message: format!("pinning: {e}"),
+                    })?;
+            }
+            Ok(body)
+        })();
+        match result {
+            Ok(body) => {
+                let method = body.body().settings().precise;
+                let mut e = commands.entity(entity);
+                e.insert((
+                    PrecisionLevel {
+                        level: body.body().level(),
+                        method,
+                        switches: 0,
+                        last_jump_ratio: None,
+                    },
+                    GreenCage::default(),
+                    SoftBodyDiagnostics::default(),
+                ));
+                if method.is_fem() {
+                    e.insert(FemState::default()).remove::<MsdState>();
+                } else {
+                    e.insert(MsdState::default()).remove::<FemState>();
+                }
+                if body.heat().is_some() {
+                    e.insert(Temperature::default());
+                } else {
+                    e.remove::<Temperature>();
+                }
+                let to_local = (placement.affine() != bevy::math::Affine3A::IDENTITY)
+                    .then(|| placement.affine().inverse());
+                e.insert(SimulatedBody {
+                    body,
+                    order: *next,
+                    dirty: true,
+                    placement,
+                    to_local,
+                    built_from: BuiltFrom {
+                        mesh: spec.mesh.id(),
+                        cage: spec.cage,
+                        anchor: spec.anchor,
+                        tuning: tuning.copied(),
+                        dt,
+                        gravity: config.gravity,
+                    },
+                });
+                *next += 1;
+            }
+            Err(error) => {
+                error!("{error}; the body is not simulated");
+                commands.entity(entity).insert(error);
+            }
+        }
+    }
+}
+
+/// A body whose inputs changed after an error is tried again.
+#[allow(clippy::type_complexity)]
+pub(super) fn retry_failed_bodies(
+    mut commands: Commands,
+    failed: Query<
+        Entity,
+        (
+            With<SoftBodyError>,
+            Or<(
+                Changed<SoftBody>,
+                Changed<TissueMaterial>,
+                Changed<SoftBodyTuning>,
+                Changed<Transform>,
+            )>,
+        ),
+    >,
+) {
+    for e in &failed {
+        commands.entity(e).remove::<SoftBodyError>();
+    }
+}
+
+/// The pose of a tool entity now: position and axis (local +Y) in core vectors.
+pub(super) fn tool_pose(
+    poses: &TransformHelper,
+    entity: Entity,
+) -> Option<(soft_tissue_core::Vec3, soft_tissue_core::Vec3)> {
+    // Computed now, not the one propagated at the end of the last frame.
+    let pose = poses.compute_global_transform(entity).ok()?;
+    let (_, rotation, translation) = pose.to_scale_rotation_translation();
+    Some((to_core(translation), to_core(rotation * Vec3::Y)))
+}
+
+pub(super) fn build_tools(
+    mut commands: Commands,
+    new: Query<(Entity, &SoftTool, Option<&Name>), Without<ToolState>>,
+    poses: TransformHelper,
+    mut next: Local<u64>,
+) {
+    for (entity, spec, name) in &new {
+        let name = name.map_or_else(|| format!("{entity}"), |n| n.as_str().to_owned());
+        // The tool starts where its entity is (not at the origin).
+        let built = Tool::new(name.clone(), spec.shape).and_then(|mut t| {
+            if let Some((p, a)) = tool_pose(&poses, entity) {
+                t.set_pose(p, a)?;
+            }
+            Ok(t)
+        });
+        match built {
+            Ok(tool) => {
+                commands.entity(entity).insert(ToolState {
+                    tool,
+                    order: *next,
+                    grabbing: false,
+                });
+                *next += 1;
+            }
+            Err(e) => {
+                error!("tool `{name}` was not built: {e}");
+                commands.entity(entity).despawn();
+            }
+        }
+    }
+}

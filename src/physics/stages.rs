@@ -1,0 +1,449 @@
+//! The systems of a step: reset, prepare (run-time changes), the core's stages and the
+//! writeback of the read-out components.
+
+use super::*;
+
+/// A reset when asked for: every body and tool back to its initial state, counters and the
+/// error cleared. Runs before the step, also while the simulation is paused or stopped by an
+/// error.
+pub(super) fn reset_simulation(
+    mut requests: MessageReader<ResetSimulation>,
+    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut tools: Query<&mut ToolState>,
+    mut contacts: ResMut<SoftTissueContacts>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    if requests.read().count() == 0 {
+        return;
+    }
+    status.steps = 0;
+    status.error = None;
+    status.recent.clear();
+    for (e, mut b) in &mut bodies {
+        if let Err(err) = b.body.reset() {
+            fail(&mut status, stage_error("resetting", Some(e), err));
+        }
+        b.dirty = true;
+    }
+    for mut tool in &mut tools {
+        tool.tool.reset();
+        tool.grabbing = false;
+    }
+    contacts.clear();
+}
+
+/// Whether two placements are the same to rounding.
+fn same_placement(a: &GlobalTransform, b: &GlobalTransform) -> bool {
+    a.affine().abs_diff_eq(b.affine(), 1e-6)
+}
+
+/// The prepare stage: run-time changes of the bodies' inputs (those that need a new body
+/// are queued for building again), tool poses and actions, then the core's `prepare`. One
+/// system, so the step pays one system's dispatch for all of it.
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
+pub(super) fn prepare_stage(
+    mut commands: Commands,
+    mut bodies: Query<(
+        Entity,
+        (
+            Ref<SoftBody>,
+            Ref<TissueMaterial>,
+            Option<&TissueHeat>,
+            Option<&SoftBodyTuning>,
+            Option<&PinnedLevel>,
+            Has<ShadowSimulation>,
+        ),
+        &mut SimulatedBody,
+    )>,
+    mut tools: Query<(Entity, &SoftTool, &mut ToolState)>,
+    poses: TransformHelper,
+    config: Res<SoftTissueConfig>,
+    mut contacts: ResMut<SoftTissueContacts>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    let mut t = Instant::now();
+    let dt = status.dt.unwrap_or_default();
+    for (entity, (spec, material, heat, tuning, pin, shadow), mut sim) in &mut bodies {
+        let now = BuiltFrom {
+            mesh: spec.mesh.id(),
+            cage: spec.cage,
+            anchor: spec.anchor,
+            tuning: tuning.copied(),
+            dt,
+            gravity: config.gravity,
+        };
+        // Computed from the transforms now (the entity's or a parent's may have been written
+        // since the last propagation).
+        let moved = poses
+            .compute_global_transform(entity)
+            .is_ok_and(|g| !same_placement(&g, &sim.placement));
+        if now != sim.built_from || moved {
+            // Built again at the next step, at rest, from the inputs then.
+            commands.entity(entity).remove::<SimulatedBody>();
+            continue;
+        }
+        let b = &mut sim.body;
+        if spec.method != b.body().settings().precise {
+            let mesh = b.mesh().clone();
+            let was_fem = b.body().settings().precise.is_fem();
+            match b.body_mut().set_precise_method(&mesh, spec.method) {
+                // The state component follows the solver's kind.
+                Ok(()) if was_fem != spec.method.is_fem() => {
+                    let mut e = commands.entity(entity);
+                    if spec.method.is_fem() {
+                        e.insert(FemState::default()).remove::<MsdState>();
+                    } else {
+                        e.insert(MsdState::default()).remove::<FemState>();
+                    }
+                }
+                Ok(()) => {}
+                Err(e) => fail(
+                    &mut status,
+                    stage_error("changing the method", Some(entity), e),
+                ),
+            }
+        }
+        if material.is_changed() {
+            let (msd, springs) = material.msd_params(b.mesh().node_count());
+            if let Err(e) = b.set_materials(material.fem, msd, springs) {
+                fail(
+                    &mut status,
+                    stage_error("changing the material", Some(entity), e),
+                );
+            }
+        }
+        let want_heat = heat.map(|h| h.0);
+        if want_heat != b.heat().map(|h| *h.params()) {
+            let had = b.heat().is_some();
+            match b.set_heat(want_heat.map(|p| (p, HeatBoundary::insulated()))) {
+                Ok(()) if want_heat.is_some() && !had => {
+                    commands.entity(entity).insert(Temperature::default());
+                }
+                Ok(()) if want_heat.is_none() => {
+                    commands.entity(entity).remove::<Temperature>();
+                }
+                Ok(()) => {}
+                Err(e) => fail(
+                    &mut status,
+                    stage_error("changing the heat", Some(entity), e),
+                ),
+            }
+            sim.dirty = true;
+        }
+        let b = &mut sim.body;
+        let pinned: Option<Level> = pin.map(|p| p.0);
+        if b.body().pinned() != pinned
+            && let Err(e) = b.body_mut().pin(pinned)
+        {
+            fail(&mut status, stage_error("pinning", Some(entity), e));
+        }
+        if b.body().has_shadow() != shadow
+            && let Err(e) = b.set_shadow(shadow)
+        {
+            fail(&mut status, stage_error("shadow", Some(entity), e));
+        }
+    }
+    for (entity, spec, mut state) in &mut tools {
+        let Some((position, axis)) = tool_pose(&poses, entity) else {
+            continue;
+        };
+        let t = &mut state.tool;
+        if let Err(e) = t.set_pose(position, axis) {
+            fail(&mut status, stage_error("moving a tool", Some(entity), e));
+            continue;
+        }
+        if let Err(e) = t.set_cautery(spec.cautery_watts) {
+            fail(
+                &mut status,
+                stage_error("a tool's cautery", Some(entity), e),
+            );
+        }
+        if spec.grab != state.grabbing {
+            if spec.grab {
+                state.tool.grab();
+            } else {
+                state.tool.release();
+            }
+            state.grabbing = spec.grab;
+        }
+    }
+    let contacts = &mut *contacts;
+    in_order(
+        bodies.iter_mut().map(|(e, _, b)| (e, b)),
+        tools.iter_mut().map(|(e, _, t)| (e, t)),
+        Some((&mut contacts.bodies, &mut contacts.tools)),
+        |b, tl| prepare(b, tl, dt),
+    );
+    status.times.prepare_us = lap(&mut t);
+}
+
+/// Runs `f` on the built bodies and the tools, each in build order, as the core's stage
+/// functions take them (slices of `&mut`, so indices in the contact state stay valid).
+/// With `entities`, writes the bodies' and tools' entities in that order.
+fn in_order<'a, R>(
+    bodies: impl Iterator<Item = (Entity, Mut<'a, SimulatedBody>)>,
+    tools: impl Iterator<Item = (Entity, Mut<'a, ToolState>)>,
+    entities: Option<(&mut Vec<Entity>, &mut Vec<Entity>)>,
+    f: impl FnOnce(&mut [&mut SimBody], &mut [&mut Tool]) -> R,
+) -> R {
+    let mut b: SmallVec<[(Entity, &mut SimulatedBody); 16]> =
+        bodies.map(|(e, b)| (e, b.into_inner())).collect();
+    b.sort_unstable_by_key(|(_, b)| b.order);
+    let mut t: SmallVec<[(Entity, &mut ToolState); 4]> =
+        tools.map(|(e, t)| (e, t.into_inner())).collect();
+    t.sort_unstable_by_key(|(_, t)| t.order);
+    if let Some((be, te)) = entities {
+        be.clear();
+        be.extend(b.iter().map(|(e, _)| *e));
+        te.clear();
+        te.extend(t.iter().map(|(e, _)| *e));
+    }
+    let mut b: SmallVec<[&mut SimBody; 16]> = b.into_iter().map(|(_, b)| &mut b.body).collect();
+    let mut t: SmallVec<[&mut Tool; 4]> = t.into_iter().map(|(_, t)| &mut t.tool).collect();
+    f(&mut b, &mut t)
+}
+
+fn lap(t: &mut Instant) -> f64 {
+    let e = t.elapsed().as_secs_f64() * 1e6;
+    *t = Instant::now();
+    e
+}
+
+/// A stage's result: a failure names the body the core's error names, by entity.
+fn report<'a>(
+    status: &mut SoftTissueStatus,
+    stage: &'static str,
+    r: Result<(), WorldError>,
+    mut bodies: impl Iterator<Item = (Entity, &'a SimulatedBody)>,
+) {
+    if let Err(e) = r {
+        let body = e
+            .subject()
+            .and_then(|n| bodies.find(|(_, b)| b.body.name() == n).map(|(e, _)| e));
+        fail(status, stage_error(stage, body, e));
+    }
+}
+
+pub(super) fn detect_stage(
+    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut tools: Query<(Entity, &mut ToolState)>,
+    config: Res<SoftTissueConfig>,
+    mut contacts: ResMut<SoftTissueContacts>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    let mut t = Instant::now();
+    in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, tl| {
+        detect_contacts(b, tl, &config.contact, &mut contacts.state)
+    });
+    status.times.detect_us = lap(&mut t);
+}
+
+pub(super) fn switch_stage(
+    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut tools: Query<(Entity, &mut ToolState)>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    let mut t = Instant::now();
+    let r = in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, _| {
+        switch_precision(b)
+    });
+    report(&mut status, "switching precision", r, bodies.iter());
+    status.times.switch_us = lap(&mut t);
+}
+
+pub(super) fn solve_stage(
+    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut tools: Query<(Entity, &mut ToolState)>,
+    contacts: Res<SoftTissueContacts>,
+    config: Res<SoftTissueConfig>,
+    mut pool: ResMut<SoftTissueThreads>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    let mut t = Instant::now();
+    if pool.threads.as_ref().map(|(asked, _)| *asked) != Some(config.threads) {
+        let threads =
+            soft_tissue_core::parallel::Threads::new(config.threads).unwrap_or_else(|e| {
+                fail(
+                    &mut status,
+                    stage_error("thread pool", None, format!("{e}; stepping on one thread")),
+                );
+                soft_tissue_core::parallel::Threads::single()
+            });
+        pool.threads = Some((config.threads, threads));
+    }
+    let threads = &pool.threads.as_ref().expect("set above").1;
+    let r = in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, tl| {
+        threads.run(|| step_solvers(b, tl, &contacts.state))
+    });
+    report(&mut status, "stepping the solvers", r, bodies.iter());
+    status.times.solve_us = lap(&mut t);
+}
+
+pub(super) fn collide_stage(
+    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut tools: Query<(Entity, &mut ToolState)>,
+    config: Res<SoftTissueConfig>,
+    mut contacts: ResMut<SoftTissueContacts>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    let mut t = Instant::now();
+    let dt = status.dt.unwrap_or_default();
+    let r = in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, tl| {
+        collide(b, tl, &config.contact, &mut contacts.state, dt)
+    });
+    contacts.gather();
+    report(&mut status, "collisions", r, bodies.iter());
+    status.times.collide_us = lap(&mut t);
+}
+
+#[allow(clippy::type_complexity)]
+pub(super) fn writeback_stage(
+    mut bodies: Query<(
+        Entity,
+        &mut SimulatedBody,
+        &mut PrecisionLevel,
+        &mut GreenCage,
+        &mut SoftBodyDiagnostics,
+        Option<&mut FemState>,
+        Option<&mut MsdState>,
+        Option<&mut Temperature>,
+    )>,
+    mut tools: Query<(&ToolState, &mut ToolReaction)>,
+    mut level_changes: MessageWriter<LevelChanged>,
+    mut touches: MessageWriter<BodyTouched>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    let mut t = Instant::now();
+    for (entity, mut sim, mut level, mut cage, mut diag, fem, msd, temp) in &mut bodies {
+        // The core's writeback, body by body (bodies are independent here). A surface that
+        // is not finite is not written (the mesh keeps its last positions) and stops the
+        // simulation.
+        if let Err(e) = sim.body.writeback() {
+            fail(&mut status, stage_error("writeback", Some(entity), e));
+            continue;
+        }
+        let b = &sim.body;
+        let d = *b.diagnostics();
+        let lb = b.body();
+        let new_level = PrecisionLevel {
+            level: d.level,
+            method: lb.settings().precise,
+            switches: d.switch_count,
+            last_jump_ratio: d.last_switch.map(|s| s.jump_ratio),
+        };
+        if *level != new_level {
+            *level = new_level;
+        }
+        // A sleeping body nothing touched changes nothing but its (tiny) step time.
+        let quiet = lb.is_asleep()
+            && !b.surface_written()
+            && d.switched.is_none()
+            && !d.touched
+            && d.contacts == 0
+            && b.heat().is_none_or(|h| {
+                temp.as_ref()
+                    .is_some_and(|t| t.version == Some(h.version()))
+            })
+            && !cage.vertices.is_empty();
+        if quiet {
+            if diag.step_us != d.step_us {
+                diag.step_us = d.step_us;
+            }
+            continue;
+        }
+
+        if let Some(s) = d.switched {
+            level_changes.write(LevelChanged {
+                entity,
+                from: s.from,
+                to: s.to,
+                jump_ratio: s.jump_ratio,
+            });
+        }
+        if d.touched {
+            touches.write(BodyTouched {
+                entity,
+                contacts: d.contacts,
+            });
+        }
+        // Components change only when their contents do: the cage moves only at its own
+        // level (or is handed over at a switch, or put back by a reset), temperatures only
+        // while the field changes.
+        let awake = !lb.is_asleep();
+        let cage_moved = d.level == Level::Cage && (awake || b.surface_written());
+        if cage_moved || d.switched.is_some() || cage.vertices.is_empty() {
+            let c = lb.cage();
+            cage.vertices.clear();
+            cage.vertices.extend(c.cage_positions().iter().map(to_bevy));
+            if cage.triangles.is_empty() {
+                cage.triangles = c.cage().triangles().to_vec();
+            }
+            cage.active = d.level == Level::Cage;
+        }
+        diag.set_if_neq(SoftBodyDiagnostics {
+            step_us: d.step_us + d.switch_us,
+            contacts: d.contacts,
+            max_displacement: d.max_displacement,
+            shadow_error_ratio: d.shadow.map(|e| e.max_ratio),
+            unconverged_solves: d.unconverged_solves,
+        });
+        let cg = d.cg;
+        if let (Some(mut f), Some(fb)) = (fem, lb.fem()) {
+            f.set_if_neq(FemState {
+                corotational: fb.model().is_corotational(),
+                cg_iterations: cg.map_or(0, |c| c.iterations),
+                cg_residual: cg.map_or(0.0, |c| c.relative_residual),
+                cg_converged: cg.is_none_or(|c| c.converged),
+            });
+        }
+        if let (Some(mut m), Some(mb)) = (msd, lb.msd()) {
+            m.set_if_neq(MsdState {
+                integrator: lb.settings().precise,
+                substeps: mb.last_step().substeps,
+                cg_iterations: cg.map_or(0, |c| c.iterations),
+                cg_converged: cg.is_none_or(|c| c.converged),
+            });
+        }
+        let mut heat_changed = false;
+        if let (Some(mut tc), Some(h)) = (temp, b.heat())
+            && tc.version != Some(h.version())
+        {
+            heat_changed = true;
+            tc.version = Some(h.version());
+            let nodes = b.surface_nodes();
+            let temps = h.temperatures();
+            tc.surface.clear();
+            tc.surface
+                .extend(nodes.iter().map(|&i| temps[i as usize] as f32));
+            tc.damage.clear();
+            tc.damage
+                .extend(nodes.iter().map(|&i| h.damaged_fraction(i as usize) as f32));
+            // NaN-propagating (`f64::min`/`max` would drop a NaN and show a sound range).
+            let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+            for &v in temps {
+                if v.is_nan() {
+                    (lo, hi) = (f64::NAN, f64::NAN);
+                    break;
+                }
+                (lo, hi) = (lo.min(v), hi.max(v));
+            }
+            (tc.min, tc.max) = (lo, hi);
+        }
+        if awake || b.surface_written() || d.switched.is_some() || heat_changed {
+            sim.dirty = true;
+        }
+    }
+    for (state, mut reaction) in &mut tools {
+        let t = &state.tool;
+        *reaction = ToolReaction {
+            force: to_bevy(&t.reaction_force()),
+            contacts: t.contact_count(),
+            grips: t.grips().len() as u32,
+        };
+    }
+    status.times.writeback_us = lap(&mut t);
+    let times = status.times;
+    status.recent.push(&times);
+    status.steps += 1;
+    status.step_once = false;
+}

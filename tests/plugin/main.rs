@@ -1,0 +1,166 @@
+//! The plugin in a headless app (`MinimalPlugins`): bodies built from meshes with only the
+//! components they use, a scripted tool raising and releasing a body, the render mesh
+//! written, parity with the engine-free `SoftTissueWorld`, determinism, no system-order
+//! ambiguity, and errors surfaced. The tests are in the modules beside this file; the
+//! helpers they share are here.
+
+mod assets;
+mod inputs;
+mod steps;
+mod visual;
+
+use std::path::Path;
+use std::time::Duration;
+
+use bevy::asset::LoadState;
+use bevy::ecs::schedule::{LogLevel, ScheduleBuildSettings, ScheduleLabel};
+use bevy::mesh::{Mesh, Mesh3d, VertexAttributeValues};
+use bevy::prelude::*;
+use bevy::time::TimeUpdateStrategy;
+use bevy_soft_tissue::core::scenario::{PreciseMethod, Scene};
+use bevy_soft_tissue::core::world::{Script, ScriptAction, SoftTissueWorld};
+use bevy_soft_tissue::prelude::*;
+use bevy_soft_tissue::{
+    SceneLoaderSettings, SimulatedBody, SoftBodyError, SoftTissueAssetPlugin, SoftTissueConfig,
+    SoftTissueMeshPlugin, SoftTissuePhysicsPlugin, SoftTissueThreads,
+};
+
+fn assets() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/assets"))
+}
+
+/// A headless app in which every `update` advances exactly one fixed step of `dt`.
+fn app(dt: f64) -> App {
+    let mut app = App::new();
+    app.add_plugins((
+        MinimalPlugins,
+        TransformPlugin,
+        AssetPlugin {
+            file_path: assets().display().to_string(),
+            ..default()
+        },
+        SoftTissueAssetPlugin,
+        SoftTissuePhysicsPlugin::default(),
+        SoftTissueMeshPlugin,
+    ));
+    app.insert_resource(Time::<Fixed>::from_seconds(dt));
+    app.insert_resource(SoftTissueConfig {
+        dt: Some(dt),
+        ..default()
+    });
+    app.insert_resource(TimeUpdateStrategy::ManualDuration(Duration::from_secs_f64(
+        dt,
+    )));
+    // The first frame has no elapsed time (no fixed step): spend it before any body exists.
+    app.update();
+    app
+}
+
+const CYLINDERS: &str = "scenes/cylinders.scene.ron";
+const ORGANS: &str = "scenes/organs.scene.ron";
+
+/// The scene file `file` (relative to the assets folder).
+fn scene_file(file: &str) -> Scene {
+    let text = std::fs::read_to_string(assets().join(file)).unwrap();
+    Scene::from_ron(&text, file).unwrap()
+}
+
+/// An app with the scene file `file` spawned through the asset server, and the core world
+/// of the same scene.
+fn scene_app(file: &str) -> (App, Vec<Entity>, SoftTissueWorld) {
+    let world = SoftTissueWorld::from_scene(&scene_file(file), assets()).unwrap();
+    let mut app = app(world.config().dt);
+    let entities = bevy_soft_tissue::spawn_scene_and_wait(&mut app, file).unwrap();
+    (app, entities, world)
+}
+
+/// The tool pose of a script at time `t` as a `Transform` (what a game would set).
+fn tool_transform(script: &Script, t: f64) -> Transform {
+    let (p, a) = script.pose_at(t);
+    let axis = Vec3::new(a.x as f32, a.y as f32, a.z as f32).normalize();
+    Transform::from_xyz(p.x as f32, p.y as f32, p.z as f32)
+        .with_rotation(Quat::from_rotation_arc(Vec3::Y, axis))
+}
+
+/// Sets the tool entity from the script for step `k` (1-based) and returns the pose the
+/// plugin sees, in core vectors, so the core world can be fed the very same input.
+fn drive_tool(
+    app: &mut App,
+    tool: Entity,
+    script: &Script,
+    k: usize,
+    dt: f64,
+) -> (
+    bevy_soft_tissue::core::Vec3,
+    bevy_soft_tissue::core::Vec3,
+    Vec<ScriptAction>,
+) {
+    let t = k as f64 * dt;
+    let tf = tool_transform(script, t);
+    let actions: Vec<ScriptAction> = script.events_in(t - dt, t).map(|e| e.action).collect();
+    let mut e = app.world_mut().entity_mut(tool);
+    *e.get_mut::<Transform>().unwrap() = tf;
+    let mut spec = e.get_mut::<SoftTool>().unwrap();
+    for a in &actions {
+        match a {
+            ScriptAction::Grab => spec.grab = true,
+            ScriptAction::Release => spec.grab = false,
+            ScriptAction::Cautery(w) => spec.cautery_watts = *w,
+        }
+    }
+    let axis = tf.rotation * Vec3::Y;
+    (
+        bevy_soft_tissue::convert::to_core(tf.translation),
+        bevy_soft_tissue::convert::to_core(axis),
+        actions,
+    )
+}
+
+/// A tool entity with the script's shape, at the script's start.
+fn spawn_tool(app: &mut App, script: &Script) -> Entity {
+    let tool = SoftTool {
+        shape: script.tool,
+        grab: false,
+        cautery_watts: 0.0,
+    };
+    app.world_mut()
+        .spawn((tool, tool_transform(script, 0.0)))
+        .id()
+}
+
+fn level(app: &App, e: Entity) -> Level {
+    app.world().get::<PrecisionLevel>(e).unwrap().level
+}
+
+/// The cylinder mesh file, read and added to the app's tetrahedral mesh assets.
+fn cylinder_asset(app: &mut App) -> Handle<TetMeshAsset> {
+    let m = bevy_soft_tissue::core::mesh::io::read_tet_mesh(assets().join("meshes/cylinder.vtk"))
+        .unwrap()
+        .mesh;
+    app.world_mut()
+        .resource_mut::<Assets<TetMeshAsset>>()
+        .add(TetMeshAsset::from(m))
+}
+
+fn positions(app: &App, handle: &Handle<Mesh>) -> Vec<[f32; 3]> {
+    let mesh = app.world().resource::<Assets<Mesh>>().get(handle).unwrap();
+    match mesh.attribute(Mesh::ATTRIBUTE_POSITION).unwrap() {
+        VertexAttributeValues::Float32x3(v) => v.clone(),
+        _ => panic!("positions are Float32x3"),
+    }
+}
+
+/// Every body's surface positions, in scene order.
+fn surfaces(app: &App, bodies: &[Entity]) -> Vec<Vec<[f32; 3]>> {
+    bodies
+        .iter()
+        .map(|&e| {
+            app.world()
+                .get::<SimulatedBody>(e)
+                .unwrap()
+                .body()
+                .surface_positions()
+                .to_vec()
+        })
+        .collect()
+}
