@@ -1,8 +1,8 @@
 //! The inspector (feature `inspector`, bevy_egui): every body's level, precise method
-//! (switchable), step time, switches, last jump, temperature range, shadow error and
+//! (switchable), Young's modulus (editable: the body's [`TissueMaterial`]), step time, switches, last jump, temperature range, shadow error and
 //! unconverged solves; the simulation's rate, the last step's time and the median, 99th
 //! percentile and largest of the whole step and of each stage over the last steps, the error
-//! of a failed step, pause / single step / reset; and a live plot of each body's step time
+//! of a failed step, pause / single step / reset, the simulation's speed; and a live plot of each body's step time
 //! over the last seconds, like the paper's figures.
 
 use std::collections::VecDeque;
@@ -158,16 +158,8 @@ fn inspector_panel(
             }
             egui::Grid::new("bodies").striped(true).show(ui, |ui| {
                 for h in [
-                    "body",
-                    "level",
-                    "method",
-                    "E",
-                    "step us",
-                    "switches",
-                    "last jump %",
-                    "C",
-                    "cage err %",
-                    "unconverged",
+                    "body", "level", "method", "E", "step us", "switches", "jump %", "C", "cage %",
+                    "unconv.",
                 ] {
                     ui.strong(h);
                 }

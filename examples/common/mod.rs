@@ -266,7 +266,7 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
             .load(scene_file.to_string_lossy().into_owned());
         world.spawn((Name::new("scene"), SoftTissueSceneRoot(handle)));
         // The orbit centre sits left of the scene's centre so the bodies clear the inspector.
-        let focus = 0.5 * (lo + hi) - Vec3::X * 0.22 * scale;
+        let focus = 0.5 * (lo + hi) - Vec3::X * 0.3 * scale;
         let distance = 1.6 * scale;
         let mut tool = SoftTool::sphere(radius);
         if let Some(shape) = tool_shape {
