@@ -9,7 +9,9 @@
 //!
 //! Run (release, no renderer needed):
 //! `cargo run --release --no-default-features --example plugin_bench -- [--scene organs]
-//! [--script poke-liver] [--steps 700] [--runs 3]`
+//! [--script poke-liver] [--steps 700] [--runs 3] [--threads N]` (`--scene` names a built-in
+//! scene or a scene file relative to the assets folder; `--threads` sets
+//! `SoftTissueConfig::threads`, 0 for every core, the default)
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -28,6 +30,8 @@ struct Args {
     script: String,
     steps: usize,
     runs: usize,
+    /// `SoftTissueConfig::threads` (0: every core).
+    threads: usize,
     assets: PathBuf,
 }
 
@@ -37,6 +41,7 @@ fn args() -> Result<Args, String> {
         script: "poke-liver".into(),
         steps: 700,
         runs: 3,
+        threads: 0,
         assets: Path::new(env!("CARGO_MANIFEST_DIR")).join("assets"),
     };
     let mut it = std::env::args().skip(1);
@@ -56,6 +61,11 @@ fn args() -> Result<Args, String> {
             "--script" => a.script = value,
             "--steps" => a.steps = number(&value)?,
             "--runs" => a.runs = number(&value)?,
+            "--threads" => {
+                a.threads = value
+                    .parse()
+                    .map_err(|e| format!("--threads {value}: {e}"))?
+            }
             "--assets" => a.assets = value.into(),
             other => return Err(format!("unknown flag {other}")),
         }
@@ -173,6 +183,9 @@ fn run_plugin(
     );
     app.update();
     bevy_soft_tissue::spawn_scene_and_wait(&mut app, &scene_file(a))?;
+    app.world_mut()
+        .resource_mut::<bevy_soft_tissue::SoftTissueConfig>()
+        .threads = a.threads;
     let tool = app
         .world_mut()
         .spawn((

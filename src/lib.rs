@@ -39,6 +39,21 @@
 //! `Time<`[`SoftPhysics`]`>`, with pause and speed; contacts name entities
 //! ([`SoftTissueContacts`]), and so do the messages [`LevelChanged`] and [`BodyTouched`].
 //!
+//! ## Where to read more
+//! The repository's `docs/` folder has one page per part, as the README links them:
+//! solvers (FEM, MSD, BDF2), the cage level, world and contact, the plugin (this crate:
+//! components, schedule, time, scenes, apps), haptics, the measured report and the
+//! formats. In this crate:
+//! - [`components`]: what a user spawns ([`SoftBody`], [`SoftTool`]) and writes
+//!   ([`TissueMaterial`], [`TissueHeat`], [`SoftBodyTuning`], [`PinnedLevel`]), and what the
+//!   plugin writes back ([`PrecisionLevel`], [`GreenCage`], [`FemState`], [`MsdState`],
+//!   [`Temperature`], [`SoftBodyDiagnostics`]).
+//! - [`physics`]: the step's schedule and sets, [`SoftTissueConfig`], the clock, the status,
+//!   contacts by entity.
+//! - [`assets`]: mesh and scene loaders, [`SoftTissueSceneRoot`].
+//! - [`render`]: render meshes and [`VisualMesh`]es; [`messages`]: [`LevelChanged`],
+//!   [`BodyTouched`].
+//!
 //! ## Features
 //! - `render` (default): windowed 3D rendering for the example apps.
 //! - `inspector` (default): the egui panel ([`inspector`]).
