@@ -132,7 +132,7 @@ struct BenchArgs {
     #[arg(long)]
     cg_max_iterations: Option<u32>,
     /// Time integrator of the FEM methods and of implicit MSD: backward-euler (the
-    /// default) or bdf2 (second order, see the README).
+    /// default) or bdf2 (second order, see docs/solvers.md).
     #[arg(long, default_value = "backward-euler")]
     integrator: String,
     /// Corotational FEM's rotation tolerance, radians (default: the library's, 1e-10).

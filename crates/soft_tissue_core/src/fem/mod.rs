@@ -212,7 +212,7 @@ pub struct FemConfig {
     /// sat 1e-5 to 4e-5 (relative) away from [`FemBody::solve_static`]. Default 1e-10 (see
     /// [`DEFAULT_ROTATION_TOLERANCE`]): stepping converges to the static solution within
     /// 1e-8 (relative); a converged element takes no update, so the cost in motion is a
-    /// few more element updates (the README quotes the measured change).
+    /// few more element updates (docs/solvers.md quotes the measured change).
     #[serde(default = "default_rotation_tolerance")]
     pub rotation_tolerance: f64,
 }
