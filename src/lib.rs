@@ -21,8 +21,11 @@
 //!         SoftBody::new(assets.load("meshes/liver.vtk")),
 //!         Transform::from_xyz(0.0, 0.5, 0.0),
 //!     ));
-//!     // A whole scene file: its bodies become children of this entity.
-//!     commands.spawn(SoftTissueSceneRoot(assets.load("scenes/organs.scene.ron")));
+//!     // A whole scene file, its bodies children of this entity, 3 units to the side.
+//!     commands.spawn((
+//!         SoftTissueSceneRoot(assets.load("scenes/organs.scene.ron")),
+//!         Transform::from_xyz(3.0, 0.0, 0.0),
+//!     ));
 //!     commands.spawn((SoftTool::sphere(0.05), Transform::from_xyz(0.0, 1.2, 0.0)));
 //! }
 //!
