@@ -7,6 +7,7 @@
 //! components and the bounding box. The boundary surface is always derived from the
 //! tetrahedra; surface data stored in files is ignored.
 
+mod coarsen;
 pub mod embed;
 pub mod generate;
 pub mod io;

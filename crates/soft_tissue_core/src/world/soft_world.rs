@@ -1,0 +1,258 @@
+//! [`SoftTissueWorld`]: bodies, tools and the stages run in order, one fixed step at a time.
+
+use super::*;
+
+/// Bodies, tools and the stages (see the module docs).
+#[derive(Debug)]
+pub struct SoftTissueWorld {
+    config: WorldConfig,
+    bodies: Vec<SimBody>,
+    tools: Vec<Tool>,
+    contacts: ContactState,
+    steps: u64,
+    accumulator: f64,
+    times: StageTimes,
+    threads: crate::parallel::Threads,
+    /// The error of the step that failed, until `resume` or `reset`.
+    halted: Option<String>,
+}
+
+impl SoftTissueWorld {
+    /// An empty world.
+    pub fn new(config: WorldConfig) -> Result<Self, WorldError> {
+        if !(config.dt.is_finite() && config.dt > 0.0) {
+            return Err(WorldError::TimeStep(format!(
+                "world step {} must be finite and > 0",
+                config.dt
+            )));
+        }
+        config
+            .contact
+            .validate()
+            .map_err(|source| WorldError::Contact {
+                name: "world".into(),
+                source,
+            })?;
+        Ok(SoftTissueWorld {
+            config,
+            bodies: Vec::new(),
+            tools: Vec::new(),
+            contacts: ContactState::default(),
+            steps: 0,
+            accumulator: 0.0,
+            times: StageTimes::default(),
+            threads: crate::parallel::Threads::new(crate::parallel::default_threads())?,
+            halted: None,
+        })
+    }
+
+    /// Settings.
+    pub fn config(&self) -> &WorldConfig {
+        &self.config
+    }
+
+    /// Adds a body; its solver step must be the world's.
+    pub fn add_body(&mut self, body: SimBody) -> Result<usize, WorldError> {
+        let dt = body.body.settings().dt;
+        if (dt - self.config.dt).abs() > 1e-12 * self.config.dt {
+            return Err(WorldError::TimeStep(format!(
+                "body `{}` steps {dt} s but the world steps {} s",
+                body.name, self.config.dt
+            )));
+        }
+        if self.bodies.iter().any(|b| b.name == body.name) {
+            return Err(WorldError::DuplicateName(body.name));
+        }
+        self.bodies.push(body);
+        Ok(self.bodies.len() - 1)
+    }
+
+    /// Adds a tool.
+    pub fn add_tool(&mut self, tool: Tool) -> usize {
+        self.tools.push(tool);
+        self.tools.len() - 1
+    }
+
+    /// Bodies.
+    pub fn bodies(&self) -> &[SimBody] {
+        &self.bodies
+    }
+
+    /// A 64-bit hash (FNV-1a) of the bits of every node position of every body, in body and
+    /// node order: equal states give equal hashes, so replays (and runs with other settings
+    /// that must not change the result) can be compared by one number.
+    pub fn state_hash(&self) -> u64 {
+        let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
+        for b in &self.bodies {
+            for p in b.body().node_positions() {
+                for c in p.iter() {
+                    for byte in c.to_bits().to_le_bytes() {
+                        hash ^= u64::from(byte);
+                        hash = hash.wrapping_mul(0x0100_0000_01b3);
+                    }
+                }
+            }
+        }
+        hash
+    }
+
+    /// Bodies, to change.
+    pub fn bodies_mut(&mut self) -> &mut [SimBody] {
+        &mut self.bodies
+    }
+
+    /// Index of the body named `name`.
+    pub fn body_index(&self, name: &str) -> Result<usize, WorldError> {
+        self.bodies
+            .iter()
+            .position(|b| b.name == name)
+            .ok_or_else(|| WorldError::Unknown {
+                kind: "body",
+                name: name.into(),
+            })
+    }
+
+    /// Tools.
+    pub fn tools(&self) -> &[Tool] {
+        &self.tools
+    }
+
+    /// Tools, to move and operate.
+    pub fn tools_mut(&mut self) -> &mut [Tool] {
+        &mut self.tools
+    }
+
+    /// Contacts of the last step (start-of-step detection).
+    pub fn contacts(&self) -> &ContactState {
+        &self.contacts
+    }
+
+    /// Fixed steps run so far.
+    pub fn step_count(&self) -> u64 {
+        self.steps
+    }
+
+    /// Simulated time, s.
+    pub fn time(&self) -> f64 {
+        self.steps as f64 * self.config.dt
+    }
+
+    /// Stage times of the last step.
+    pub fn stage_times(&self) -> StageTimes {
+        self.times
+    }
+
+    /// Advances by `dt` seconds of frame time: runs as many fixed steps as the accumulated
+    /// time holds (the remainder carries over). Returns the number of steps run.
+    pub fn step(&mut self, dt: f64) -> Result<u32, WorldError> {
+        if !(dt.is_finite() && dt >= 0.0) {
+            return Err(WorldError::TimeStep(format!(
+                "frame time {dt} must be finite and >= 0"
+            )));
+        }
+        self.accumulator += dt;
+        let mut n = 0;
+        // A tolerance so 0.02 + 0.02 + ... does not drop a step to round-off.
+        while self.accumulator >= self.config.dt * (1.0 - 1e-9) {
+            self.accumulator -= self.config.dt;
+            self.step_fixed()?;
+            n += 1;
+        }
+        Ok(n)
+    }
+
+    /// The threads steps run on.
+    pub fn threads(&self) -> &crate::parallel::Threads {
+        &self.threads
+    }
+
+    /// Sets the number of threads steps run on (0: every available core, the default; 1:
+    /// the caller's thread only). The results do not depend on it: the same inputs give
+    /// bit-identical states for every count.
+    pub fn set_threads(&mut self, count: usize) -> Result<(), WorldError> {
+        self.threads = crate::parallel::Threads::new(count)?;
+        Ok(())
+    }
+
+    /// Runs exactly one fixed step through every stage (in the world's thread pool).
+    ///
+    /// A stage that fails stops the step there (the later stages do not run) and leaves the
+    /// bodies as it found them: a solver step that fails leaves its body unchanged (bodies
+    /// that finished their step before it keep it), the contact response is undone as a
+    /// whole, and no non-finite surface is written. The world then refuses to step
+    /// ([`WorldError::Halted`]) until [`SoftTissueWorld::resume`] (carry on from that state,
+    /// for instance after removing the cause) or [`SoftTissueWorld::reset`].
+    pub fn step_fixed(&mut self) -> Result<(), WorldError> {
+        if let Some(cause) = &self.halted {
+            return Err(WorldError::Halted(cause.clone()));
+        }
+        let threads = self.threads.clone();
+        let result = threads.run(|| self.step_stages());
+        if let Err(e) = &result {
+            self.halted = Some(e.to_string());
+        }
+        result
+    }
+
+    /// The error of the failed step that stopped the world, if it is stopped.
+    pub fn halted(&self) -> Option<&str> {
+        self.halted.as_deref()
+    }
+
+    /// Lets a stopped world step again from the state its failed step left (see
+    /// [`SoftTissueWorld::step_fixed`]).
+    pub fn resume(&mut self) {
+        self.halted = None;
+    }
+
+    fn step_stages(&mut self) -> Result<(), WorldError> {
+        let dt = self.config.dt;
+        let c = self.config.contact;
+        let mut t = Instant::now();
+        let lap = |t: &mut Instant| {
+            let e = t.elapsed().as_secs_f64() * 1e6;
+            *t = Instant::now();
+            e
+        };
+        prepare(&mut self.bodies, &mut self.tools, dt);
+        self.times.prepare_us = lap(&mut t);
+        detect_contacts(&mut self.bodies, &mut self.tools, &c, &mut self.contacts);
+        self.times.detect_us = lap(&mut t);
+        switch_precision(&mut self.bodies)?;
+        self.times.switch_us = lap(&mut t);
+        step_solvers(&mut self.bodies, &self.tools, &self.contacts)?;
+        self.times.solve_us = lap(&mut t);
+        collide(
+            &mut self.bodies,
+            &mut self.tools,
+            &c,
+            &mut self.contacts,
+            dt,
+        )?;
+        self.times.collide_us = lap(&mut t);
+        writeback(&mut self.bodies)?;
+        self.times.writeback_us = lap(&mut t);
+        self.steps += 1;
+        Ok(())
+    }
+
+    /// Back to the initial state: every body at rest at the cage level in its rest shape,
+    /// tools idle at the origin, counters cleared. A run after `reset` repeats the first run
+    /// bit for bit given the same inputs.
+    pub fn reset(&mut self) -> Result<(), WorldError> {
+        for b in &mut self.bodies {
+            b.reset()?;
+        }
+        for t in &mut self.tools {
+            t.reset();
+        }
+        // Cleared, not replaced: the workspaces keep their room, so a run after a reset does
+        // not allocate either.
+        self.contacts.clear();
+        self.steps = 0;
+        self.accumulator = 0.0;
+        self.times = StageTimes::default();
+        self.halted = None;
+        Ok(())
+    }
+}
