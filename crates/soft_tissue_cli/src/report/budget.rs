@@ -12,7 +12,7 @@ use soft_tissue_core::precision::Level;
 use soft_tissue_core::scenario::Scene;
 use soft_tissue_core::world::{Script, SoftTissueWorld};
 
-use super::{Csv, Json, Res, cells};
+use super::{Json, Res};
 use crate::realtime::{RunCosts, RunRecorder, triple};
 use crate::simulate::{drive_tool, load_scene};
 
@@ -113,7 +113,7 @@ pub(super) fn budget_section(
          | over 1 ms | over 10 ms | contact / solve |\n|---|---|---|---|---|---|---|"
     )?;
     let mut measured = Vec::new();
-    let mut csv = Csv::new(&["scene", "stage", "median_us", "p99_us", "max_us", "mean_us"])?;
+    let mut stage_rows = Vec::new();
     for (name, scene, script) in &scenes {
         step(&format!("real-time budget: {name}"));
         let (costs, tets, _) = measure(scene, script, steps, runs, None, assets, None)?;
@@ -131,23 +131,9 @@ pub(super) fn budget_section(
             costs.steps_over_10ms,
             ratio(costs.contact_over_solve),
         )?;
-        csv.row(cells![
-            name,
-            "step",
-            costs.step.median_us,
-            costs.step.p99_us,
-            costs.step.max_us,
-            costs.step.mean_us
-        ])?;
+        stage_rows.push(StageRow::new(name, "step", &costs.step));
         for (stage, t) in &costs.stages {
-            csv.row(cells![
-                name,
-                stage,
-                t.median_us,
-                t.p99_us,
-                t.max_us,
-                t.mean_us
-            ])?;
+            stage_rows.push(StageRow::new(name, stage, t));
         }
         measured.push((name.clone(), costs));
     }
@@ -293,7 +279,12 @@ pub(super) fn budget_section(
         }
         writeln!(md)?;
     }
-    csv.save(out, "realtime_budget.csv")?;
+    // Long form: one row per scene and stage (the Markdown shows them wide).
+    super::write_file(
+        out,
+        "realtime_budget.csv",
+        &super::table::csv_text(&stage_rows)?,
+    )?;
     js.insert(
         "realtime_budget".into(),
         json!({
@@ -307,4 +298,42 @@ pub(super) fn budget_section(
     );
     measured.push(("organs (all precise)".into(), precise));
     Ok(measured)
+}
+
+/// A scene's step or one of its stages over the run, us.
+#[derive(serde::Serialize)]
+struct StageRow {
+    scene: String,
+    stage: String,
+    median_us: f64,
+    p99_us: f64,
+    max_us: f64,
+    mean_us: f64,
+}
+
+impl StageRow {
+    fn new(scene: &str, stage: &str, t: &soft_tissue_core::timing::TimeStats) -> Self {
+        StageRow {
+            scene: scene.into(),
+            stage: stage.into(),
+            median_us: t.median_us,
+            p99_us: t.p99_us,
+            max_us: t.max_us,
+            mean_us: t.mean_us,
+        }
+    }
+}
+
+impl super::ReportRow for StageRow {
+    const MD_HEAD: &'static [&'static str] = &["scene", "stage", "median us", "p99 us", "max us"];
+
+    fn md_cells(&self) -> Vec<String> {
+        vec![
+            self.scene.clone(),
+            self.stage.clone(),
+            format!("{:.1}", self.median_us),
+            format!("{:.1}", self.p99_us),
+            format!("{:.1}", self.max_us),
+        ]
+    }
 }
