@@ -85,6 +85,25 @@ pub(crate) struct BuiltFrom {
     pub(super) gravity: bevy::math::DVec3,
 }
 
+impl BuiltFrom {
+    /// What a body of `spec` and `tuning` is built from at step `dt` under `config`.
+    pub(super) fn of(
+        spec: &SoftBody,
+        tuning: Option<&SoftBodyTuning>,
+        dt: f64,
+        config: &SoftTissueConfig,
+    ) -> Self {
+        BuiltFrom {
+            mesh: spec.mesh.id(),
+            cage: spec.cage,
+            anchor: spec.anchor,
+            tuning: tuning.copied(),
+            dt,
+            gravity: config.gravity,
+        }
+    }
+}
+
 /// Builds the simulation of every [`SoftBody`] whose mesh has loaded.
 #[allow(clippy::type_complexity)]
 pub(super) fn build_bodies(
@@ -176,14 +195,7 @@ pub(super) fn build_bodies(
                     dirty: true,
                     placement,
                     to_local,
-                    built_from: BuiltFrom {
-                        mesh: spec.mesh.id(),
-                        cage: spec.cage,
-                        anchor: spec.anchor,
-                        tuning: tuning.copied(),
-                        dt,
-                        gravity: config.gravity,
-                    },
+                    built_from: BuiltFrom::of(spec, tuning, dt, &config),
                 });
                 *next += 1;
             }

@@ -64,14 +64,7 @@ pub(super) fn prepare_stage(
     let mut t = Instant::now();
     let dt = status.dt.unwrap_or_default();
     for (entity, (spec, material, heat, tuning, pin, shadow), mut sim) in &mut bodies {
-        let now = BuiltFrom {
-            mesh: spec.mesh.id(),
-            cage: spec.cage,
-            anchor: spec.anchor,
-            tuning: tuning.copied(),
-            dt,
-            gravity: config.gravity,
-        };
+        let now = BuiltFrom::of(&spec, tuning, dt, &config);
         // Computed from the transforms now (the entity's or a parent's may have been written
         // since the last propagation).
         let moved = poses

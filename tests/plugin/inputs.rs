@@ -93,6 +93,15 @@ fn spawn_liver(app: &mut App, extra: impl Bundle) -> Entity {
     panic!("the liver was not built");
 }
 
+/// Whether `e` has a `Temperature` and its core body a heat field.
+fn heated(app: &App, e: Entity) -> (bool, bool) {
+    let sim = app.world().get::<SimulatedBody>(e).unwrap();
+    (
+        app.world().get::<Temperature>(e).is_some(),
+        sim.body().heat().is_some(),
+    )
+}
+
 #[test]
 fn a_body_with_defaults_spawns_through_the_asset_server_and_each_input_takes_effect() {
     let mut app = app(0.01);
@@ -180,27 +189,11 @@ fn a_body_with_defaults_spawns_through_the_asset_server_and_each_input_takes_eff
     app.world_mut().entity_mut(a).insert(TissueHeat::default());
     app.update();
     app.update();
-    assert!(app.world().get::<Temperature>(a).is_some());
-    assert!(
-        app.world()
-            .get::<SimulatedBody>(a)
-            .unwrap()
-            .body()
-            .heat()
-            .is_some()
-    );
+    assert_eq!(heated(&app, a), (true, true));
     app.world_mut().entity_mut(a).remove::<TissueHeat>();
     app.update();
     app.update();
-    assert!(app.world().get::<Temperature>(a).is_none());
-    assert!(
-        app.world()
-            .get::<SimulatedBody>(a)
-            .unwrap()
-            .body()
-            .heat()
-            .is_none()
-    );
+    assert_eq!(heated(&app, a), (false, false));
 
     // Pin to the cage: it drops.
     app.world_mut()

@@ -677,6 +677,14 @@ fn a_calibrated_cage_reproduces_a_response_it_can_represent() {
     }
 }
 
+/// The largest distance between matching points.
+fn largest_gap(a: &[Vec3], b: &[Vec3]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max)
+}
+
 /// A material changed at run time acts from then on exactly as a body built with it: the
 /// same state, stepped under the same loads, gives the same positions, and the change
 /// itself moves nothing.
@@ -709,18 +717,8 @@ fn a_material_changed_at_run_time_acts_as_one_built_with_it() {
             push(&mut changed);
             push(&mut built);
         }
-        let gap = changed
-            .node_positions()
-            .iter()
-            .zip(built.node_positions())
-            .map(|(a, b)| (a - b).norm())
-            .fold(0.0, f64::max);
-        let moved = built
-            .node_positions()
-            .iter()
-            .zip(mesh.positions())
-            .map(|(a, b)| (a - b).norm())
-            .fold(0.0, f64::max);
+        let gap = largest_gap(changed.node_positions(), built.node_positions());
+        let moved = largest_gap(built.node_positions(), mesh.positions());
         assert!(
             moved > 1e-3,
             "{method:?}: the push must move the body ({moved})"
@@ -735,12 +733,7 @@ fn a_material_changed_at_run_time_acts_as_one_built_with_it() {
         for _ in 0..30 {
             push(&mut plain);
         }
-        let soft_moved = plain
-            .node_positions()
-            .iter()
-            .zip(mesh.positions())
-            .map(|(a, b)| (a - b).norm())
-            .fold(0.0, f64::max);
+        let soft_moved = largest_gap(plain.node_positions(), mesh.positions());
         assert!(
             soft_moved > 1.5 * moved,
             "{method:?}: soft {soft_moved}, stiff {moved}"
