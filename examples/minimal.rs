@@ -36,12 +36,13 @@ fn follow_mouse(
     let Some(ray) = cursor.and_then(|c| camera.viewport_to_world(eye, c).ok()) else {
         return;
     };
-    // In front of the liver (its front is at z = 0.42), or into it while pressed.
-    let z = if buttons.pressed(MouseButton::Left) {
+    // In front of the liver (its front is at z = 0.42); pressed, it moves in, 0.01 a frame.
+    let target = if buttons.pressed(MouseButton::Left) {
         0.2
     } else {
         0.55
     };
+    let z = tool.translation.z + (target - tool.translation.z).clamp(-0.01, 0.01);
     if let Some(d) = ray.intersect_plane(Vec3::Z * z, InfinitePlane3d::new(Vec3::Z)) {
         tool.translation = ray.get_point(d);
     }
