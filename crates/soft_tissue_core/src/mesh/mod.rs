@@ -13,6 +13,7 @@ pub mod generate;
 pub mod io;
 mod quality;
 pub mod subdivide;
+pub mod tetrahedralize;
 mod topology;
 
 pub use quality::{QualityReport, tet_dihedral_angles, tet_radius_ratio};
