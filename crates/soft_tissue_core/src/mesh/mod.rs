@@ -13,6 +13,7 @@ pub mod generate;
 pub mod io;
 mod quality;
 pub mod subdivide;
+pub mod surface_tree;
 pub mod tetrahedralize;
 mod topology;
 

@@ -17,16 +17,17 @@
 //! The lattice spacing comes from an edge length, or from a tetrahedron count (two passes:
 //! a first guess from the enclosed volume, then corrected by the count it gave).
 //!
-//! The winding number and the distances are computed against every triangle (no
-//! hierarchy): the cost grows with lattice points times triangles.
+//! The winding number and the distances come from a hierarchy over the triangles
+//! ([`SurfaceTree`]): near triangles exactly, far clusters by their dipole.
 
 use std::collections::HashMap;
 
 use super::generate::{GenerateError, coarsen_interior, stuff_fn};
 use super::io::SurfaceMesh;
+use super::surface_tree::SurfaceTree;
 use super::{QualityReport, TetMesh};
 use crate::Vec3;
-use crate::geometry::{closest_on_triangle, point_triangle_distance, solid_angle};
+use crate::geometry::solid_angle;
 
 /// What the repair found in an input surface.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
@@ -327,7 +328,8 @@ fn bounds(p: &[Vec3]) -> (Vec3, Vec3) {
 }
 
 impl RepairedSurface {
-    /// The generalized winding number at `p` (one inside, zero outside).
+    /// The generalized winding number at `p` (one inside, zero outside), summed exactly
+    /// over every triangle (the reference for [`SurfaceTree::winding_number`]).
     pub fn winding_number(&self, p: &Vec3) -> f64 {
         let s: f64 = self
             .triangles
@@ -340,37 +342,16 @@ impl RepairedSurface {
         s / (4.0 * std::f64::consts::PI)
     }
 
-    /// Distance from `p` to the surface.
-    pub fn distance(&self, p: &Vec3) -> f64 {
-        self.triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|v| self.positions[v as usize]);
-                point_triangle_distance(p, &a, &b, &c)
-            })
-            .fold(f64::INFINITY, f64::min)
+    /// A hierarchy over the surface: fast distances and winding numbers.
+    pub fn tree(&self) -> SurfaceTree<'_> {
+        SurfaceTree::new(&self.positions, &self.triangles)
     }
+}
 
-    /// The closest point of the surface to `p`.
-    pub fn closest_point(&self, p: &Vec3) -> Vec3 {
-        let mut best = (f64::INFINITY, *p);
-        for t in &self.triangles {
-            let [a, b, c] = t.map(|v| self.positions[v as usize]);
-            let w = closest_on_triangle(p, &a, &b, &c);
-            let q = a * w[0] + b * w[1] + c * w[2];
-            let d = (q - p).norm_squared();
-            if d < best.0 {
-                best = (d, q);
-            }
-        }
-        best.1
-    }
-
-    /// The signed field the mesher reads: distance, negative inside.
-    pub fn signed_distance(&self, p: &Vec3) -> f64 {
-        let d = self.distance(p);
-        if self.winding_number(p) > 0.5 { -d } else { d }
-    }
+/// The signed field the mesher reads: distance, negative inside.
+fn signed_distance(tree: &SurfaceTree<'_>, p: &Vec3) -> f64 {
+    let d = tree.closest(p).map_or(f64::INFINITY, |(_, d)| d);
+    if tree.winding_number(p) > 0.5 { -d } else { d }
 }
 
 /// Meshes the inside of a triangle surface (see the module docs).
@@ -427,8 +408,9 @@ pub fn tetrahedralize(
             });
         }
     }
+    let tree = s.tree();
     let mesh_at = |h: f64| -> Result<TetMesh, TetrahedralizeError> {
-        let stuffed = stuff_fn(|p| s.signed_distance(p), (lo, hi), h)?;
+        let stuffed = stuff_fn(|p| signed_distance(&tree, p), (lo, hi), h)?;
         Ok(coarsen_interior(&stuffed, min_dihedral).map_err(GenerateError::from)?)
     };
     let (mesh, spacing) = match (options.edge_length, options.target_tets) {
@@ -452,24 +434,20 @@ pub fn tetrahedralize(
             ));
         }
     };
-    let (mesh, projected) = project_boundary(mesh, &s, min_dihedral);
+    let (mesh, projected) = project_boundary(mesh, &tree, min_dihedral);
     let q: QualityReport = mesh.quality();
     let boundary = SurfaceMesh::boundary_of(&mesh);
+    let distance = |t: &SurfaceTree<'_>, p: &Vec3| t.closest(p).map_or(f64::INFINITY, |c| c.1);
     let mesh_to_surface = boundary
         .positions
         .iter()
-        .map(|p| s.distance(p))
+        .map(|p| distance(&tree, p))
         .fold(0.0, f64::max);
-    let to_mesh = RepairedSurface {
-        positions: boundary.positions,
-        triangles: boundary.triangles,
-        defects: SurfaceDefects::default(),
-        enclosed_volume: 0.0,
-    };
+    let boundary_tree = SurfaceTree::new(&boundary.positions, &boundary.triangles);
     let surface_to_mesh = s
         .positions
         .iter()
-        .map(|p| to_mesh.distance(p))
+        .map(|p| distance(&boundary_tree, p))
         .fold(0.0, f64::max);
     let report = TetrahedralizeReport {
         defects: s.defects,
@@ -490,14 +468,14 @@ pub fn tetrahedralize(
 
 /// Moves every boundary node onto the surface where its tetrahedra stay positive and above
 /// `min_dihedral`; returns the mesh and the nodes moved.
-fn project_boundary(mesh: TetMesh, s: &RepairedSurface, min_dihedral: f64) -> (TetMesh, usize) {
+fn project_boundary(mesh: TetMesh, tree: &SurfaceTree<'_>, min_dihedral: f64) -> (TetMesh, usize) {
     let mut x = mesh.positions().to_vec();
     let tets: Vec<[u32; 4]> = mesh.tets().to_vec();
     let mut moved = 0;
     for &v in mesh.surface().vertices() {
         let v = v as usize;
         let old = x[v];
-        x[v] = s.closest_point(&old);
+        x[v] = tree.closest(&old).map_or(old, |c| c.0);
         let ok = mesh.node_tets(v).iter().all(|&t| {
             let p = tets[t as usize].map(|i| x[i as usize]);
             super::tet_signed_volume(&p) > 0.0
