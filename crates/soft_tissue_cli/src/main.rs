@@ -175,7 +175,7 @@ enum MeshCommand {
     /// Generate the paper's cylinder or organ-like meshes with the built-in mesher and write
     /// them as legacy VTK files (NAME.vtk) into DIR. Same command, same bytes.
     Generate(GenerateArgs),
-    /// Mesh the inside of a closed triangle surface (.obj) into tetrahedra; the output format
+    /// Mesh the inside of a closed triangle surface (.obj, .stl) into tetrahedra; the output format
     /// follows OUT's extension. Prints what it repaired and how near the mesh is to the
     /// surface (`--json` for one JSON object).
     Tetrahedralize(TetrahedralizeArgs),
@@ -183,7 +183,7 @@ enum MeshCommand {
 
 #[derive(Args)]
 struct TetrahedralizeArgs {
-    /// The surface (.obj).
+    /// The surface (.obj, .stl ASCII or binary).
     input: PathBuf,
     /// The tetrahedral mesh to write (.msh, .vtk, .vtu, .node).
     #[arg(long)]
@@ -373,8 +373,7 @@ fn generate(args: &GenerateArgs) -> Res {
 fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
     use soft_tissue_core::mesh::tetrahedralize::{TetrahedralizeOptions, tetrahedralize};
     let name = args.input.display().to_string();
-    let bytes = std::fs::read(&args.input).map_err(|e| format!("{name}: {e}"))?;
-    let mut surface = io::parse_obj(&bytes, &name)?;
+    let mut surface = io::read_surface(&args.input)?;
     if !(args.units.is_finite() && args.units > 0.0) {
         return Err(format!("--units must be positive, found {}", args.units).into());
     }

@@ -368,3 +368,81 @@ fn the_surface_tree_agrees_with_the_sums_over_every_triangle() {
     }
     eprintln!("largest winding-number difference {worst:.2e}");
 }
+
+/// The surface readers against files meshio wrote (tests/fixtures/make_surface_fixtures.py):
+/// ASCII and binary STL and OBJ give, once welded, the reference's points and triangles
+/// (binary STL to float precision), and the binary STL meshes.
+#[test]
+fn surface_files_written_by_meshio_read_back_as_the_reference() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures");
+    let text = std::fs::read_to_string(dir.join("surface_reference.json")).unwrap();
+    let reference: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let points: Vec<Vec3> = reference["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            let c: Vec<f64> = p
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap())
+                .collect();
+            Vec3::new(c[0], c[1], c[2])
+        })
+        .collect();
+    let triangles: Vec<[usize; 3]> = reference["triangles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| {
+            let c: Vec<usize> = t
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_u64().unwrap() as usize)
+                .collect();
+            [c[0], c[1], c[2]]
+        })
+        .collect();
+    for (file, tol) in [
+        ("sphere_ascii.stl", 1e-12),
+        ("sphere_binary.stl", 1e-6),
+        ("sphere.obj", 1e-12),
+    ] {
+        let s = soft_tissue_core::mesh::io::read_surface(dir.join(file)).unwrap();
+        assert_eq!(s.triangles.len(), triangles.len(), "{file}");
+        let fixed = repair(&s).unwrap();
+        assert_eq!(
+            fixed.positions.len(),
+            points.len(),
+            "{file}: welded vertices"
+        );
+        assert_eq!(fixed.defects.boundary_edges, 0, "{file}");
+        assert_eq!(
+            fixed.defects.flipped_triangles, 0,
+            "{file}: meshio keeps the orientation"
+        );
+        // Every reference triangle is there, in the same turning order.
+        for (k, t) in triangles.iter().enumerate() {
+            let want = t.map(|v| points[v]);
+            let found = fixed.triangles.iter().any(|f| {
+                let got = f.map(|v| fixed.positions[v as usize]);
+                (0..3).any(|r| (0..3).all(|i| (got[(i + r) % 3] - want[i]).norm() < tol))
+            });
+            assert!(found, "{file}: triangle {k} missing");
+        }
+    }
+    let s = soft_tissue_core::mesh::io::read_surface(dir.join("sphere_binary.stl")).unwrap();
+    let (_, r) = tetrahedralize(&s, &TetrahedralizeOptions::default()).unwrap();
+    assert!(
+        (r.volume - r.enclosed_volume).abs() <= 0.03 * r.enclosed_volume,
+        "{r:?}"
+    );
+    // Not a surface file, and a truncated binary STL: errors naming the file.
+    let e = soft_tissue_core::mesh::io::read_surface(dir.join("block.node")).unwrap_err();
+    assert!(e.to_string().contains("block.node"), "{e}");
+    let data = std::fs::read(dir.join("sphere_binary.stl")).unwrap();
+    let e = soft_tissue_core::mesh::io::parse_stl(&data[..data.len() - 7], "cut.stl").unwrap_err();
+    assert!(e.to_string().contains("cut.stl"), "{e}");
+}

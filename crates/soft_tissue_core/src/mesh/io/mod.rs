@@ -20,11 +20,13 @@
 mod elements;
 mod gmsh;
 mod obj;
+mod stl;
 mod tetgen;
 mod text;
 mod vtk;
 
 pub use obj::{SurfaceMesh, parse_obj, write_obj};
+pub use stl::{parse_stl, write_stl};
 
 use super::{MeshError, TetMesh};
 use crate::Vec3;
@@ -317,6 +319,26 @@ pub fn parse_tetgen(
     ele_name: &str,
 ) -> Result<LoadedMesh, FormatError> {
     tetgen::parse(node, node_name, ele, ele_name)
+}
+
+/// Reads a triangle surface; the format follows the extension (`.obj`, `.stl` ASCII or
+/// binary).
+pub fn read_surface(path: impl AsRef<Path>) -> Result<SurfaceMesh, FormatError> {
+    let path = path.as_ref();
+    let name = path.display().to_string();
+    let data = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("obj") => parse_obj(&data, &name),
+        Some("stl") => parse_stl(&data, &name),
+        _ => Err(FormatError::unsupported(
+            &name,
+            "unknown surface extension: expected .obj or .stl",
+        )),
+    }
 }
 
 /// Writes a tetrahedral mesh; the format follows the extension (`.msh` writes Gmsh 2.2,
