@@ -370,7 +370,7 @@ fn the_surface_tree_agrees_with_the_sums_over_every_triangle() {
 }
 
 /// The surface readers against files meshio wrote (tests/fixtures/make_surface_fixtures.py):
-/// ASCII and binary STL and OBJ give, once welded, the reference's points and triangles
+/// ASCII and binary STL and PLY, and OBJ give, once welded, the reference's points and triangles
 /// (binary STL to float precision), and the binary STL meshes.
 #[test]
 fn surface_files_written_by_meshio_read_back_as_the_reference() {
@@ -409,6 +409,8 @@ fn surface_files_written_by_meshio_read_back_as_the_reference() {
         ("sphere_ascii.stl", 1e-12),
         ("sphere_binary.stl", 1e-6),
         ("sphere.obj", 1e-12),
+        ("sphere_ascii.ply", 1e-12),
+        ("sphere_binary.ply", 1e-12),
     ] {
         let s = soft_tissue_core::mesh::io::read_surface(dir.join(file)).unwrap();
         assert_eq!(s.triangles.len(), triangles.len(), "{file}");

@@ -20,12 +20,14 @@
 mod elements;
 mod gmsh;
 mod obj;
+mod ply;
 mod stl;
 mod tetgen;
 mod text;
 mod vtk;
 
 pub use obj::{SurfaceMesh, parse_obj, write_obj};
+pub use ply::parse_ply;
 pub use stl::{parse_stl, write_stl};
 
 use super::{MeshError, TetMesh};
@@ -322,7 +324,7 @@ pub fn parse_tetgen(
 }
 
 /// Reads a triangle surface; the format follows the extension (`.obj`, `.stl` ASCII or
-/// binary).
+/// binary, `.ply` ASCII or binary).
 pub fn read_surface(path: impl AsRef<Path>) -> Result<SurfaceMesh, FormatError> {
     let path = path.as_ref();
     let name = path.display().to_string();
@@ -334,9 +336,10 @@ pub fn read_surface(path: impl AsRef<Path>) -> Result<SurfaceMesh, FormatError> 
     match ext.as_deref() {
         Some("obj") => parse_obj(&data, &name),
         Some("stl") => parse_stl(&data, &name),
+        Some("ply") => parse_ply(&data, &name),
         _ => Err(FormatError::unsupported(
             &name,
-            "unknown surface extension: expected .obj or .stl",
+            "unknown surface extension: expected .obj, .stl or .ply",
         )),
     }
 }
