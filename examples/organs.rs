@@ -5,7 +5,9 @@
 //! Run: `cargo run --profile test --example organs [-- --screenshot FILE --frames N]` (the build
 //! `cargo test` made; `--release` for the fastest frames after a long build); add
 //! `--large` for the organs at segmentation sizes (`assets/scenes/organs-large.scene.ron`,
-//! 27k tetrahedra, the prefactored corotational model), or `--scene FILE` for any scene.
+//! 27k tetrahedra, the prefactored corotational model), or `--scene FILE` for any scene;
+//! `--surface FILE` adds your own organ, a closed surface (.obj, .stl, .ply, relative to the
+//! assets folder) meshed on load, beside the scene.
 //!
 //! Controls: right mouse drag orbits, shift + wheel zooms; the tool follows the mouse in the
 //! screen plane and the wheel moves it nearer or farther, poking what it meets; hold the left

@@ -106,6 +106,200 @@ impl AssetLoader for TetMeshLoader {
     }
 }
 
+/// Settings of the surface loader (in an asset's `.meta` file): how a closed triangle
+/// surface becomes tetrahedra (see [`soft_tissue_core::mesh::tetrahedralize`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct SurfaceLoaderSettings {
+    /// About this many tetrahedra (used when `edge_length` is not set).
+    pub target_tets: usize,
+    /// Lattice spacing, about the interior edge length, in scene units (after `units`).
+    pub edge_length: Option<f64>,
+    /// Smallest dihedral angle kept, degrees.
+    pub min_dihedral_deg: f64,
+    /// The surface's unit in scene units (every coordinate is multiplied by it).
+    pub units: f64,
+    /// Where meshed results are kept, keyed by the file's bytes and these settings, so a
+    /// second start does not mesh again (`None`: the system's temporary folder,
+    /// `bevy_soft_tissue-meshes`).
+    pub cache_dir: Option<std::path::PathBuf>,
+}
+
+impl Default for SurfaceLoaderSettings {
+    fn default() -> Self {
+        SurfaceLoaderSettings {
+            target_tets: 1500,
+            edge_length: None,
+            min_dihedral_deg: 8.0,
+            units: 1.0,
+            cache_dir: None,
+        }
+    }
+}
+
+/// Why a surface did not become a tetrahedral mesh.
+#[derive(Debug, thiserror::Error)]
+pub enum SurfaceLoadError {
+    /// The file could not be read, or is not a valid surface.
+    #[error(transparent)]
+    Read(#[from] TetMeshLoadError),
+    /// The surface could not be meshed (the error names the defect).
+    #[error("{path}: {source}")]
+    Mesh {
+        /// The file.
+        path: String,
+        /// Why.
+        source: soft_tissue_core::mesh::tetrahedralize::TetrahedralizeError,
+    },
+}
+
+/// Loads a closed triangle surface (`.obj`, `.stl`, `.ply`) as a soft body's tetrahedral mesh:
+/// it is meshed on load (off the main thread, as loaders run) with the asset's
+/// [`SurfaceLoaderSettings`], and the result is cached on disk. The surface itself is the
+/// labelled sub-asset `Surface` (a Bevy `Mesh`), to draw the body with through
+/// [`crate::VisualMesh::mesh`]: `assets.load("organ.stl#Surface")`.
+#[derive(Default, TypePath)]
+pub struct SurfaceLoader;
+
+/// FNV-1a, 64 bits: a cache key that stays the same across runs and Rust versions.
+fn fnv1a(parts: &[&[u8]]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for p in parts {
+        for &b in *p {
+            h ^= u64::from(b);
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+    h
+}
+
+impl AssetLoader for SurfaceLoader {
+    type Asset = TetMeshAsset;
+    type Settings = SurfaceLoaderSettings;
+    type Error = SurfaceLoadError;
+
+    async fn load(
+        &self,
+        reader: &mut dyn Reader,
+        settings: &SurfaceLoaderSettings,
+        load_context: &mut LoadContext<'_>,
+    ) -> Result<TetMeshAsset, SurfaceLoadError> {
+        use soft_tissue_core::mesh::io::{parse_obj, parse_ply, parse_stl};
+        use soft_tissue_core::mesh::tetrahedralize::{TetrahedralizeOptions, tetrahedralize};
+        let path = load_context.path().path().to_path_buf();
+        let name = path.display().to_string();
+        let mut bytes = Vec::new();
+        reader
+            .read_to_end(&mut bytes)
+            .await
+            .map_err(|e| TetMeshLoadError::Read {
+                path: name.clone(),
+                message: e.to_string(),
+            })?;
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        let parsed = match ext.as_deref() {
+            Some("stl") => parse_stl(&bytes, &name),
+            Some("ply") => parse_ply(&bytes, &name),
+            _ => parse_obj(&bytes, &name),
+        };
+        let mut surface = parsed.map_err(TetMeshLoadError::from)?;
+        let bad_units = !(settings.units.is_finite() && settings.units > 0.0);
+        if bad_units {
+            return Err(TetMeshLoadError::Read {
+                path: name,
+                message: format!("units must be positive, found {}", settings.units),
+            }
+            .into());
+        }
+        for p in &mut surface.positions {
+            *p *= settings.units;
+        }
+        // The surface as a Bevy mesh, for drawing the body with it.
+        let mut visual = Mesh::new(
+            bevy::mesh::PrimitiveTopology::TriangleList,
+            bevy::asset::RenderAssetUsages::default(),
+        );
+        let positions: Vec<[f32; 3]> = surface
+            .positions
+            .iter()
+            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .collect();
+        visual.insert_attribute(Mesh::ATTRIBUTE_POSITION, positions);
+        visual.insert_indices(bevy::mesh::Indices::U32(
+            surface.triangles.iter().flatten().copied().collect(),
+        ));
+        visual.compute_smooth_normals();
+        load_context.add_labeled_asset("Surface".to_string(), visual);
+
+        let key = fnv1a(&[
+            &bytes,
+            format!(
+                "{}|{:?}|{}|{}",
+                settings.target_tets,
+                settings.edge_length,
+                settings.min_dihedral_deg,
+                settings.units
+            )
+            .as_bytes(),
+        ]);
+        let dir = settings
+            .cache_dir
+            .clone()
+            .unwrap_or_else(|| std::env::temp_dir().join("bevy_soft_tissue-meshes"));
+        let cached = dir.join(format!("{key:016x}.vtu"));
+        if let Ok(data) = std::fs::read(&cached)
+            && let Ok(loaded) =
+                parse_tet_mesh(&data, MeshFormat::Vtu, &cached.display().to_string())
+        {
+            info!(
+                "{name}: meshed surface taken from the cache {}",
+                cached.display()
+            );
+            return Ok(TetMeshAsset(Arc::new(loaded.mesh)));
+        }
+        let options = TetrahedralizeOptions {
+            edge_length: settings.edge_length,
+            target_tets: Some(settings.target_tets),
+            min_dihedral_deg: settings.min_dihedral_deg,
+        };
+        let (mesh, report) =
+            tetrahedralize(&surface, &options).map_err(|source| SurfaceLoadError::Mesh {
+                path: name.clone(),
+                source,
+            })?;
+        info!(
+            "{name}: meshed to {} tetrahedra, dihedral {:.1}..{:.1} deg, volume {:+.2} % of the \
+             enclosed",
+            report.tets,
+            report.min_dihedral_deg,
+            report.max_dihedral_deg,
+            100.0 * (report.volume / report.enclosed_volume - 1.0)
+        );
+        // The cache is a convenience: failing to write it costs the next start a meshing.
+        let written = std::fs::create_dir_all(&dir).and_then(|()| {
+            let data = soft_tissue_core::mesh::io::write_tet_mesh_bytes(
+                &mesh,
+                MeshFormat::Vtu,
+                soft_tissue_core::mesh::io::WriteOptions { binary: true },
+                &cached.display().to_string(),
+            )
+            .map_err(std::io::Error::other)?;
+            std::fs::write(&cached, data)
+        });
+        if let Err(e) = written {
+            warn!("{name}: the meshed surface was not cached ({e})");
+        }
+        Ok(TetMeshAsset(Arc::new(mesh)))
+    }
+
+    fn extensions(&self) -> &[&str] {
+        &["obj", "stl", "ply"]
+    }
+}
+
 /// A scene file: the bodies of a scene and their settings (see
 /// [`soft_tissue_core::scenario::Scene`]), with every body's mesh, read or generated and
 /// placed where the scene puts it, loaded with it (labelled sub-assets `Body0`, `Body1`, …).
@@ -382,6 +576,7 @@ impl Plugin for SoftTissueAssetPlugin {
             .init_asset::<SceneAsset>()
             .register_asset_loader(TetMeshLoader)
             .register_asset_loader(SceneLoader)
+            .register_asset_loader(SurfaceLoader)
             .register_type::<SoftTissueSceneRoot>()
             .add_systems(PreUpdate, spawn_scenes);
     }

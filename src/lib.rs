@@ -88,7 +88,8 @@ pub mod render;
 
 pub use assets::{
     SceneAsset, SceneBodies, SceneLoadError, SceneLoader, SceneLoaderSettings,
-    SoftTissueAssetPlugin, SoftTissueSceneRoot, TetMeshAsset, spawn_scene_and_wait,
+    SoftTissueAssetPlugin, SoftTissueSceneRoot, SurfaceLoadError, SurfaceLoader,
+    SurfaceLoaderSettings, TetMeshAsset, spawn_scene_and_wait,
 };
 pub use components::*;
 pub use messages::{BodyTouched, LevelChanged};

@@ -47,6 +47,10 @@ pub struct ExampleOptions {
     /// `--scene FILE` (relative to the assets folder, or a path): a scene RON file shown
     /// instead of the example's own; `--large` is `scenes/organs-large.scene.ron`.
     pub scene: Option<PathBuf>,
+    /// `--surface FILE` (relative to the assets folder): a closed triangle surface (.obj,
+    /// .stl, .ply) meshed on load and added as a body beside the scene, drawn with the
+    /// surface itself.
+    pub surface: Option<String>,
 }
 
 impl ExampleOptions {
@@ -58,6 +62,7 @@ impl ExampleOptions {
             smooth: 2,
             mouse: false,
             scene: None,
+            surface: None,
         };
         let mut args = std::env::args().skip(1);
         while let Some(a) = args.next() {
@@ -75,6 +80,7 @@ impl ExampleOptions {
                 "--mouse" => o.mouse = true,
                 "--scene" => o.scene = Some(args.next().ok_or("--scene needs a file")?.into()),
                 "--large" => o.scene = Some("scenes/organs-large.scene.ron".into()),
+                "--surface" => o.surface = Some(args.next().ok_or("--surface needs a file")?),
                 "--smooth" => {
                     o.smooth = args
                         .next()
@@ -88,7 +94,7 @@ impl ExampleOptions {
                 other => {
                     return Err(format!(
                         "unknown option {other} (--screenshot FILE --frames N --smooth L --mouse \
-                         --scene FILE --large)"
+                         --scene FILE --large --surface FILE)"
                     ));
                 }
             }
@@ -258,6 +264,7 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
     }
     let tool_shape = script.as_ref().map(|s| s.tool);
     let colours = example.colours.clone();
+    let surface_file = options.surface.clone();
     let cautery_watts = example.cautery_watts;
     let smooth = options.smooth;
     app.add_systems(Startup, move |world: &mut World| {
@@ -265,6 +272,28 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
             .resource::<AssetServer>()
             .load(scene_file.to_string_lossy().into_owned());
         world.spawn((Name::new("scene"), SoftTissueSceneRoot(handle)));
+        if let Some(file) = &surface_file {
+            // The user's organ, beside the scene, drawn with its own surface.
+            let server = world.resource::<AssetServer>().clone();
+            let material = world
+                .resource_mut::<Assets<StandardMaterial>>()
+                .add(StandardMaterial {
+                    base_color: Color::srgb(0.75, 0.5, 0.45),
+                    perceptual_roughness: 0.55,
+                    ..default()
+                });
+            world.spawn((
+                Name::new(file.clone()),
+                SoftBody::new(server.load(file.clone())),
+                VisualMesh::mesh(server.load(format!("{file}#Surface"))),
+                MeshMaterial3d(material),
+                Transform::from_translation(Vec3::new(
+                    hi.x + 0.3 * scale,
+                    lo.y,
+                    0.5 * (lo.z + hi.z),
+                )),
+            ));
+        }
         // The orbit centre sits left of the scene's centre so the bodies clear the inspector.
         let focus = 0.5 * (lo + hi) - Vec3::X * 0.3 * scale;
         let distance = 1.6 * scale;

@@ -107,3 +107,59 @@ fn scene_assets_keep_mesh_paths_inside_the_assets_folder_unless_allowed() {
     );
     std::fs::remove_dir_all(&top).ok();
 }
+
+/// A closed surface loads as a soft body: meshed on load with the `.meta` settings, its
+/// surface kept as the `Surface` sub-asset to draw with, and cached so the next start reads
+/// the mesh back instead of meshing again.
+#[test]
+fn a_surface_file_becomes_a_body_and_its_mesh_is_cached() {
+    use bevy_soft_tissue::SurfaceLoaderSettings;
+    let cache =
+        std::env::temp_dir().join(format!("soft-tissue-surface-cache-{}", std::process::id()));
+    std::fs::remove_dir_all(&cache).ok();
+    let mut counts = Vec::new();
+    for run in 0..2 {
+        let mut app = app(0.01);
+        let dir = cache.clone();
+        let mesh: Handle<TetMeshAsset> = app
+            .world()
+            .resource::<AssetServer>()
+            .load_builder()
+            .with_settings(move |s: &mut SurfaceLoaderSettings| {
+                s.target_tets = 600;
+                s.cache_dir = Some(dir.clone());
+            })
+            .load("meshes/sphere.stl");
+        let surface: Handle<Mesh> = app
+            .world()
+            .resource::<AssetServer>()
+            .load("meshes/sphere.stl#Surface");
+        let body = app
+            .world_mut()
+            .spawn((SoftBody::new(mesh.clone()), VisualMesh::mesh(surface)))
+            .id();
+        for _ in 0..3000 {
+            app.update();
+            if app.world().get::<SimulatedBody>(body).is_some() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        let sim = app.world().get::<SimulatedBody>(body).expect("built");
+        counts.push((
+            sim.body().mesh().node_count(),
+            sim.body().mesh().tet_count(),
+        ));
+        let files: Vec<_> = std::fs::read_dir(&cache).unwrap().collect();
+        assert_eq!(files.len(), 1, "run {run}: one cached mesh");
+        app.update();
+        assert!(app.world().get::<VisualMeshError>(body).is_none());
+        assert!(app.world().get::<Mesh3d>(body).is_some());
+    }
+    assert_eq!(
+        counts[0], counts[1],
+        "the second start reads the same mesh back"
+    );
+    assert!((400..=800).contains(&counts[0].1), "{:?}", counts[0]);
+    std::fs::remove_dir_all(&cache).ok();
+}
