@@ -120,19 +120,23 @@ fn a_surface_file_becomes_a_body_and_its_mesh_is_cached() {
     let mut counts = Vec::new();
     for run in 0..2 {
         let mut app = app(0.01);
-        let dir = cache.clone();
-        let mesh: Handle<TetMeshAsset> = app
-            .world()
-            .resource::<AssetServer>()
-            .load_builder()
-            .with_settings(move |s: &mut SurfaceLoaderSettings| {
+        // Both handles with the same settings (as a `.meta` file would give every load):
+        // a load of the same file with other settings loads it again with those.
+        let settings = {
+            let dir = cache.clone();
+            move |s: &mut SurfaceLoaderSettings| {
                 s.target_tets = 600;
                 s.cache_dir = Some(dir.clone());
-            })
+            }
+        };
+        let server = app.world().resource::<AssetServer>().clone();
+        let mesh: Handle<TetMeshAsset> = server
+            .load_builder()
+            .with_settings(settings.clone())
             .load("meshes/sphere.stl");
-        let surface: Handle<Mesh> = app
-            .world()
-            .resource::<AssetServer>()
+        let surface: Handle<Mesh> = server
+            .load_builder()
+            .with_settings(settings)
             .load("meshes/sphere.stl#Surface");
         let body = app
             .world_mut()
@@ -152,9 +156,21 @@ fn a_surface_file_becomes_a_body_and_its_mesh_is_cached() {
         ));
         let files: Vec<_> = std::fs::read_dir(&cache).unwrap().collect();
         assert_eq!(files.len(), 1, "run {run}: one cached mesh");
-        app.update();
+        // Drawn with the surface once its sub-asset is in `Assets<Mesh>`.
+        for _ in 0..3000 {
+            app.update();
+            if app.world().get::<Mesh3d>(body).is_some() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
         assert!(app.world().get::<VisualMeshError>(body).is_none());
-        assert!(app.world().get::<Mesh3d>(body).is_some());
+        assert!(
+            app.world()
+                .get::<bevy_soft_tissue::EmbeddedVisual>(body)
+                .is_some(),
+            "drawn with the surface"
+        );
     }
     assert_eq!(
         counts[0], counts[1],
