@@ -250,3 +250,73 @@ impl ReportRow for Fig5Row {
             .collect()
     }
 }
+
+/// One step of the Fig. 5 protocol, as fractions of the first body's smallest dimension.
+#[derive(Debug, Clone, Copy)]
+struct LevelGap {
+    /// Mean node distance between the cage run and the precise run.
+    mean: f64,
+    /// Largest node distance.
+    max: f64,
+    /// Largest surface distance of the best cage fit to the precise run's surface: how
+    /// close a cage of this shape can follow, whatever moves it. `None` when the fit did not
+    /// converge.
+    fit: Option<f64>,
+}
+
+/// The paper's Fig. 5 protocol: the same scene and interaction run twice in lockstep, every
+/// body pinned at its cage level in one and at its precise level in the other; per step, the
+/// distances of the first body between the two ([`LevelGap`]). Also the mean cage step of that
+/// body, us.
+fn compare_levels(
+    scene: &Scene,
+    script: &str,
+    steps: usize,
+    assets: &Path,
+) -> Res<(Vec<LevelGap>, f64)> {
+    let mut worlds = Vec::with_capacity(2);
+    for level in [Level::Cage, Level::Precise] {
+        let mut w = sweep::build_world(scene, assets, &paper_msd)?;
+        for b in w.bodies_mut() {
+            b.body_mut().pin(Some(level))?;
+        }
+        let s = Script::builtin(script, &w)?;
+        let ti = w.add_tool(Tool::new(s.name.clone(), s.tool)?);
+        worlds.push((w, s, ti));
+    }
+    let dt = worlds[0].0.config().dt;
+    let mut series = Vec::with_capacity(steps);
+    let mut cage_us = 0.0;
+    for k in 0..steps {
+        let t = (k + 1) as f64 * dt;
+        for (w, s, ti) in &mut worlds {
+            drive_tool(w, s, *ti, t, dt)?;
+            w.step_fixed()?;
+        }
+        let fit = {
+            let b = worlds[1].0.bodies_mut()[0].body_mut();
+            let r = b.fit_cage_now()?;
+            b.last_fit().converged.then_some(r)
+        };
+        let (cage, precise) = (&worlds[0].0.bodies()[0], &worlds[1].0.bodies()[0]);
+        cage_us += cage.diagnostics().step_us;
+        let scale = precise.body().smallest_dimension();
+        let (mut sum, mut max) = (0.0f64, 0.0f64);
+        let (a, b) = (
+            cage.body().node_positions(),
+            precise.body().node_positions(),
+        );
+        for (p, q) in a.iter().zip(b) {
+            let d = (p - q).norm();
+            sum += d;
+            max = max.max(d);
+        }
+        let n = a.len().max(1) as f64;
+        series.push(LevelGap {
+            mean: sum / n / scale,
+            max: max / scale,
+            fit: fit.map(|f| f / scale),
+        });
+    }
+    Ok((series, cage_us / steps.max(1) as f64))
+}

@@ -18,7 +18,7 @@ mod sweep;
 mod table;
 mod tables;
 
-use tables::{OrganTableRow, PaperTableRow, ScalingRow};
+use tables::{organ_tables_section, paper_tables_section, scaling_section};
 
 pub(crate) use table::{Csv, ReportRow, cells, write_file, write_rows};
 
@@ -86,63 +86,10 @@ pub struct ReportArgs {
     fig5_only: bool,
 }
 
-/// What one run measured for one body.
-#[derive(Debug, Clone, Default)]
-struct BodyStats {
-    name: String,
-    cage_steps: u64,
-    cage_us: f64,
-    precise_steps: u64,
-    precise_us: f64,
-    switches: u64,
-    worst_jump_ratio: f64,
-    /// Step times at the cage level and at the precise level, us.
-    cage_samples: Vec<f64>,
-    precise_samples: Vec<f64>,
-}
-
 fn median(v: &[f64]) -> Option<f64> {
     let mut s = v.to_vec();
     s.sort_by(f64::total_cmp);
     s.get(s.len() / 2).copied()
-}
-
-impl BodyStats {
-    fn median_cage_us(&self) -> Option<f64> {
-        median(&self.cage_samples)
-    }
-    fn median_precise_us(&self) -> Option<f64> {
-        median(&self.precise_samples)
-    }
-    fn mean_cage_us(&self) -> Option<f64> {
-        (self.cage_steps > 0).then(|| self.cage_us / self.cage_steps as f64)
-    }
-    fn mean_precise_us(&self) -> Option<f64> {
-        (self.precise_steps > 0).then(|| self.precise_us / self.precise_steps as f64)
-    }
-}
-
-/// One run of a scene under a script.
-struct Run {
-    bodies: Vec<BodyStats>,
-    /// Whole-step time per step, us.
-    step_us: Vec<f64>,
-}
-
-impl Run {
-    fn mean_step_us(&self) -> f64 {
-        self.step_us.iter().sum::<f64>() / self.step_us.len().max(1) as f64
-    }
-}
-
-/// How a run is set up.
-struct RunSpec<'a> {
-    scene: Scene,
-    script: &'a str,
-    steps: usize,
-    /// Pin every body at this level (no switching).
-    pin: Option<Level>,
-    resting: usize,
 }
 
 /// MSD bodies step with RK4, as in the paper (scenes default to the implicit integrator).
@@ -150,131 +97,6 @@ fn paper_msd(s: &mut soft_tissue_core::precision::BodySettings) {
     if !s.precise.is_fem() {
         s.precise = LevelMethod::MsdRk4;
     }
-}
-
-fn run(spec: RunSpec<'_>, assets: &Path) -> Res<Run> {
-    let mut scene = spec.scene;
-    let mut world = sweep::build_world(&scene, assets, &paper_msd)?;
-    if spec.resting > 0 {
-        add_resting_copies(&mut scene, spec.resting, &world);
-        world = sweep::build_world(&scene, assets, &paper_msd)?;
-    }
-    if let Some(level) = spec.pin {
-        for b in world.bodies_mut() {
-            b.body_mut().pin(Some(level))?;
-        }
-    }
-    let script = Script::builtin(spec.script, &world)?;
-    let ti = world.add_tool(Tool::new(script.name.clone(), script.tool)?);
-    let dt = world.config().dt;
-    let mut stats: Vec<BodyStats> = world
-        .bodies()
-        .iter()
-        .map(|b| BodyStats {
-            name: b.name().to_string(),
-            ..BodyStats::default()
-        })
-        .collect();
-    let mut step_us = Vec::with_capacity(spec.steps);
-    for k in 0..spec.steps {
-        let t = (k + 1) as f64 * dt;
-        drive_tool(&mut world, &script, ti, t, dt)?;
-        world.step_fixed()?;
-        step_us.push(world.stage_times().total_us());
-        for (s, b) in stats.iter_mut().zip(world.bodies()) {
-            let d = b.diagnostics();
-            match d.level {
-                Level::Cage => {
-                    s.cage_steps += 1;
-                    s.cage_us += d.step_us;
-                    s.cage_samples.push(d.step_us);
-                }
-                Level::Precise => {
-                    s.precise_steps += 1;
-                    s.precise_us += d.step_us;
-                    s.precise_samples.push(d.step_us);
-                }
-            }
-            if let Some(sw) = d.switched {
-                s.worst_jump_ratio = s.worst_jump_ratio.max(sw.jump_ratio);
-            }
-            s.switches = b.body().switch_count();
-        }
-    }
-    Ok(Run {
-        bodies: stats,
-        step_us,
-    })
-}
-
-/// One step of the Fig. 5 protocol, as fractions of the first body's smallest dimension.
-#[derive(Debug, Clone, Copy)]
-struct LevelGap {
-    /// Mean node distance between the cage run and the precise run.
-    mean: f64,
-    /// Largest node distance.
-    max: f64,
-    /// Largest surface distance of the best cage fit to the precise run's surface: how
-    /// close a cage of this shape can follow, whatever moves it. `None` when the fit did not
-    /// converge.
-    fit: Option<f64>,
-}
-
-/// The paper's Fig. 5 protocol: the same scene and interaction run twice in lockstep, every
-/// body pinned at its cage level in one and at its precise level in the other; per step, the
-/// distances of the first body between the two ([`LevelGap`]). Also the mean cage step of that
-/// body, us.
-fn compare_levels(
-    scene: &Scene,
-    script: &str,
-    steps: usize,
-    assets: &Path,
-) -> Res<(Vec<LevelGap>, f64)> {
-    let mut worlds = Vec::with_capacity(2);
-    for level in [Level::Cage, Level::Precise] {
-        let mut w = sweep::build_world(scene, assets, &paper_msd)?;
-        for b in w.bodies_mut() {
-            b.body_mut().pin(Some(level))?;
-        }
-        let s = Script::builtin(script, &w)?;
-        let ti = w.add_tool(Tool::new(s.name.clone(), s.tool)?);
-        worlds.push((w, s, ti));
-    }
-    let dt = worlds[0].0.config().dt;
-    let mut series = Vec::with_capacity(steps);
-    let mut cage_us = 0.0;
-    for k in 0..steps {
-        let t = (k + 1) as f64 * dt;
-        for (w, s, ti) in &mut worlds {
-            drive_tool(w, s, *ti, t, dt)?;
-            w.step_fixed()?;
-        }
-        let fit = {
-            let b = worlds[1].0.bodies_mut()[0].body_mut();
-            let r = b.fit_cage_now()?;
-            b.last_fit().converged.then_some(r)
-        };
-        let (cage, precise) = (&worlds[0].0.bodies()[0], &worlds[1].0.bodies()[0]);
-        cage_us += cage.diagnostics().step_us;
-        let scale = precise.body().smallest_dimension();
-        let (mut sum, mut max) = (0.0f64, 0.0f64);
-        let (a, b) = (
-            cage.body().node_positions(),
-            precise.body().node_positions(),
-        );
-        for (p, q) in a.iter().zip(b) {
-            let d = (p - q).norm();
-            sum += d;
-            max = max.max(d);
-        }
-        let n = a.len().max(1) as f64;
-        series.push(LevelGap {
-            mean: sum / n / scale,
-            max: max / scale,
-            fit: fit.map(|f| f / scale),
-        });
-    }
-    Ok((series, cage_us / steps.max(1) as f64))
 }
 
 /// The reference measurement the header's run-to-run spread comes from: the median step of
@@ -550,130 +372,25 @@ pub fn report(args: &ReportArgs) -> Res<()> {
     progress.step("spread probe 1/3");
     probes.push(spread_probe(quick)?);
 
-    // Tables II and III.
-    let mut rows: Vec<PaperTableRow> = Vec::new();
-    for (table, script) in [("II", "poke-a"), ("III", "push-a-into-b")] {
-        writeln!(
-            md,
-            "## Table {table}: cylinders, `{script}`\n\n\
-             Mean step time per body and level, us (the paper's Table {table} layout: each \
-             method pair, each body at its cage level and at its precise level).\n"
-        )?;
-        let first = rows.len();
-        for (a, b) in pairs {
-            progress.step(&format!(
-                "table {table}: {} / {}",
-                method_name(a),
-                method_name(b)
-            ));
-            let r = run(
-                RunSpec {
-                    scene: Scene::paper_cylinders(a, b),
-                    script,
-                    steps,
-                    pin: None,
-                    resting: 0,
-                },
-                assets,
-            )?;
-            for body in &r.bodies[..2] {
-                rows.push(PaperTableRow {
-                    table,
-                    script,
-                    method_a: method_name(a),
-                    method_b: method_name(b),
-                    body: body.name.clone(),
-                    cage_steps: body.cage_steps,
-                    mean_cage_us: body.mean_cage_us(),
-                    precise_steps: body.precise_steps,
-                    mean_precise_us: body.mean_precise_us(),
-                    switches: body.switches,
-                    worst_jump_pct: 100.0 * body.worst_jump_ratio,
-                });
-            }
-        }
-        md.push_str(&table::md_table(&rows[first..]));
-        writeln!(md)?;
-    }
-    write_file(&args.out, "tables_2_3.csv", &table::csv_text(&rows)?)?;
-    js.insert("tables_2_3".into(), serde_json::to_value(&rows)?);
-
-    // Tables IV and V.
+    paper_tables_section(
+        &mut md,
+        &mut js,
+        &args.out,
+        assets,
+        &pairs,
+        steps,
+        &mut progress,
+    )?;
     let organs = load_scene("organs", assets)?;
-    let mut with_cage = None;
-    let mut without_cage = None;
-    for (label, pin) in [
-        ("with the cage level (IV)", None),
-        ("without it (V)", Some(Level::Precise)),
-    ] {
-        progress.step(&format!("organs {label}"));
-        let r = run(
-            RunSpec {
-                scene: organs.clone(),
-                script: "poke-liver",
-                steps,
-                pin,
-                resting: 0,
-            },
-            assets,
-        )?;
-        if pin.is_none() {
-            with_cage = Some(r);
-        } else {
-            without_cage = Some(r);
-        }
-    }
-    let (with_cage, without_cage) = (
-        with_cage.ok_or("organs run missing")?,
-        without_cage.ok_or("organs run missing")?,
-    );
-    writeln!(
-        md,
-        "## Tables IV and V: organs, `poke-liver`\n\n\
-         Mean step time per body, us: with the levels of precision (a body is at its cage level \
-         until touched) and with every body at its precise level throughout.\n"
+    let organ_runs = organ_tables_section(
+        &mut md,
+        &mut js,
+        &args.out,
+        assets,
+        &organs,
+        steps,
+        &mut progress,
     )?;
-    let organ_rows: Vec<OrganTableRow> = with_cage
-        .bodies
-        .iter()
-        .zip(&without_cage.bodies)
-        .map(|(b, c)| OrganTableRow {
-            body: b.name.clone(),
-            with_cage_mean_cage_us: b.mean_cage_us(),
-            with_cage_mean_precise_us: b.mean_precise_us(),
-            without_cage_mean_precise_us: c.mean_precise_us(),
-        })
-        .collect();
-    let organ_json = write_rows(&organ_rows, &mut md, &args.out, "tables_4_5.csv")?;
-    let all_precise_sum: f64 = without_cage
-        .bodies
-        .iter()
-        .filter_map(BodyStats::mean_precise_us)
-        .sum();
-    writeln!(
-        md,
-        "\nWhole step (solvers, contact, switching, writeback), mean: {:.1} us with the cage \
-         level, {:.1} us without. The four organs' precise steps add up to {:.1} us per step.\n",
-        with_cage.mean_step_us(),
-        without_cage.mean_step_us(),
-        all_precise_sum
-    )?;
-    js.insert(
-        "tables_4_5".into(),
-        json!({
-            "bodies": organ_json,
-            "with_cage_mean_step_us": with_cage.mean_step_us(),
-            "without_cage_mean_step_us": without_cage.mean_step_us(),
-            "all_precise_sum_us": all_precise_sum,
-        }),
-    );
-    // The liver's cage against its corotational step, from the same two runs: medians, so
-    // the few steps that switch levels (a cage fit, a raise) do not stand for the level.
-    let liver_cage = with_cage.bodies.first().and_then(BodyStats::median_cage_us);
-    let liver_precise = without_cage
-        .bodies
-        .first()
-        .and_then(BodyStats::median_precise_us);
 
     // Fig. 5: the cage level's error under the interaction, against the precise level.
     let best_fitted_vs_fem = fig5_section(
@@ -686,75 +403,16 @@ pub fn report(args: &ReportArgs) -> Res<()> {
         &mut progress,
     )?;
 
-    // Scaling with resting bodies.
-    writeln!(
-        md,
-        "## Scaling: one touched organ and N resting ones\n\n\
-         `poke-liver` on the organs scene plus N resting copies of its last body laid out \
-         beside it; mean whole-step time, us, with level switching (the resting bodies stay \
-         at their cage level) and without it (every body at its precise level).\n"
+    let scaling = scaling_section(
+        &mut md,
+        &mut js,
+        &args.out,
+        assets,
+        &organs,
+        &resting,
+        steps.min(200),
+        &mut progress,
     )?;
-    let mut scaling_rows = Vec::new();
-    let mut scaling = Vec::new();
-    let scaling_steps = steps.min(200);
-    for &n in &resting {
-        let mut row = [0.0; 2];
-        for (slot, pin) in [(0, None), (1, Some(Level::Precise))] {
-            progress.step(&format!(
-                "scaling: {n} resting, {}",
-                ["switching", "all precise"][slot]
-            ));
-            row[slot] = run(
-                RunSpec {
-                    scene: organs.clone(),
-                    script: "poke-liver",
-                    steps: scaling_steps,
-                    pin,
-                    resting: n,
-                },
-                assets,
-            )?
-            .mean_step_us();
-        }
-        scaling_rows.push(ScalingRow {
-            resting: n,
-            with_switching_us: row[0],
-            without_switching_us: row[1],
-        });
-        scaling.push((n, row[0], row[1]));
-    }
-    let scaling_json = write_rows(&scaling_rows, &mut md, &args.out, "scaling.csv")?;
-    chart(
-        &args.out.join("scaling_resting.png"),
-        "One touched organ and N resting ones: whole step",
-        Axis {
-            desc: "resting bodies N",
-            log: false,
-        },
-        Axis {
-            desc: "mean step, us",
-            log: false,
-        },
-        &[
-            Series {
-                name: "with switching".into(),
-                points: scaling.iter().map(|r| (r.0 as f64, r.1)).collect(),
-                line: true,
-                markers: true,
-            },
-            Series {
-                name: "all precise".into(),
-                points: scaling.iter().map(|r| (r.0 as f64, r.2)).collect(),
-                line: true,
-                markers: true,
-            },
-        ],
-    )?;
-    writeln!(
-        md,
-        "\n![scaling with resting bodies](scaling_resting.png)\n"
-    )?;
-    js.insert("scaling".into(), scaling_json);
     progress.step("spread probe 2/3");
     probes.push(spread_probe(quick)?);
     let mut step = |what: &str| progress.step(what);
@@ -826,9 +484,9 @@ pub fn report(args: &ReportArgs) -> Res<()> {
         &js,
         &goals::Inputs {
             best_fitted_vs_fem: &best_fitted_vs_fem,
-            liver_cage,
-            liver_precise,
-            all_precise_step_us: without_cage.mean_step_us(),
+            liver_cage: organ_runs.liver_cage_us,
+            liver_precise: organ_runs.liver_precise_us,
+            all_precise_step_us: organ_runs.all_precise_step_us,
             scaling: &scaling,
             budget: &budget,
             peer_rows: &peer_rows,
