@@ -449,6 +449,107 @@ fn surface_files_written_by_meshio_read_back_as_the_reference() {
     assert!(e.to_string().contains("cut.stl"), "{e}");
 }
 
+/// The glTF reader against files two other writers made (tests/fixtures/make_surface_fixtures.py):
+/// a GLB from trimesh (one node, rotated and moved) and a `.gltf` from pygltflib (a scaled
+/// parent with two children sharing the mesh, one mirrored), with its buffer in a `.bin` file
+/// or in a base64 data URI. Every placed triangle is found at its world place, facing out.
+#[test]
+fn gltf_files_written_by_trimesh_and_pygltflib_read_back_placed() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures");
+    let text = std::fs::read_to_string(dir.join("surface_reference.json")).unwrap();
+    let reference: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let triangles_of = |key: &str| -> Vec<[Vec3; 3]> {
+        reference["gltf"][key]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|t| {
+                let p: Vec<Vec3> = t
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|q| {
+                        let c: Vec<f64> = q
+                            .as_array()
+                            .unwrap()
+                            .iter()
+                            .map(|v| v.as_f64().unwrap())
+                            .collect();
+                        Vec3::new(c[0], c[1], c[2])
+                    })
+                    .collect();
+                [p[0], p[1], p[2]]
+            })
+            .collect()
+    };
+    for (file, key) in [
+        ("sphere.glb", "sphere.glb"),
+        ("spheres.gltf", "spheres.gltf"),
+        ("spheres_embedded.gltf", "spheres.gltf"),
+    ] {
+        let want = triangles_of(key);
+        let s = soft_tissue_core::mesh::io::read_surface(dir.join(file)).unwrap();
+        assert_eq!(s.triangles.len(), want.len(), "{file}");
+        let got: Vec<[Vec3; 3]> = s
+            .triangles
+            .iter()
+            .map(|t| t.map(|v| s.positions[v as usize]))
+            .collect();
+        // Positions are 32-bit floats in the file.
+        let tol = 1e-5;
+        for (k, w) in want.iter().enumerate() {
+            let found = got
+                .iter()
+                .any(|g| (0..3).any(|r| (0..3).all(|i| (g[(i + r) % 3] - w[i]).norm() < tol)));
+            assert!(
+                found,
+                "{file}: placed triangle {k} missing or turned the wrong way"
+            );
+        }
+        let fixed = repair(&s).unwrap();
+        assert_eq!(
+            fixed.defects.flipped_triangles, 0,
+            "{file}: every piece faces out"
+        );
+        assert_eq!(fixed.defects.boundary_edges, 0, "{file}");
+    }
+    // A mirrored child keeps its volume: the two spheres (scale 2) enclose 8x the one's.
+    let one = repair(&soft_tissue_core::mesh::io::read_surface(dir.join("sphere.glb")).unwrap())
+        .unwrap()
+        .enclosed_volume;
+    let two = repair(&soft_tissue_core::mesh::io::read_surface(dir.join("spheres.gltf")).unwrap())
+        .unwrap()
+        .enclosed_volume;
+    assert!((two / one - 16.0).abs() < 1e-4, "{two} against {one}");
+    // Broken files: a GLB cut short, a .gltf whose buffer file is missing, a buffer too
+    // short and an index out of range each name the file and what is wrong.
+    use soft_tissue_core::mesh::io::parse_gltf;
+    let glb = std::fs::read(dir.join("sphere.glb")).unwrap();
+    let e = parse_gltf(&glb[..glb.len() - 9], "cut.glb", &mut |_| unreachable!()).unwrap_err();
+    assert!(e.to_string().contains("cut.glb"), "{e}");
+    let gltf = std::fs::read(dir.join("spheres.gltf")).unwrap();
+    let bin = std::fs::read(dir.join("spheres.bin")).unwrap();
+    let e = soft_tissue_core::mesh::io::read_surface(dir.join("missing_buffer.gltf"));
+    assert!(e.is_err());
+    let e = parse_gltf(&gltf, "short.gltf", &mut |_| Ok(bin[..100].to_vec())).unwrap_err();
+    assert!(
+        e.to_string().contains("short.gltf") && e.to_string().contains("buffer 0"),
+        "{e}"
+    );
+    let mut bad = bin.clone();
+    bad[0] = 0xff; // the first 16-bit index: 255 + 256 * its high byte, past the 66 points
+    bad[1] = 0x7f;
+    let e = parse_gltf(&gltf, "index.gltf", &mut |_| Ok(bad.clone())).unwrap_err();
+    assert!(e.to_string().contains("index 0 is 32767"), "{e}");
+    let e = parse_gltf(
+        b"{\"asset\":{\"version\":\"2.0\"}}",
+        "empty.gltf",
+        &mut |_| unreachable!(),
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("no triangles"), "{e}");
+}
+
 /// A meshed surface simulates: in a world with the organ material, the built-in `poke`
 /// raises it to its precise level and, after the withdrawal, it returns to its cage.
 #[test]

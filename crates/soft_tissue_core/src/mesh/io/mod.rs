@@ -7,6 +7,9 @@
 //! | VTK XML unstructured grid (ascii, base64 binary) | `.vtu` | yes | yes |
 //! | TetGen | `.node` + `.ele` | yes | yes |
 //! | Wavefront OBJ surface (visual meshes, cages) | `.obj` | surface only | surface only |
+//! | STL surface (ASCII, binary) | `.stl` | surface only | surface only |
+//! | PLY surface (ASCII, binary either byte order) | `.ply` | surface only | no |
+//! | glTF 2.0 triangle primitives, node transforms applied | `.gltf`, `.glb` | surface only | no |
 //!
 //! Volume files keep their tetrahedra. Second-order tetrahedra are reduced to their corners;
 //! hexahedra, wedges and pyramids are split into tetrahedra conformingly (each quadrilateral
@@ -18,6 +21,7 @@
 //! or element) and the problem; no input makes a reader panic.
 
 mod elements;
+mod gltf;
 mod gmsh;
 mod obj;
 mod ply;
@@ -26,6 +30,7 @@ mod tetgen;
 mod text;
 mod vtk;
 
+pub use gltf::{gltf_external_uris, parse_gltf};
 pub use obj::{SurfaceMesh, parse_obj, write_obj};
 pub use ply::parse_ply;
 pub use stl::{parse_stl, write_stl};
@@ -115,7 +120,7 @@ impl FormatError {
         }
     }
 
-    fn io(file: &Path, source: std::io::Error) -> Self {
+    pub(crate) fn io(file: &Path, source: std::io::Error) -> Self {
         FormatError::Io {
             file: file.display().to_string(),
             source,
@@ -337,9 +342,10 @@ pub fn read_surface(path: impl AsRef<Path>) -> Result<SurfaceMesh, FormatError> 
         Some("obj") => parse_obj(&data, &name),
         Some("stl") => parse_stl(&data, &name),
         Some("ply") => parse_ply(&data, &name),
+        Some("gltf" | "glb") => gltf::read_beside(&data, path),
         _ => Err(FormatError::unsupported(
             &name,
-            "unknown surface extension: expected .obj, .stl or .ply",
+            "unknown surface extension: expected .obj, .stl, .ply, .gltf or .glb",
         )),
     }
 }
