@@ -6,7 +6,7 @@
 //! `cargo test` made; `--release` for the fastest frames after a long build); add
 //! `--large` for the organs at segmentation sizes (`assets/scenes/organs-large.scene.ron`,
 //! 27k tetrahedra, the prefactored corotational model), or `--scene FILE` for any scene;
-//! `--surface FILE` adds your own organ, a closed surface (.obj, .stl, .ply, relative to the
+//! `--surface FILE` adds your own organ, a closed surface (.obj, .stl, .ply, .gltf, .glb, relative to the
 //! assets folder) meshed on load, beside the scene.
 //!
 //! Controls: right mouse drag orbits, shift + wheel zooms; the tool follows the mouse in the

@@ -153,7 +153,8 @@ pub enum SurfaceLoadError {
     },
 }
 
-/// Loads a closed triangle surface (`.obj`, `.stl`, `.ply`) as a soft body's tetrahedral mesh:
+/// Loads a closed triangle surface (`.obj`, `.stl`, `.ply`, or a glTF scene's triangles, `.gltf`
+/// with its buffers or `.glb`) as a soft body's tetrahedral mesh:
 /// it is meshed on load (off the main thread, as loaders run) with the asset's
 /// [`SurfaceLoaderSettings`], and the result is cached on disk. The surface itself is the
 /// labelled sub-asset `Surface` (a Bevy `Mesh`), to draw the body with through
@@ -184,7 +185,9 @@ impl AssetLoader for SurfaceLoader {
         settings: &SurfaceLoaderSettings,
         load_context: &mut LoadContext<'_>,
     ) -> Result<TetMeshAsset, SurfaceLoadError> {
-        use soft_tissue_core::mesh::io::{parse_obj, parse_ply, parse_stl};
+        use soft_tissue_core::mesh::io::{
+            gltf_external_uris, parse_gltf, parse_obj, parse_ply, parse_stl,
+        };
         use soft_tissue_core::mesh::tetrahedralize::{TetrahedralizeOptions, tetrahedralize};
         let path = load_context.path().path().to_path_buf();
         let name = path.display().to_string();
@@ -200,9 +203,36 @@ impl AssetLoader for SurfaceLoader {
             .extension()
             .and_then(|e| e.to_str())
             .map(str::to_ascii_lowercase);
+        // A `.gltf`'s buffers in other files are read through the asset server, beside it;
+        // their bytes join the cache key.
+        let mut external: Vec<(String, Vec<u8>)> = Vec::new();
         let parsed = match ext.as_deref() {
             Some("stl") => parse_stl(&bytes, &name),
             Some("ply") => parse_ply(&bytes, &name),
+            Some("gltf" | "glb") => {
+                let dir = path.parent().map(|p| p.to_path_buf()).unwrap_or_default();
+                for uri in gltf_external_uris(&bytes, &name).map_err(TetMeshLoadError::from)? {
+                    let file = dir.join(&uri);
+                    let data = load_context
+                        .read_asset_bytes(file.clone())
+                        .await
+                        .map_err(|e| TetMeshLoadError::Read {
+                            path: file.display().to_string(),
+                            message: e.to_string(),
+                        })?;
+                    external.push((uri, data));
+                }
+                parse_gltf(&bytes, &name, &mut |uri| {
+                    external
+                        .iter()
+                        .find(|(u, _)| u == uri)
+                        .map(|(_, d)| d.clone())
+                        .ok_or_else(|| FormatError::Unsupported {
+                            file: name.clone(),
+                            message: format!("buffer {uri:?} was not read"),
+                        })
+                })
+            }
             _ => parse_obj(&bytes, &name),
         };
         let mut surface = parsed.map_err(TetMeshLoadError::from)?;
@@ -234,17 +264,14 @@ impl AssetLoader for SurfaceLoader {
         visual.compute_smooth_normals();
         load_context.add_labeled_asset("Surface".to_string(), visual);
 
-        let key = fnv1a(&[
-            &bytes,
-            format!(
-                "{}|{:?}|{}|{}",
-                settings.target_tets,
-                settings.edge_length,
-                settings.min_dihedral_deg,
-                settings.units
-            )
-            .as_bytes(),
-        ]);
+        let mut parts: Vec<&[u8]> = vec![&bytes];
+        parts.extend(external.iter().map(|(_, d)| d.as_slice()));
+        let settings_text = format!(
+            "{}|{:?}|{}|{}",
+            settings.target_tets, settings.edge_length, settings.min_dihedral_deg, settings.units
+        );
+        parts.push(settings_text.as_bytes());
+        let key = fnv1a(&parts);
         let dir = settings
             .cache_dir
             .clone()
@@ -296,7 +323,7 @@ impl AssetLoader for SurfaceLoader {
     }
 
     fn extensions(&self) -> &[&str] {
-        &["obj", "stl", "ply"]
+        &["obj", "stl", "ply", "gltf", "glb"]
     }
 }
 

@@ -48,7 +48,7 @@ pub struct ExampleOptions {
     /// instead of the example's own; `--large` is `scenes/organs-large.scene.ron`.
     pub scene: Option<PathBuf>,
     /// `--surface FILE` (relative to the assets folder): a closed triangle surface (.obj,
-    /// .stl, .ply) meshed on load and added as a body beside the scene, drawn with the
+    /// .stl, .ply, .gltf, .glb) meshed on load and added as a body beside the scene, drawn with the
     /// surface itself.
     pub surface: Option<String>,
 }

@@ -113,9 +113,22 @@ fn scene_assets_keep_mesh_paths_inside_the_assets_folder_unless_allowed() {
 /// the mesh back instead of meshing again.
 #[test]
 fn a_surface_file_becomes_a_body_and_its_mesh_is_cached() {
+    surface_becomes_a_cached_body("meshes/sphere.stl", "stl");
+}
+
+/// The same with a glTF file whose buffer lies in a `.bin` beside it (written by pygltflib,
+/// tests/fixtures/make_surface_fixtures.py), read through the asset server.
+#[test]
+fn a_gltf_surface_with_its_buffer_beside_it_becomes_a_body() {
+    surface_becomes_a_cached_body("meshes/sphere_external.gltf", "gltf");
+}
+
+fn surface_becomes_a_cached_body(file: &str, tag: &str) {
     use bevy_soft_tissue::SurfaceLoaderSettings;
-    let cache =
-        std::env::temp_dir().join(format!("soft-tissue-surface-cache-{}", std::process::id()));
+    let cache = std::env::temp_dir().join(format!(
+        "soft-tissue-surface-cache-{tag}-{}",
+        std::process::id()
+    ));
     std::fs::remove_dir_all(&cache).ok();
     let mut counts = Vec::new();
     for run in 0..2 {
@@ -133,11 +146,11 @@ fn a_surface_file_becomes_a_body_and_its_mesh_is_cached() {
         let mesh: Handle<TetMeshAsset> = server
             .load_builder()
             .with_settings(settings.clone())
-            .load("meshes/sphere.stl");
+            .load(file.to_string());
         let surface: Handle<Mesh> = server
             .load_builder()
             .with_settings(settings)
-            .load("meshes/sphere.stl#Surface");
+            .load(format!("{file}#Surface"));
         let body = app
             .world_mut()
             .spawn((SoftBody::new(mesh.clone()), VisualMesh::mesh(surface)))
