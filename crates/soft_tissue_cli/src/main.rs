@@ -407,7 +407,8 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
          mesh: {} nodes, {} tetrahedra (spacing {:.4}), dihedral {:.1} .. {:.1} deg\n\
          volume {:.6} against {:.6} enclosed ({:+.2} %)\n\
          boundary to surface {:.3e}, surface to boundary {:.3e} ({:.2} % / {:.2} % of the \
-         diagonal {:.4}); {} boundary nodes on the surface\n\
+         diagonal {:.4}); {} boundary nodes projected onto the surface, {} then moved onto \
+         creases and corners\n\
          {:.2} s -> {}",
         surface.positions.len(),
         surface.triangles.len(),
@@ -431,6 +432,7 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
         100.0 * r.surface_to_mesh / r.bbox_diagonal,
         r.bbox_diagonal,
         r.projected_nodes,
+        r.snapped_nodes,
         seconds,
         args.out.display()
     );

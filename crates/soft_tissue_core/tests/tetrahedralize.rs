@@ -148,14 +148,16 @@ fn l_prism(depth: f64) -> SurfaceMesh {
 
 /// Meshes `s` to about `target` tetrahedra and checks the targets against the closed
 /// form `exact`: the mesh's volume within 3 % of the enclosed one and that within 3 % of the
-/// closed form, the mesh's boundary within 1 % of the bounding-box diagonal of the surface
-/// (and the surface within `surface_to_mesh` of the boundary), no dihedral angle below 8
-/// degrees.
+/// closed form, the mesh's boundary within `mesh_to_surface` of the bounding-box diagonal of
+/// the surface and the surface within `surface_to_mesh` of the boundary (both sampled at
+/// vertices, edge midpoints and centroids), no dihedral angle below 8 degrees, the
+/// tetrahedron count within 15 % of the target.
 fn check(
     name: &str,
     s: &SurfaceMesh,
     exact: f64,
     target: usize,
+    mesh_to_surface: f64,
     surface_to_mesh: f64,
 ) -> TetrahedralizeReport {
     let options = TetrahedralizeOptions {
@@ -176,7 +178,7 @@ fn check(
         r.enclosed_volume
     );
     for (what, d, bound) in [
-        ("mesh to surface", r.mesh_to_surface, 0.01),
+        ("mesh to surface", r.mesh_to_surface, mesh_to_surface),
         ("surface to mesh", r.surface_to_mesh, surface_to_mesh),
     ] {
         assert!(
@@ -192,7 +194,7 @@ fn check(
         r.min_dihedral_deg
     );
     assert!(
-        (2 * target / 3..=4 * target / 3).contains(&r.tets),
+        (85 * target / 100..=115 * target / 100).contains(&r.tets),
         "{name}: {} tetrahedra for a target of {target}",
         r.tets
     );
@@ -203,7 +205,14 @@ fn check(
 #[test]
 fn a_sphere_meshes_to_its_volume_and_surface() {
     let r = 0.5;
-    check("sphere", &sphere(r), 4.0 / 3.0 * PI * r.powi(3), 1500, 0.01);
+    check(
+        "sphere",
+        &sphere(r),
+        4.0 / 3.0 * PI * r.powi(3),
+        1500,
+        0.01,
+        0.01,
+    );
 }
 
 #[test]
@@ -217,16 +226,19 @@ fn a_torus_meshes_to_its_volume_and_surface() {
         2.0 * PI * PI * big * small * small,
         3000,
         0.01,
+        0.01,
     );
 }
 
 #[test]
 fn a_non_convex_l_prism_meshes_to_its_volume_and_surface() {
     let depth = 0.6;
-    // Stuffing rounds sharp edges (no feature preservation): the prism's corners stand up
-    // to 4 % of the diagonal off the mesh (0.115 against 2.89 measured), the rest of the
-    // surface within 1 %.
-    let r = check("L prism", &l_prism(depth), 3.0 * depth, 1500, 0.05);
+    // Stuffing rounds sharp edges; the feature fit then pulls boundary nodes onto the
+    // creases and corners where the quality bound allows. Measured: surface to mesh 1.59 %
+    // of the diagonal (4.0 % before the fit), mesh to surface 1.08 % (faces across the
+    // re-entrant crease), the rest of the surface within 1 %.
+    let r = check("L prism", &l_prism(depth), 3.0 * depth, 1500, 0.015, 0.02);
+    assert!(r.snapped_nodes > 0, "nodes moved onto the creases");
     assert!(r.defects.duplicate_vertices > 0, "the rims are welded");
 }
 

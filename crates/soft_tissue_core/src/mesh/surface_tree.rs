@@ -119,10 +119,16 @@ impl<'a> SurfaceTree<'a> {
 
     /// The closest point of the surface to `p` and its distance (`None` without triangles).
     pub fn closest(&self, p: &Vec3) -> Option<(Vec3, f64)> {
+        self.closest_triangle(p).map(|(q, d, _)| (q, d))
+    }
+
+    /// The closest point of the surface to `p`, its distance and the triangle it lies on
+    /// (`None` without triangles).
+    pub fn closest_triangle(&self, p: &Vec3) -> Option<(Vec3, f64, usize)> {
         if self.nodes.is_empty() {
             return None;
         }
-        let mut best = (f64::INFINITY, *p);
+        let mut best = (f64::INFINITY, *p, 0usize);
         let mut stack = vec![0u32];
         while let Some(i) = stack.pop() {
             let node = &self.nodes[i as usize];
@@ -139,7 +145,7 @@ impl<'a> SurfaceTree<'a> {
                         let q = a * w[0] + b * w[1] + c * w[2];
                         let dq = (q - p).norm_squared();
                         if dq < best.0 {
-                            best = (dq, q);
+                            best = (dq, q, t as usize);
                         }
                     }
                 }
@@ -160,7 +166,7 @@ impl<'a> SurfaceTree<'a> {
                 }
             }
         }
-        Some((best.1, best.0.sqrt()))
+        Some((best.1, best.0.sqrt(), best.2))
     }
 
     /// The generalized winding number at `p`: exact over the clusters near `p`, the dipole

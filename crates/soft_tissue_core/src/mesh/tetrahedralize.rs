@@ -14,15 +14,15 @@
 //!    the quality bound ([`coarsen_interior`]), then every boundary node moved onto the
 //!    input surface where the move keeps its tetrahedra above the quality bound.
 //!
-//! The lattice spacing comes from an edge length, or from a tetrahedron count (two passes:
-//! a first guess from the enclosed volume, then corrected by the count it gave).
+//! The lattice spacing comes from an edge length, or from a tetrahedron count (two or three
+//! passes: a first guess from the enclosed volume, then corrected by the counts found).
 //!
 //! The winding number and the distances come from a hierarchy over the triangles
 //! ([`SurfaceTree`]): near triangles exactly, far clusters by their dipole.
 
 use std::collections::HashMap;
 
-use super::generate::{GenerateError, coarsen_interior, stuff_fn};
+use super::generate::{GenerateError, coarsen_interior, stuff_fn_with};
 use super::io::SurfaceMesh;
 use super::surface_tree::SurfaceTree;
 use super::{QualityReport, TetMesh};
@@ -51,8 +51,8 @@ pub struct SurfaceDefects {
 pub struct TetrahedralizeOptions {
     /// Lattice spacing (about the interior edge length), scene units.
     pub edge_length: Option<f64>,
-    /// Tetrahedra wanted (used when no edge length is given; reached within a few tens of
-    /// per cent).
+    /// Tetrahedra wanted (used when no edge length is given): two or three meshing passes
+    /// whose lattice spacing is corrected by the counts found; the nearest is kept.
     pub target_tets: Option<usize>,
     /// Smallest dihedral angle the interior-node removal and the projection onto the surface
     /// keep, degrees (default 8).
@@ -88,14 +88,19 @@ pub struct TetrahedralizeReport {
     pub volume: f64,
     /// Volume the repaired surface encloses (exact for a closed surface).
     pub enclosed_volume: f64,
-    /// Largest distance from a boundary node of the mesh to the input surface.
+    /// Largest distance from the mesh's boundary to the input surface, over its nodes, edge
+    /// midpoints and triangle centroids.
     pub mesh_to_surface: f64,
-    /// Largest distance from an input vertex to the mesh's boundary.
+    /// Largest distance from the input surface to the mesh's boundary, over its vertices,
+    /// edge midpoints and triangle centroids.
     pub surface_to_mesh: f64,
     /// Diagonal of the input surface's bounding box.
     pub bbox_diagonal: f64,
     /// Boundary nodes moved onto the input surface (the rest kept their stuffed place).
     pub projected_nodes: usize,
+    /// Boundary nodes then moved onto a point of the input surface the boundary passed too
+    /// far from (a crease or corner the lattice rounded off).
+    pub snapped_nodes: usize,
 }
 
 /// Why a surface could not be meshed.
@@ -410,7 +415,8 @@ pub fn tetrahedralize(
     }
     let tree = s.tree();
     let mesh_at = |h: f64| -> Result<TetMesh, TetrahedralizeError> {
-        let stuffed = stuff_fn(|p| signed_distance(&tree, p), (lo, hi), h)?;
+        // 16 bisections (h / 65536): the boundary nodes are moved onto the surface after.
+        let stuffed = stuff_fn_with(|p| signed_distance(&tree, p), (lo, hi), h, 16)?;
         Ok(coarsen_interior(&stuffed, min_dihedral).map_err(GenerateError::from)?)
     };
     let (mesh, spacing) = match (options.edge_length, options.target_tets) {
@@ -421,12 +427,33 @@ pub fn tetrahedralize(
             )));
         }
         (None, Some(n)) if n >= 1 => {
-            // About five tetrahedra per lattice cube of the volume after the removal; the
-            // second pass corrects the guess by the count the first gave.
-            let guess = (5.0 * s.enclosed_volume / n as f64).cbrt();
-            let first = mesh_at(guess)?;
-            let h = guess * (first.tet_count() as f64 / n as f64).cbrt();
-            (mesh_at(h)?, h)
+            // About five tetrahedra per lattice cube of the volume after the removal; then
+            // corrected by the counts found. After the interior removal the count grows
+            // between h^-2 (most tetrahedra in the boundary layer) and h^-3, so the second
+            // pass assumes 2.5 and a third, where the second is more than 8 % off, takes
+            // the exponent the first two measured. The pass nearest the target is kept.
+            let want = n as f64;
+            let off = |m: &TetMesh| (m.tet_count().max(1) as f64 / want).ln().abs();
+            let h1 = (5.0 * s.enclosed_volume / want).cbrt();
+            let m1 = mesh_at(h1)?;
+            let n1 = m1.tet_count().max(1) as f64;
+            let h2 = h1 * (n1 / want).powf(1.0 / 2.5);
+            let m2 = mesh_at(h2)?;
+            let n2 = m2.tet_count().max(1) as f64;
+            let mut best = if off(&m2) <= off(&m1) {
+                (m2, h2)
+            } else {
+                (m1, h1)
+            };
+            if (n2 / want - 1.0).abs() > 0.08 && (h1 / h2 - 1.0).abs() > 1e-3 {
+                let p = ((n2 / n1).ln() / (h1 / h2).ln()).clamp(1.5, 3.5);
+                let h3 = h2 * (n2 / want).powf(1.0 / p);
+                let m3 = mesh_at(h3)?;
+                if off(&m3) < off(&best.0) {
+                    best = (m3, h3);
+                }
+            }
+            best
         }
         _ => {
             return Err(TetrahedralizeError::Options(
@@ -435,17 +462,22 @@ pub fn tetrahedralize(
         }
     };
     let (mesh, projected) = project_boundary(mesh, &tree, min_dihedral);
+    let surface_samples = samples(&s.positions, &s.triangles);
+    let (mesh, snapped) = fit_features(
+        mesh,
+        &surface_samples,
+        min_dihedral,
+        FIT_TOLERANCE * extent.norm(),
+    );
     let q: QualityReport = mesh.quality();
     let boundary = SurfaceMesh::boundary_of(&mesh);
     let distance = |t: &SurfaceTree<'_>, p: &Vec3| t.closest(p).map_or(f64::INFINITY, |c| c.1);
-    let mesh_to_surface = boundary
-        .positions
+    let mesh_to_surface = samples(&boundary.positions, &boundary.triangles)
         .iter()
         .map(|p| distance(&tree, p))
         .fold(0.0, f64::max);
     let boundary_tree = SurfaceTree::new(&boundary.positions, &boundary.triangles);
-    let surface_to_mesh = s
-        .positions
+    let surface_to_mesh = surface_samples
         .iter()
         .map(|p| distance(&boundary_tree, p))
         .fold(0.0, f64::max);
@@ -462,8 +494,108 @@ pub fn tetrahedralize(
         surface_to_mesh,
         bbox_diagonal: extent.norm(),
         projected_nodes: projected,
+        snapped_nodes: snapped,
     };
     Ok((mesh, report))
+}
+
+/// How near the boundary must come to every sample of the input surface before the feature
+/// fit stops, as a fraction of the bounding box's diagonal.
+pub const FIT_TOLERANCE: f64 = 0.004;
+
+/// Points of a triangle surface where distances are measured: its vertices, edge midpoints
+/// and centroids.
+fn samples(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
+    let mut out = positions.to_vec();
+    for t in triangles {
+        let [a, b, c] = t.map(|v| positions[v as usize]);
+        // Each edge once: from its smaller vertex index.
+        for (i, j, p, q) in [(t[0], t[1], a, b), (t[1], t[2], b, c), (t[2], t[0], c, a)] {
+            if i < j {
+                out.push((p + q) / 2.0);
+            }
+        }
+        out.push((a + b + c) / 3.0);
+    }
+    out
+}
+
+/// Whether node `v`'s tetrahedra are positive and keep every dihedral angle in
+/// [`min_dihedral`, 180 - `min_dihedral`] at positions `x`.
+fn node_ok(mesh: &TetMesh, x: &[Vec3], v: usize, min_dihedral: f64) -> bool {
+    mesh.node_tets(v).iter().all(|&t| {
+        let p = mesh.tets()[t as usize].map(|i| x[i as usize]);
+        super::tet_signed_volume(&p) > 0.0
+            && super::tet_dihedral_angles(&p)
+                .iter()
+                .all(|&b| b.min(180.0 - b) >= min_dihedral)
+    })
+}
+
+/// Creases and corners the lattice rounded off: each sample of the input surface farther
+/// than `tol` from the boundary, farthest first, pulls the nearest node of the boundary
+/// triangle it is closest to onto itself, where that node's tetrahedra keep the quality
+/// bound; a node moves once. A few rounds, each against the boundary as the last left it.
+/// The moved nodes stay on the input surface. Returns the mesh and the nodes moved.
+fn fit_features(mesh: TetMesh, samples: &[Vec3], min_dihedral: f64, tol: f64) -> (TetMesh, usize) {
+    let mut x = mesh.positions().to_vec();
+    let triangles = mesh.surface().triangles().to_vec();
+    let mut locked = vec![false; x.len()];
+    let mut snapped = 0;
+    for _round in 0..4 {
+        let far: Vec<(f64, usize, usize)> = {
+            let tree = SurfaceTree::new(&x, &triangles);
+            let mut far: Vec<(f64, usize, usize)> = samples
+                .iter()
+                .enumerate()
+                .filter_map(|(i, q)| {
+                    let (_, d, t) = tree.closest_triangle(q)?;
+                    (d > tol).then_some((d, i, t))
+                })
+                .collect();
+            far.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+            far
+        };
+        let mut moved = 0;
+        for (_, i, t) in far {
+            let q = samples[i];
+            let corners = triangles[t].map(|n| x[n as usize]);
+            let w = crate::geometry::closest_on_triangle(&q, &corners[0], &corners[1], &corners[2]);
+            let c = corners[0] * w[0] + corners[1] * w[1] + corners[2] * w[2];
+            if (c - q).norm() <= tol {
+                continue; // an earlier move brought the boundary near enough
+            }
+            let mut nodes = triangles[t].map(|n| n as usize);
+            nodes.sort_by(|&a, &b| {
+                (x[a] - q)
+                    .norm_squared()
+                    .total_cmp(&(x[b] - q).norm_squared())
+                    .then(a.cmp(&b))
+            });
+            for n in nodes {
+                if locked[n] {
+                    continue;
+                }
+                let old = x[n];
+                x[n] = q;
+                if node_ok(&mesh, &x, n, min_dihedral) {
+                    locked[n] = true;
+                    moved += 1;
+                    break;
+                }
+                x[n] = old;
+            }
+        }
+        snapped += moved;
+        if moved == 0 {
+            break;
+        }
+    }
+    let tets = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
+    match TetMesh::new(x, tets) {
+        Ok(m) => (m, snapped),
+        Err(_) => (mesh, 0),
+    }
 }
 
 /// Moves every boundary node onto the surface where its tetrahedra stay positive and above
@@ -476,13 +608,7 @@ fn project_boundary(mesh: TetMesh, tree: &SurfaceTree<'_>, min_dihedral: f64) ->
         let v = v as usize;
         let old = x[v];
         x[v] = tree.closest(&old).map_or(old, |c| c.0);
-        let ok = mesh.node_tets(v).iter().all(|&t| {
-            let p = tets[t as usize].map(|i| x[i as usize]);
-            super::tet_signed_volume(&p) > 0.0
-                && super::tet_dihedral_angles(&p)
-                    .iter()
-                    .all(|&b| b.min(180.0 - b) >= min_dihedral)
-        });
+        let ok = node_ok(&mesh, &x, v, min_dihedral);
         if ok {
             moved += 1;
         } else {
