@@ -408,7 +408,7 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
          volume {:.6} against {:.6} enclosed ({:+.2} %)\n\
          boundary to surface {:.3e}, surface to boundary {:.3e} ({:.2} % / {:.2} % of the \
          diagonal {:.4}); {} boundary nodes projected onto the surface, {} then moved onto \
-         creases and corners\n\
+         creases and corners, {} boundary edges split\n\
          {:.2} s -> {}",
         surface.positions.len(),
         surface.triangles.len(),
@@ -433,6 +433,7 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
         r.bbox_diagonal,
         r.projected_nodes,
         r.snapped_nodes,
+        r.split_edges,
         seconds,
         args.out.display()
     );

@@ -101,6 +101,9 @@ pub struct TetrahedralizeReport {
     /// Boundary nodes then moved onto a point of the input surface the boundary passed too
     /// far from (a crease or corner the lattice rounded off).
     pub snapped_nodes: usize,
+    /// Boundary edges then split, their new node on the input surface (where a boundary
+    /// triangle spanned a curve or a crease too coarsely).
+    pub split_edges: usize,
 }
 
 /// Why a surface could not be meshed.
@@ -469,6 +472,13 @@ pub fn tetrahedralize(
         min_dihedral,
         FIT_TOLERANCE * extent.norm(),
     );
+    let (mesh, split) = split_boundary_edges(
+        mesh,
+        &tree,
+        &surface_samples,
+        min_dihedral,
+        FIT_TOLERANCE * extent.norm(),
+    );
     let q: QualityReport = mesh.quality();
     let boundary = SurfaceMesh::boundary_of(&mesh);
     let distance = |t: &SurfaceTree<'_>, p: &Vec3| t.closest(p).map_or(f64::INFINITY, |c| c.1);
@@ -495,6 +505,7 @@ pub fn tetrahedralize(
         bbox_diagonal: extent.norm(),
         projected_nodes: projected,
         snapped_nodes: snapped,
+        split_edges: split,
     };
     Ok((mesh, report))
 }
@@ -596,6 +607,168 @@ fn fit_features(mesh: TetMesh, samples: &[Vec3], min_dihedral: f64, tol: f64) ->
         Ok(m) => (m, snapped),
         Err(_) => (mesh, 0),
     }
+}
+
+/// Where the boundary still passes farther than `tol` from the surface, or the surface from
+/// it, after the node moves: the boundary edge involved is split (every tetrahedron around
+/// it bisected) and the new node put on the input surface, where all the new tetrahedra
+/// keep the quality bound. Candidates are boundary edges whose midpoint is far from the
+/// surface (the node goes to the midpoint's closest surface point), the longest edge of a
+/// boundary triangle whose centroid is far (the same), and surface samples far
+/// from the boundary (the nearest edge of the boundary triangle closest to the sample is
+/// split, its node on the sample). Farthest first, edges sharing no tetrahedron within a
+/// round, three rounds. Returns the mesh and the edges split.
+fn split_boundary_edges(
+    mesh: TetMesh,
+    tree: &SurfaceTree<'_>,
+    samples: &[Vec3],
+    min_dihedral: f64,
+    tol: f64,
+) -> (TetMesh, usize) {
+    let mut x: Vec<Vec3> = mesh.positions().to_vec();
+    let mut tets: Vec<[usize; 4]> = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
+    let mut node_tets: Vec<Vec<usize>> = vec![Vec::new(); x.len()];
+    for (k, t) in tets.iter().enumerate() {
+        for &v in t {
+            node_tets[v].push(k);
+        }
+    }
+    let good = |p: &[Vec3; 4]| {
+        super::tet_signed_volume(p) > 0.0
+            && super::tet_dihedral_angles(p)
+                .iter()
+                .all(|&b| b.min(180.0 - b) >= min_dihedral)
+    };
+    let mut current = mesh;
+    let mut split = 0;
+    for _round in 0..3 {
+        let triangles: Vec<[usize; 3]> = current
+            .surface()
+            .triangles()
+            .iter()
+            .map(|t| t.map(|v| v as usize))
+            .collect();
+        let mut candidates: Vec<(f64, (usize, usize), Vec3)> = Vec::new();
+        let mut seen = std::collections::HashSet::new();
+        for t in &triangles {
+            for e in 0..3 {
+                let (a, b) = (t[e].min(t[(e + 1) % 3]), t[e].max(t[(e + 1) % 3]));
+                if !seen.insert((a, b)) {
+                    continue;
+                }
+                let mid = (x[a] + x[b]) / 2.0;
+                if let Some((q, d)) = tree.closest(&mid)
+                    && d > tol
+                {
+                    candidates.push((d, (a, b), q));
+                }
+            }
+        }
+        // A boundary triangle whose centroid is far: its longest edge.
+        for t in &triangles {
+            let c = (x[t[0]] + x[t[1]] + x[t[2]]) / 3.0;
+            if tree.closest(&c).is_none_or(|(_, d)| d <= tol) {
+                continue;
+            }
+            let (a, b) = (0..3)
+                .map(|e| (t[e].min(t[(e + 1) % 3]), t[e].max(t[(e + 1) % 3])))
+                .max_by(|&(a, b), &(c2, d2)| {
+                    (x[a] - x[b])
+                        .norm_squared()
+                        .total_cmp(&(x[c2] - x[d2]).norm_squared())
+                })
+                .unwrap_or((t[0].min(t[1]), t[0].max(t[1])));
+            if let Some((q, d)) = tree.closest(&((x[a] + x[b]) / 2.0)) {
+                candidates.push((d.max(tol), (a, b), q));
+            }
+        }
+        {
+            let tri32: Vec<[u32; 3]> = triangles.iter().map(|t| t.map(|v| v as u32)).collect();
+            let boundary = SurfaceTree::new(&x, &tri32);
+            for q in samples {
+                let Some((_, d, k)) = boundary.closest_triangle(q) else {
+                    continue;
+                };
+                if d <= tol {
+                    continue;
+                }
+                let t = triangles[k];
+                let edge = (0..3)
+                    .map(|e| (t[e].min(t[(e + 1) % 3]), t[e].max(t[(e + 1) % 3])))
+                    .min_by(|&(a, b), &(c, d2)| {
+                        ((x[a] + x[b]) / 2.0 - q)
+                            .norm_squared()
+                            .total_cmp(&((x[c] + x[d2]) / 2.0 - q).norm_squared())
+                    })
+                    .unwrap_or((t[0].min(t[1]), t[0].max(t[1])));
+                candidates.push((d, edge, *q));
+            }
+        }
+        candidates.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        let mut touched = vec![false; x.len()];
+        let mut done = 0;
+        for (_, (a, b), q) in candidates {
+            if touched[a] || touched[b] {
+                continue;
+            }
+            let ring: Vec<usize> = node_tets[a]
+                .iter()
+                .copied()
+                .filter(|&k| tets[k].contains(&b))
+                .collect();
+            if ring.is_empty() {
+                continue;
+            }
+            let m = x.len();
+            x.push(q);
+            let halves: Vec<([usize; 4], [usize; 4])> = ring
+                .iter()
+                .map(|&k| {
+                    let t = tets[k];
+                    (
+                        t.map(|v| if v == a { m } else { v }),
+                        t.map(|v| if v == b { m } else { v }),
+                    )
+                })
+                .collect();
+            let ok = halves
+                .iter()
+                .all(|(h1, h2)| good(&h1.map(|v| x[v])) && good(&h2.map(|v| x[v])));
+            if !ok {
+                x.pop();
+                continue;
+            }
+            node_tets.push(Vec::new());
+            touched.push(true);
+            for (&k, (h1, h2)) in ring.iter().zip(&halves) {
+                for &v in &tets[k] {
+                    touched[v] = true;
+                }
+                // k keeps the half without a; the half without b is new.
+                tets[k] = *h1;
+                node_tets[a].retain(|&j| j != k);
+                node_tets[m].push(k);
+                let j = tets.len();
+                tets.push(*h2);
+                for &v in h2 {
+                    node_tets[v].push(j);
+                }
+            }
+            done += 1;
+        }
+        if done == 0 {
+            break;
+        }
+        match TetMesh::new(x.clone(), tets.clone()) {
+            Ok(next) => {
+                current = next;
+                split += done;
+            }
+            // Not expected (every new tetrahedron was checked); the last good mesh is kept.
+            Err(_) => break,
+        }
+    }
+    (current, split)
 }
 
 /// Moves every boundary node onto the surface where its tetrahedra stay positive and above
