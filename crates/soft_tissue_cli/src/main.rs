@@ -404,8 +404,9 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
         "{name}: {} vertices, {} triangles\n\
          repaired: {} duplicate vertices welded, {} unused vertices and {} degenerate triangles \
          dropped, {} triangles turned; {} boundary edges (holes), {} non-manifold edges\n\
-         mesh: {} nodes, {} tetrahedra (spacing {:.4}), dihedral {:.1} .. {:.1} deg\n\
-         volume {:.6} against {:.6} enclosed ({:+.2} %)\n\
+         mesh: {} nodes, {} tetrahedra ({}, spacing {:.4}), dihedral {:.1} .. {:.1} deg\n\
+         volume {:.6} against {:.6} enclosed ({:+.2} %; {:+.2} % before the boundary nodes \
+         moved out to restore what the chords lost)\n\
          boundary to surface {:.3e}, surface to boundary {:.3e} ({:.2} % / {:.2} % of the \
          diagonal {:.4}); {} boundary nodes projected onto the surface, {} then moved onto \
          creases and corners, {} boundary edges split\n\
@@ -420,12 +421,18 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
         d.non_manifold_edges,
         r.nodes,
         r.tets,
+        if r.graded {
+            "graded: meshed finer, the boundary coarsened where the surface is flat"
+        } else {
+            "uniform"
+        },
         r.spacing,
         r.min_dihedral_deg,
         r.max_dihedral_deg,
         r.volume,
         r.enclosed_volume,
         100.0 * (r.volume / r.enclosed_volume - 1.0),
+        100.0 * (r.chord_volume / r.enclosed_volume - 1.0),
         r.mesh_to_surface,
         r.surface_to_mesh,
         100.0 * r.mesh_to_surface / r.bbox_diagonal,

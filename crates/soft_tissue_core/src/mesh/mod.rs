@@ -8,6 +8,7 @@
 //! tetrahedra; surface data stored in files is ignored.
 
 mod coarsen;
+mod coarsen_boundary;
 pub mod embed;
 pub mod generate;
 pub mod io;
