@@ -502,33 +502,40 @@ pub fn tetrahedralize(
         && done.worst() > 2.0 * GRADED_TOLERANCE * diagonal
         && factor >= 1.2
     {
-        let fine = mesh_at(spacing / factor)?;
-        let (fine, projected) = project_boundary(fine, &tree, min_dihedral);
-        let (fine, snapped) = fit_features(fine, &surface_samples, min_dihedral, tol);
-        // First within the tolerance; while the count stays a fifth over the target, again
-        // within up to twice it.
-        use super::coarsen_boundary::{BoundaryCoarsening, coarsen_boundary};
-        let mut settings = BoundaryCoarsening {
-            min_dihedral_deg: min_dihedral,
-            tolerance: GRADED_TOLERANCE * diagonal,
-            target_tets: n,
-            levels: &[0.25, 0.5, 1.0],
+        // The graded mesh is an improvement on the uniform one: should any step of it fail
+        // (a lattice too large, a mesh the coarsening left invalid), the uniform one stays.
+        let graded = || -> Option<(TetMesh, usize, usize)> {
+            let fine = mesh_at(spacing / factor).ok()?;
+            let (fine, projected) = project_boundary(fine, &tree, min_dihedral);
+            let (fine, snapped) = fit_features(fine, &surface_samples, min_dihedral, tol);
+            // First within the tolerance; while the count stays a fifth over the target,
+            // again within up to twice it.
+            use super::coarsen_boundary::{BoundaryCoarsening, coarsen_boundary};
+            let mut settings = BoundaryCoarsening {
+                min_dihedral_deg: min_dihedral,
+                tolerance: GRADED_TOLERANCE * diagonal,
+                target_tets: n,
+                levels: &[0.25, 0.5, 1.0],
+            };
+            let mut coarse = coarsen_boundary(&fine, &tree, &settings).ok()?;
+            if coarse.tet_count() as f64 > 1.2 * n as f64 {
+                settings.levels = &[1.5, 2.0];
+                coarse = coarsen_boundary(&coarse, &tree, &settings).ok()?;
+            }
+            Some((coarse, projected, snapped))
         };
-        let mut coarse = coarsen_boundary(&fine, &tree, &settings).map_err(GenerateError::from)?;
-        if coarse.tet_count() as f64 > 1.2 * n as f64 {
-            settings.levels = &[1.5, 2.0];
-            coarse = coarsen_boundary(&coarse, &tree, &settings).map_err(GenerateError::from)?;
-        }
-        let graded = Finished::split_and_measure(coarse, &goal, projected, snapped);
-        // Kept when nearer the surface and within a third of the target.
-        let count_ok = |m: &TetMesh| {
-            let r = m.tet_count() as f64 / n as f64;
-            (2.0 / 3.0..=4.0 / 3.0).contains(&r)
-        };
-        if count_ok(&graded.mesh) && graded.worst() < done.worst() {
-            done = graded;
-            was_graded = true;
-            spacing /= factor;
+        if let Some((coarse, projected, snapped)) = graded() {
+            let graded = Finished::split_and_measure(coarse, &goal, projected, snapped);
+            // Kept when nearer the surface and within a third of the target.
+            let count_ok = |m: &TetMesh| {
+                let r = m.tet_count() as f64 / n as f64;
+                (2.0 / 3.0..=4.0 / 3.0).contains(&r)
+            };
+            if count_ok(&graded.mesh) && graded.worst() < done.worst() {
+                done = graded;
+                was_graded = true;
+                spacing /= factor;
+            }
         }
     }
     let Finished {
