@@ -403,7 +403,8 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
     println!(
         "{name}: {} vertices, {} triangles\n\
          repaired: {} duplicate vertices welded, {} unused vertices and {} degenerate triangles \
-         dropped, {} triangles turned; {} boundary edges (holes), {} non-manifold edges\n\
+         dropped, {} triangles turned; {} boundary edges (holes), {} non-manifold edges; {} small \
+         separate pieces dropped\n\
          mesh: {} nodes, {} tetrahedra ({}, spacing {:.4}), dihedral {:.1} .. {:.1} deg\n\
          volume {:.6} against {:.6} enclosed ({:+.2} %; {:+.2} % before the boundary nodes \
          moved out to restore what the chords lost)\n\
@@ -419,6 +420,7 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
         d.flipped_triangles,
         d.boundary_edges,
         d.non_manifold_edges,
+        d.specks_dropped,
         r.nodes,
         r.tets,
         if r.graded {

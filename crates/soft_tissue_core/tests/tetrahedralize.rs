@@ -290,12 +290,28 @@ fn duplicated_vertices_flipped_triangles_and_a_small_hole_still_mesh() {
     }
     s.triangles.remove(100);
     s.positions.push(Vec3::new(5.0, 5.0, 5.0));
+    // A speck floating beside it (a tetrahedron 0.01 across, 0.4 away), as segmentations
+    // leave: dropped, not meshed, not counted against the distances.
+    let b = s.positions.len() as u32;
+    for p in [
+        [0.9, 0.0, 0.0],
+        [0.91, 0.0, 0.0],
+        [0.9, 0.01, 0.0],
+        [0.9, 0.0, 0.01],
+    ] {
+        s.positions.push(Vec3::new(p[0], p[1], p[2]));
+    }
+    for t in [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] {
+        s.triangles.push(t.map(|v: u32| b + v));
+    }
     let fixed = repair(&s).unwrap();
     assert_eq!(fixed.defects.duplicate_vertices, 48);
     assert_eq!(fixed.defects.unused_vertices, 1);
     assert_eq!(fixed.defects.boundary_edges, 3);
     assert!(fixed.defects.flipped_triangles > 0);
+    assert_eq!(fixed.defects.specks_dropped, 1);
     let (_, r) = tetrahedralize(&s, &TetrahedralizeOptions::default()).unwrap();
+    assert!(r.surface_to_mesh < 0.01 * r.bbox_diagonal, "{r:?}");
     let (_, clean_r) = tetrahedralize(&clean, &TetrahedralizeOptions::default()).unwrap();
     assert!(
         (r.volume - clean_r.volume).abs() <= 0.03 * clean_r.volume,
