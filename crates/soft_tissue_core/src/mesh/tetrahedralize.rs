@@ -10,7 +10,7 @@
 //!    inside a closed surface and zero outside, and still near those values where the
 //!    surface has small holes. The field the mesher reads is the distance to the surface,
 //!    negative where the winding number exceeds one half.
-//! 3. **Isosurface stuffing** of that field ([`stuff_fn`]), the interior-node removal within
+//! 3. **Isosurface stuffing** of that field ([`stuff_fn_with`]), the interior-node removal within
 //!    the quality bound ([`coarsen_interior`]), then every boundary node moved onto the
 //!    input surface where the move keeps its tetrahedra above the quality bound.
 //!
