@@ -423,6 +423,17 @@ fn the_surface_tree_agrees_with_the_sums_over_every_triangle() {
     eprintln!("largest winding-number difference {worst:.2e}");
 }
 
+/// A point written as a JSON array of three numbers.
+fn json_point(p: &serde_json::Value) -> Vec3 {
+    let c: Vec<f64> = p
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    Vec3::new(c[0], c[1], c[2])
+}
+
 /// The surface readers against files meshio wrote (tests/fixtures/make_surface_fixtures.py):
 /// ASCII and binary STL and PLY, and OBJ give, once welded, the reference's points and triangles
 /// (binary STL to float precision), and the binary STL meshes.
@@ -435,15 +446,7 @@ fn surface_files_written_by_meshio_read_back_as_the_reference() {
         .as_array()
         .unwrap()
         .iter()
-        .map(|p| {
-            let c: Vec<f64> = p
-                .as_array()
-                .unwrap()
-                .iter()
-                .map(|v| v.as_f64().unwrap())
-                .collect();
-            Vec3::new(c[0], c[1], c[2])
-        })
+        .map(json_point)
         .collect();
     let triangles: Vec<[usize; 3]> = reference["triangles"]
         .as_array()
@@ -518,20 +521,7 @@ fn gltf_files_written_by_trimesh_and_pygltflib_read_back_placed() {
             .unwrap()
             .iter()
             .map(|t| {
-                let p: Vec<Vec3> = t
-                    .as_array()
-                    .unwrap()
-                    .iter()
-                    .map(|q| {
-                        let c: Vec<f64> = q
-                            .as_array()
-                            .unwrap()
-                            .iter()
-                            .map(|v| v.as_f64().unwrap())
-                            .collect();
-                        Vec3::new(c[0], c[1], c[2])
-                    })
-                    .collect();
+                let p: Vec<Vec3> = t.as_array().unwrap().iter().map(json_point).collect();
                 [p[0], p[1], p[2]]
             })
             .collect()

@@ -90,6 +90,16 @@ pub fn coarsen_interior(mesh: &TetMesh, min_dihedral_deg: f64) -> Result<TetMesh
             break;
         }
     }
+    compact(pos, &tets, &alive)
+}
+
+/// The live tetrahedra (`alive`) as a mesh, with the nodes they use renumbered in order of
+/// first use.
+pub(super) fn compact(
+    pos: &[Vec3],
+    tets: &[[usize; 4]],
+    alive: &[bool],
+) -> Result<TetMesh, MeshError> {
     let mut map = vec![usize::MAX; pos.len()];
     let mut positions = Vec::new();
     let mut out = Vec::new();

@@ -247,21 +247,6 @@ pub(crate) fn coarsen_boundary(
             }
         }
     }
-    let mut map = vec![usize::MAX; pos.len()];
-    let mut positions = Vec::new();
-    let mut out = Vec::new();
-    for (t, tet) in work.tets.iter().enumerate() {
-        if !work.alive[t] {
-            continue;
-        }
-        out.push(tet.map(|v| {
-            if map[v] == usize::MAX {
-                map[v] = positions.len();
-                positions.push(pos[v]);
-            }
-            map[v]
-        }));
-    }
-    let coarse = TetMesh::new(positions, out)?;
+    let coarse = super::coarsen::compact(pos, &work.tets, &work.alive)?;
     super::coarsen::coarsen_interior(&coarse, options.min_dihedral_deg)
 }
