@@ -862,7 +862,8 @@ fn fit_features(mesh: TetMesh, samples: &[Vec3], min_dihedral: f64, tol: f64) ->
 /// Where the boundary still passes farther than `tol` from the surface, or the surface from
 /// it, after the node moves: the boundary edge involved is split (every tetrahedron around
 /// it bisected) and the new node put on the input surface, where all the new tetrahedra
-/// keep the quality bound. Candidates are boundary edges whose midpoint is far from the
+/// keep the quality bound (else three quarters or half of the way there from the edge's
+/// midpoint). Candidates are boundary edges whose midpoint is far from the
 /// surface (the node goes to the midpoint's closest surface point), the longest edge of a
 /// boundary triangle whose centroid is far (the same), and surface samples far
 /// from the boundary (the nearest edge of the boundary triangle closest to the sample is
@@ -981,9 +982,16 @@ fn split_boundary_edges(
                     )
                 })
                 .collect();
-            let ok = halves
-                .iter()
-                .all(|(h1, h2)| good(&h1.map(|v| x[v])) && good(&h2.map(|v| x[v])));
+            // All the way to the surface point, else three quarters or half of the way
+            // from the edge's midpoint (a sharp rim: the gap shrinks, the node stays that
+            // near the surface).
+            let mid = (x[a] + x[b]) / 2.0;
+            let ok = [1.0, 0.75, 0.5].into_iter().any(|f| {
+                x[m] = mid + (q - mid) * f;
+                halves
+                    .iter()
+                    .all(|(h1, h2)| good(&h1.map(|v| x[v])) && good(&h2.map(|v| x[v])))
+            });
             if !ok {
                 x.pop();
                 continue;
