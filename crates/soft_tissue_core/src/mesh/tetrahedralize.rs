@@ -588,8 +588,8 @@ pub fn tetrahedralize(
             let fine = mesh_at(spacing / factor).ok()?;
             let (fine, projected) = project_boundary(fine, &tree, min_dihedral);
             let (fine, snapped) = fit_features(fine, &surface_samples, min_dihedral, tol);
-            // First within the tolerance; while the count stays a fifth over the target,
-            // again within up to twice it.
+            // First within the tolerance; while the count stays a tenth over the target,
+            // again within up to twice it, then, a fifth over, three times.
             use super::coarsen_boundary::{BoundaryCoarsening, coarsen_boundary};
             let mut settings = BoundaryCoarsening {
                 min_dihedral_deg: min_dihedral,
@@ -598,8 +598,14 @@ pub fn tetrahedralize(
                 levels: &[0.25, 0.5, 1.0],
             };
             let mut coarse = coarsen_boundary(&fine, &tree, &settings).ok()?;
-            if coarse.tet_count() as f64 > 1.2 * n as f64 {
+            if coarse.tet_count() as f64 > 1.1 * n as f64 {
                 settings.levels = &[1.5, 2.0];
+                coarse = coarsen_boundary(&coarse, &tree, &settings).ok()?;
+            }
+            // A surface too detailed for the count: the count first (within 1.5 % of the
+            // diagonal), since the splits below add tetrahedra.
+            if coarse.tet_count() as f64 > 1.2 * n as f64 {
+                settings.levels = &[2.5, 3.0];
                 coarse = coarsen_boundary(&coarse, &tree, &settings).ok()?;
             }
             Some((coarse, projected, snapped))
