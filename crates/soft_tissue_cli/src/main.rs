@@ -175,15 +175,15 @@ enum MeshCommand {
     /// Generate the paper's cylinder or organ-like meshes with the built-in mesher and write
     /// them as legacy VTK files (NAME.vtk) into DIR. Same command, same bytes.
     Generate(GenerateArgs),
-    /// Mesh the inside of a closed triangle surface (.obj, .stl, .ply) into tetrahedra; the output format
-    /// follows OUT's extension. Prints what it repaired and how near the mesh is to the
+    /// Mesh the inside of a closed triangle surface (.obj, .stl, .ply, .gltf, .glb) into
+    /// tetrahedra; the output format follows OUT's extension. Prints what it repaired and how near the mesh is to the
     /// surface (`--json` for one JSON object).
     Tetrahedralize(TetrahedralizeArgs),
 }
 
 #[derive(Args)]
 struct TetrahedralizeArgs {
-    /// The surface (.obj, .stl or .ply, ASCII or binary).
+    /// The surface (.obj, .stl, .ply, .gltf or .glb; ASCII or binary).
     input: PathBuf,
     /// The tetrahedral mesh to write (.msh, .vtk, .vtu, .node).
     #[arg(long)]
