@@ -24,14 +24,7 @@ pub fn coarsen_interior(mesh: &TetMesh, min_dihedral_deg: f64) -> Result<TetMesh
     let boundary: Vec<bool> = (0..pos.len())
         .map(|v| mesh.surface().surface_index(v).is_some())
         .collect();
-    let quality = |p: &[Vec3; 4]| -> f64 {
-        if super::tet_signed_volume(p) <= 0.0 {
-            return -1.0;
-        }
-        super::tet_dihedral_angles(p)
-            .iter()
-            .fold(f64::INFINITY, |a, &b| a.min(b.min(180.0 - b)))
-    };
+    let quality = super::quality::tet_quality_deg;
     let mut removed = vec![false; pos.len()];
     for _pass in 0..3 {
         let mut changed = false;

@@ -4,6 +4,7 @@
 //! keeps its tetrahedra where the surface curves (rims, creases, folds) and spends few where
 //! it does not: a graded boundary from a uniform lattice.
 
+use super::quality::tet_quality_deg as quality;
 use super::surface_tree::SurfaceTree;
 use super::{MeshError, TetMesh};
 use crate::Vec3;
@@ -21,15 +22,6 @@ pub(crate) struct BoundaryCoarsening {
     pub target_tets: usize,
     /// Passes of growing tolerance, as multiples of `tolerance`.
     pub levels: &'static [f64],
-}
-
-fn quality(p: &[Vec3; 4]) -> f64 {
-    if super::tet_signed_volume(p) <= 0.0 {
-        return -1.0;
-    }
-    super::tet_dihedral_angles(p)
-        .iter()
-        .fold(f64::INFINITY, |a, &b| a.min(b.min(180.0 - b)))
 }
 
 fn point_triangle(p: &Vec3, t: &[Vec3; 3]) -> f64 {

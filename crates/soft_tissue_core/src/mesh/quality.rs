@@ -81,6 +81,24 @@ pub fn tet_dihedral_angles(p: &[Vec3; 4]) -> [f64; 6] {
     })
 }
 
+/// The quality the mesher's bound is checked against, degrees: the smallest of `min(b, 180 - b)`
+/// over the dihedral angles `b` of a positive tetrahedron, or -1 for a flat, inverted or
+/// non-finite one.
+pub(crate) fn tet_quality_deg(p: &[Vec3; 4]) -> f64 {
+    let volume = super::tet_signed_volume(p);
+    if volume.is_nan() || volume <= 0.0 {
+        return -1.0;
+    }
+    let mut q = f64::INFINITY;
+    for b in tet_dihedral_angles(p) {
+        if !b.is_finite() {
+            return -1.0;
+        }
+        q = q.min(b.min(180.0 - b));
+    }
+    q
+}
+
 /// Radius ratio `3 r_in / r_circ` of a tetrahedron (1 regular, 0 flat).
 pub fn tet_radius_ratio(p: &[Vec3; 4]) -> f64 {
     let m = tet_measures(p);

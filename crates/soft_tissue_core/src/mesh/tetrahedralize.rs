@@ -24,6 +24,7 @@ use std::collections::HashMap;
 
 use super::generate::{GenerateError, coarsen_interior, stuff_fn_with};
 use super::io::SurfaceMesh;
+use super::quality::tet_quality_deg;
 use super::surface_tree::SurfaceTree;
 use super::{QualityReport, TetMesh};
 use crate::Vec3;
@@ -560,18 +561,19 @@ pub fn tetrahedralize(
         tol,
         enclosed_volume: s.enclosed_volume,
     };
-    // Projection, crease fit, edge splits and the volume the chords lost, then the distances
-    // both ways.
-    let finish = |mesh: TetMesh| -> Finished {
+    // Projection and crease fit; then (in `Finished`) edge splits, the volume the chords
+    // lost and the distances both ways.
+    let onto_surface = |mesh: TetMesh| -> (TetMesh, usize, usize) {
         let (mesh, projected) = project_boundary(mesh, &tree, min_dihedral);
         let (mesh, snapped) = fit_features(mesh, &surface_samples, min_dihedral, tol);
-        Finished::split_and_measure(mesh, &goal, projected, snapped)
+        (mesh, projected, snapped)
     };
-    let mut done = finish(mesh);
+    let (mesh, projected, snapped) = onto_surface(mesh);
+    let mut done = Finished::split_and_measure(mesh, &goal, projected, snapped);
     let mut was_graded = false;
     // Graded: where the uniform lattice leaves the boundary more than 1 % of the diagonal
-    // off the surface (or the surface off it), mesh finer, fit that, coarsen its boundary where the surface is flat
-    // down to the target, and keep the nearer of the two.
+    // off the surface (or the surface off it), mesh finer, fit that, coarsen its boundary
+    // where the surface is flat down to the target, and keep the nearer of the two.
     // The fine mesh has about factor^2.5 times the tetrahedra (most in the boundary layer):
     // at most 2.5 times finer, and at most about 25k tetrahedra, so that large targets stay
     // fast; below 1.2 times finer there is nothing to gain.
@@ -585,9 +587,7 @@ pub fn tetrahedralize(
         // The graded mesh is an improvement on the uniform one: should any step of it fail
         // (a lattice too large, a mesh the coarsening left invalid), the uniform one stays.
         let graded = || -> Option<(TetMesh, usize, usize)> {
-            let fine = mesh_at(spacing / factor).ok()?;
-            let (fine, projected) = project_boundary(fine, &tree, min_dihedral);
-            let (fine, snapped) = fit_features(fine, &surface_samples, min_dihedral, tol);
+            let (fine, projected, snapped) = onto_surface(mesh_at(spacing / factor).ok()?);
             // First within the tolerance; while the count stays a tenth over the target,
             // again within up to twice it, then, a fifth over, three times.
             use super::coarsen_boundary::{BoundaryCoarsening, coarsen_boundary};
@@ -792,10 +792,7 @@ fn samples(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
 fn node_ok(mesh: &TetMesh, x: &[Vec3], v: usize, min_dihedral: f64) -> bool {
     mesh.node_tets(v).iter().all(|&t| {
         let p = mesh.tets()[t as usize].map(|i| x[i as usize]);
-        super::tet_signed_volume(&p) > 0.0
-            && super::tet_dihedral_angles(&p)
-                .iter()
-                .all(|&b| b.min(180.0 - b) >= min_dihedral)
+        tet_quality_deg(&p) >= min_dihedral
     })
 }
 
@@ -890,12 +887,7 @@ fn split_boundary_edges(
             node_tets[v].push(k);
         }
     }
-    let good = |p: &[Vec3; 4]| {
-        super::tet_signed_volume(p) > 0.0
-            && super::tet_dihedral_angles(p)
-                .iter()
-                .all(|&b| b.min(180.0 - b) >= min_dihedral)
-    };
+    let good = |p: &[Vec3; 4]| tet_quality_deg(p) >= min_dihedral;
     let mut current = mesh;
     let mut split = 0;
     for _round in 0..3 {
