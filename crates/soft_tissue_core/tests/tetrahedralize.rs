@@ -256,6 +256,23 @@ fn a_thin_lens_meshes_graded_to_its_volume_and_surface() {
     assert!(r.graded, "the lens needs the graded mesh: {r:?}");
 }
 
+/// A knife-edged lens (1 x 0.6 x 0.08: its rim's radius of curvature, c^2 / a, is 0.27 % of
+/// the diagonal): the rim is reached only where interior nodes move to make room for the
+/// boundary's new nodes; held to 1 % both ways and 3 % of volume.
+#[test]
+fn a_knife_edged_lens_meshes_to_its_volume_and_surface() {
+    let (a, b, c) = (1.0, 0.6, 0.08);
+    let r = check(
+        "knife lens",
+        &ellipsoid(a, b, c),
+        4.0 / 3.0 * PI * a * b * c,
+        1500,
+        0.01,
+        0.01,
+    );
+    assert!(r.graded, "the knife lens needs the graded mesh: {r:?}");
+}
+
 #[test]
 fn a_non_convex_l_prism_meshes_to_its_volume_and_surface() {
     let depth = 0.6;
@@ -607,7 +624,7 @@ fn a_meshed_surface_rises_under_a_poke_and_returns_to_its_cage() {
 #[test]
 fn a_graded_mesh_rises_under_a_poke_and_returns_to_its_cage() {
     let (mesh, r) = tetrahedralize(
-        &ellipsoid(1.0, 0.6, 0.12),
+        &ellipsoid(1.0, 0.6, 0.08),
         &TetrahedralizeOptions::default(),
     )
     .unwrap();

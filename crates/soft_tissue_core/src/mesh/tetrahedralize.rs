@@ -599,13 +599,13 @@ pub fn tetrahedralize(
             };
             let mut coarse = coarsen_boundary(&fine, &tree, &settings).ok()?;
             if coarse.tet_count() as f64 > 1.1 * n as f64 {
-                settings.levels = &[1.5, 2.0];
+                settings.levels = &[1.25, 1.5, 1.75, 2.0];
                 coarse = coarsen_boundary(&coarse, &tree, &settings).ok()?;
             }
             // A surface too detailed for the count: the count first (within 1.5 % of the
             // diagonal), since the splits below add tetrahedra.
             if coarse.tet_count() as f64 > 1.2 * n as f64 {
-                settings.levels = &[2.5, 3.0];
+                settings.levels = &[2.25, 2.5, 2.75, 3.0];
                 coarse = coarsen_boundary(&coarse, &tree, &settings).ok()?;
             }
             Some((coarse, projected, snapped))
@@ -805,6 +805,15 @@ fn fit_features(mesh: TetMesh, samples: &[Vec3], min_dihedral: f64, tol: f64) ->
     let mut x = mesh.positions().to_vec();
     let triangles = mesh.surface().triangles().to_vec();
     let mut locked = vec![false; x.len()];
+    let tets: Vec<[usize; 4]> = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
+    let node_tets: Vec<Vec<usize>> = (0..x.len())
+        .map(|v| mesh.node_tets(v).iter().map(|&k| k as usize).collect())
+        .collect();
+    let mut boundary = vec![false; x.len()];
+    for &v in mesh.surface().vertices() {
+        boundary[v as usize] = true;
+    }
+    let mut moved_inside = Vec::new();
     let mut snapped = 0;
     for _round in 0..4 {
         let far: Vec<(f64, usize, usize)> = {
@@ -842,7 +851,16 @@ fn fit_features(mesh: TetMesh, samples: &[Vec3], min_dihedral: f64, tol: f64) ->
                 }
                 let old = x[n];
                 x[n] = q;
-                if node_ok(&mesh, &x, n, min_dihedral) {
+                // Interior nodes may move to make room.
+                if make_room(
+                    &mut x,
+                    &tets,
+                    &node_tets,
+                    &boundary,
+                    n,
+                    min_dihedral,
+                    &mut moved_inside,
+                ) {
                     locked[n] = true;
                     moved += 1;
                     break;
@@ -855,7 +873,6 @@ fn fit_features(mesh: TetMesh, samples: &[Vec3], min_dihedral: f64, tol: f64) ->
             break;
         }
     }
-    let tets = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
     match TetMesh::new(x, tets) {
         Ok(m) => (m, snapped),
         Err(_) => (mesh, 0),
@@ -887,7 +904,6 @@ fn split_boundary_edges(
             node_tets[v].push(k);
         }
     }
-    let good = |p: &[Vec3; 4]| tet_quality_deg(p) >= min_dihedral;
     let mut current = mesh;
     let mut split = 0;
     for _round in 0..3 {
@@ -955,6 +971,12 @@ fn split_boundary_edges(
         }
         candidates.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
         let mut touched = vec![false; x.len()];
+        let mut boundary = vec![false; x.len()];
+        for t in &triangles {
+            for &v in t {
+                boundary[v] = true;
+            }
+        }
         let mut done = 0;
         for (_, (a, b), q) in candidates {
             if touched[a] || touched[b] {
@@ -969,45 +991,78 @@ fn split_boundary_edges(
                 continue;
             }
             let m = x.len();
-            x.push(q);
-            let halves: Vec<([usize; 4], [usize; 4])> = ring
-                .iter()
-                .map(|&k| {
-                    let t = tets[k];
-                    (
-                        t.map(|v| if v == a { m } else { v }),
-                        t.map(|v| if v == b { m } else { v }),
-                    )
-                })
-                .collect();
-            // All the way to the surface point, else three quarters or half of the way
-            // from the edge's midpoint (a sharp rim: the gap shrinks, the node stays that
-            // near the surface).
             let mid = (x[a] + x[b]) / 2.0;
-            let ok = [1.0, 0.75, 0.5].into_iter().any(|f| {
-                x[m] = mid + (q - mid) * f;
-                halves
-                    .iter()
-                    .all(|(h1, h2)| good(&h1.map(|v| x[v])) && good(&h2.map(|v| x[v])))
-            });
-            if !ok {
-                x.pop();
-                continue;
-            }
-            node_tets.push(Vec::new());
-            touched.push(true);
-            for (&k, (h1, h2)) in ring.iter().zip(&halves) {
-                for &v in &tets[k] {
-                    touched[v] = true;
+            // The split, made in place and undone should no placement of the new node keep
+            // the bound.
+            let tets_len = tets.len();
+            let mut saved_tets: Vec<(usize, [usize; 4])> = Vec::with_capacity(ring.len());
+            let mut saved_links: Vec<(usize, Vec<usize>)> = Vec::new();
+            {
+                let mut around: Vec<usize> = ring.iter().flat_map(|&k| tets[k]).collect();
+                around.sort_unstable();
+                around.dedup();
+                for v in around {
+                    saved_links.push((v, node_tets[v].clone()));
                 }
+            }
+            x.push(q);
+            node_tets.push(Vec::new());
+            boundary.push(true);
+            for &k in &ring {
+                let t = tets[k];
+                saved_tets.push((k, t));
                 // k keeps the half without a; the half without b is new.
-                tets[k] = *h1;
+                tets[k] = t.map(|v| if v == a { m } else { v });
                 node_tets[a].retain(|&j| j != k);
                 node_tets[m].push(k);
                 let j = tets.len();
-                tets.push(*h2);
-                for &v in h2 {
+                let h2 = t.map(|v| if v == b { m } else { v });
+                tets.push(h2);
+                for &v in &h2 {
                     node_tets[v].push(j);
+                }
+            }
+            // All the way to the surface point, else three quarters, half or a quarter of
+            // the way from the edge's midpoint (a sharp rim: the gap shrinks, the node stays
+            // that near the surface). Where a placement leaves a tetrahedron under the
+            // bound, the interior nodes of those tetrahedra may move to make room.
+            let mut moved: Vec<usize> = Vec::new();
+            let ok = [1.0, 0.75, 0.5, 0.25].into_iter().any(|f| {
+                x[m] = mid + (q - mid) * f;
+                make_room(
+                    &mut x,
+                    &tets,
+                    &node_tets,
+                    &boundary,
+                    m,
+                    min_dihedral,
+                    &mut moved,
+                )
+            });
+            if !ok {
+                for (k, t) in saved_tets {
+                    tets[k] = t;
+                }
+                tets.truncate(tets_len);
+                for (v, links) in saved_links {
+                    node_tets[v] = links;
+                }
+                x.pop();
+                node_tets.pop();
+                boundary.pop();
+                continue;
+            }
+            touched.push(true);
+            for &k in &node_tets[m] {
+                for &v in &tets[k] {
+                    touched[v] = true;
+                }
+            }
+            for &v in &moved {
+                for &k in &node_tets[v] {
+                    for &w in &tets[k] {
+                        touched[w] = true;
+                    }
                 }
             }
             done += 1;
@@ -1025,6 +1080,100 @@ fn split_boundary_edges(
         }
     }
     (current, split)
+}
+
+/// Whether every tetrahedron around node `m` keeps the quality bound at positions `x`, after
+/// moving the interior nodes of those that do not, if need be: each such node in turn goes
+/// where the worst of its own tetrahedra is best (a compass search: steps along the axes,
+/// halved when none helps). On failure every moved node goes back; on success the nodes
+/// moved are appended to `moved`.
+fn make_room(
+    x: &mut [Vec3],
+    tets: &[[usize; 4]],
+    node_tets: &[Vec<usize>],
+    boundary: &[bool],
+    m: usize,
+    min_dihedral: f64,
+    moved: &mut Vec<usize>,
+) -> bool {
+    let quality = |x: &[Vec3], k: usize| tet_quality_deg(&tets[k].map(|v| x[v]));
+    let worst_at = |x: &[Vec3], v: usize| {
+        node_tets[v]
+            .iter()
+            .map(|&k| quality(x, k))
+            .fold(f64::INFINITY, f64::min)
+    };
+    let bad = |x: &[Vec3]| -> Vec<usize> {
+        node_tets[m]
+            .iter()
+            .copied()
+            .filter(|&k| quality(x, k) < min_dihedral)
+            .collect()
+    };
+    let mut first = bad(x);
+    if first.is_empty() {
+        return true;
+    }
+    // A tetrahedron with all four nodes on the boundary cannot be helped here.
+    if first.iter().any(|&k| tets[k].iter().all(|&v| boundary[v])) {
+        return false;
+    }
+    let mut undo: Vec<(usize, Vec3)> = Vec::new();
+    for _pass in 0..3 {
+        let mut nodes: Vec<usize> = first
+            .iter()
+            .flat_map(|&k| tets[k])
+            .filter(|&v| !boundary[v])
+            .collect();
+        nodes.sort_unstable();
+        nodes.dedup();
+        for n in nodes {
+            let length = node_tets[n]
+                .iter()
+                .flat_map(|&k| tets[k])
+                .map(|v| (x[v] - x[n]).norm())
+                .fold(0.0, f64::max);
+            let mut step = 0.2 * length;
+            let mut best = worst_at(x, n);
+            let start = x[n];
+            for _ in 0..40 {
+                if step < 0.005 * length {
+                    break;
+                }
+                let here = x[n];
+                let mut found = None;
+                for axis in 0..3 {
+                    for sign in [-1.0, 1.0] {
+                        let mut p = here;
+                        p[axis] += sign * step;
+                        x[n] = p;
+                        let w = worst_at(x, n);
+                        if w > best {
+                            best = w;
+                            found = Some(p);
+                        }
+                    }
+                }
+                x[n] = found.unwrap_or(here);
+                if found.is_none() {
+                    step *= 0.5;
+                }
+            }
+            if x[n] != start {
+                undo.push((n, start));
+            }
+        }
+        first = bad(x);
+        let around_ok = undo.iter().all(|&(n, _)| worst_at(x, n) >= min_dihedral);
+        if first.is_empty() && around_ok {
+            moved.extend(undo.iter().map(|&(n, _)| n));
+            return true;
+        }
+    }
+    for &(n, p) in undo.iter().rev() {
+        x[n] = p;
+    }
+    false
 }
 
 /// Moves every boundary node onto the surface where its tetrahedra stay positive and above
