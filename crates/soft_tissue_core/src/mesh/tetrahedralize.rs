@@ -586,41 +586,52 @@ pub fn tetrahedralize(
     {
         // The graded mesh is an improvement on the uniform one: should any step of it fail
         // (a lattice too large, a mesh the coarsening left invalid), the uniform one stays.
-        let graded = || -> Option<(TetMesh, usize, usize)> {
-            let (fine, projected, snapped) = onto_surface(mesh_at(spacing / factor).ok()?);
-            // First within the tolerance; while the count stays a tenth over the target,
-            // again within up to twice it, then, a fifth over, three times.
+        let fine = mesh_at(spacing / factor).ok().map(onto_surface);
+        // First within the tolerance; while the count stays a tenth over the target, again
+        // within up to twice it, then, a fifth over, three times (a surface too detailed for
+        // the count: the count first, within 1.5 % of the diagonal, since the edge splits
+        // after it add tetrahedra).
+        let coarsened = |fine: &TetMesh, target: usize| -> Option<TetMesh> {
             use super::coarsen_boundary::{BoundaryCoarsening, coarsen_boundary};
             let mut settings = BoundaryCoarsening {
                 min_dihedral_deg: min_dihedral,
                 tolerance: GRADED_TOLERANCE * diagonal,
-                target_tets: n,
+                target_tets: target,
                 levels: &[0.25, 0.5, 1.0],
             };
-            let mut coarse = coarsen_boundary(&fine, &tree, &settings).ok()?;
-            if coarse.tet_count() as f64 > 1.1 * n as f64 {
+            let mut coarse = coarsen_boundary(fine, &tree, &settings).ok()?;
+            if coarse.tet_count() as f64 > 1.1 * target as f64 {
                 settings.levels = &[1.25, 1.5, 1.75, 2.0];
                 coarse = coarsen_boundary(&coarse, &tree, &settings).ok()?;
             }
-            // A surface too detailed for the count: the count first (within 1.5 % of the
-            // diagonal), since the splits below add tetrahedra.
-            if coarse.tet_count() as f64 > 1.2 * n as f64 {
+            if coarse.tet_count() as f64 > 1.2 * target as f64 {
                 settings.levels = &[2.25, 2.5, 2.75, 3.0];
                 coarse = coarsen_boundary(&coarse, &tree, &settings).ok()?;
             }
-            Some((coarse, projected, snapped))
+            Some(coarse)
         };
-        if let Some((coarse, projected, snapped)) = graded() {
-            let graded = Finished::split_and_measure(coarse, &goal, projected, snapped);
-            // Kept when nearer the surface and within a third of the target.
-            let count_ok = |m: &TetMesh| {
-                let r = m.tet_count() as f64 / n as f64;
-                (2.0 / 3.0..=4.0 / 3.0).contains(&r)
-            };
-            if count_ok(&graded.mesh) && graded.worst() < done.worst() {
-                done = graded;
-                was_graded = true;
-                spacing /= factor;
+        // Kept when nearer the surface and within a third of the target. Where the count
+        // came out farther off (the edge splits add tetrahedra, the interior removal after
+        // the coarsening takes some), the coarsening runs again from the fine mesh toward
+        // the target divided by the same ratio.
+        let ratio = |m: &TetMesh| m.tet_count() as f64 / n as f64;
+        if let Some((fine, projected, snapped)) = fine {
+            let mut target = n;
+            for _attempt in 0..2 {
+                let Some(coarse) = coarsened(&fine, target) else {
+                    break;
+                };
+                let graded = Finished::split_and_measure(coarse, &goal, projected, snapped);
+                let r = ratio(&graded.mesh);
+                if (2.0 / 3.0..=4.0 / 3.0).contains(&r) {
+                    if graded.worst() < done.worst() {
+                        done = graded;
+                        was_graded = true;
+                        spacing /= factor;
+                    }
+                    break;
+                }
+                target = ((target as f64) / r).round().max(1.0) as usize;
             }
         }
     }
