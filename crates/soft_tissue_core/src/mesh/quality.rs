@@ -73,10 +73,10 @@ pub fn tet_dihedral_angles(p: &[Vec3; 4]) -> [f64; 6] {
     });
     // The edge (i, j) is shared by the faces opposite the two other corners k, l; the
     // dihedral angle is pi minus the angle between their outward normals.
-    let pairs = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
-    pairs.map(|(i, j)| {
-        let others: Vec<usize> = (0..4).filter(|&k| k != i && k != j).collect();
-        let c = n[others[0]].dot(&n[others[1]]).clamp(-1.0, 1.0);
+    // Edges 01, 02, 03, 12, 13, 23 and the faces opposite their two other corners.
+    let others = [(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)];
+    others.map(|(k, l)| {
+        let c = n[k].dot(&n[l]).clamp(-1.0, 1.0);
         180.0 - c.acos().to_degrees()
     })
 }
@@ -85,18 +85,36 @@ pub fn tet_dihedral_angles(p: &[Vec3; 4]) -> [f64; 6] {
 /// over the dihedral angles `b` of a positive tetrahedron, or -1 for a flat, inverted or
 /// non-finite one.
 pub(crate) fn tet_quality_deg(p: &[Vec3; 4]) -> f64 {
+    let c = tet_worst_cos(p);
+    if c.is_finite() {
+        c.acos().to_degrees()
+    } else {
+        -1.0
+    }
+}
+
+/// The cosine of [`tet_quality_deg`] without the acos, for searches that only compare: the
+/// largest |cos| between two faces' normals (`min(b, 180 - b)` over the six angles `b` is
+/// its acos, since b is 180 degrees less the angle between the outward normals), or
+/// infinity for a flat, inverted or non-finite tetrahedron. Smaller is better.
+pub(crate) fn tet_worst_cos(p: &[Vec3; 4]) -> f64 {
     let volume = super::tet_signed_volume(p);
     if volume.is_nan() || volume <= 0.0 {
-        return -1.0;
+        return f64::INFINITY;
     }
-    let mut q = f64::INFINITY;
-    for b in tet_dihedral_angles(p) {
-        if !b.is_finite() {
-            return -1.0;
+    let n = super::topology::TET_FACES.map(|f| {
+        let [a, b, c] = f.map(|i| p[i]);
+        (b - a).cross(&(c - a)).normalize()
+    });
+    let mut worst: f64 = 0.0;
+    for (k, l) in [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)] {
+        let c = n[k].dot(&n[l]).abs();
+        if !c.is_finite() {
+            return f64::INFINITY;
         }
-        q = q.min(b.min(180.0 - b));
+        worst = worst.max(c);
     }
-    q
+    worst.min(1.0)
 }
 
 /// Radius ratio `3 r_in / r_circ` of a tetrahedron (1 regular, 0 flat).
@@ -187,5 +205,47 @@ mod tests {
             assert!((a[k] - 90.0).abs() < 1e-10);
             assert!((a[k + 3] - slanted).abs() < 1e-10);
         }
+        // The bound's quality is the smallest of the three right angles' and the slanted
+        // ones' distance from flat: acos(1/sqrt 3) itself.
+        assert!((tet_quality_deg(&p) - slanted).abs() < 1e-10);
+    }
+
+    /// The mesher's quality (one acos of the largest |cos| between face normals) agrees with
+    /// the smallest `min(b, 180 - b)` over the six angles, from flat slivers to needles,
+    /// and is -1 for an inverted or flat tetrahedron.
+    #[test]
+    fn quality_is_the_smallest_angle_from_flat() {
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut checked = 0;
+        for k in 0..2000 {
+            let scale = 10f64.powi(k % 7 - 3);
+            let p: [Vec3; 4] =
+                std::array::from_fn(|_| Vec3::new(next(), next(), next() * scale) * 2.0);
+            let volume = crate::mesh::tet_signed_volume(&p);
+            if volume <= 0.0 {
+                assert_eq!(tet_quality_deg(&p), -1.0);
+                continue;
+            }
+            let expected = tet_dihedral_angles(&p)
+                .iter()
+                .map(|b| b.min(180.0 - b))
+                .fold(f64::INFINITY, f64::min);
+            assert!((tet_quality_deg(&p) - expected).abs() < 1e-6, "{p:?}");
+            checked += 1;
+        }
+        assert!(checked > 500);
+        let flat = [
+            Vec3::zeros(),
+            Vec3::x(),
+            Vec3::y(),
+            Vec3::new(1.0, 1.0, 0.0),
+        ];
+        assert_eq!(tet_quality_deg(&flat), -1.0);
     }
 }

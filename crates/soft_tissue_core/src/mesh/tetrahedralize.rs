@@ -24,7 +24,7 @@ use std::collections::HashMap;
 
 use super::generate::{GenerateError, coarsen_interior, stuff_fn_with};
 use super::io::SurfaceMesh;
-use super::quality::tet_quality_deg;
+use super::quality::{tet_quality_deg, tet_worst_cos};
 use super::surface_tree::SurfaceTree;
 use super::{QualityReport, TetMesh};
 use crate::Vec3;
@@ -614,24 +614,49 @@ pub fn tetrahedralize(
         // came out farther off (the edge splits add tetrahedra, the interior removal after
         // the coarsening takes some), the coarsening runs again from the fine mesh toward
         // the target divided by the same ratio.
-        let ratio = |m: &TetMesh| m.tet_count() as f64 / n as f64;
         if let Some((fine, projected, snapped)) = fine {
-            let mut target = n;
-            for _attempt in 0..2 {
-                let Some(coarse) = coarsened(&fine, target) else {
+            // The count after the splits follows the coarsening's target only roughly: the
+            // next target comes from the last two tries (a secant), or from the ratio after
+            // the first.
+            let mut desired = n as f64;
+            let mut target = n as f64;
+            let mut tried: Vec<(f64, f64)> = Vec::new();
+            let mut spent_more = false;
+            for _attempt in 0..4 {
+                let Some(coarse) = coarsened(&fine, target.round().max(1.0) as usize) else {
                     break;
                 };
                 let graded = Finished::split_and_measure(coarse, &goal, projected, snapped);
-                let r = ratio(&graded.mesh);
+                let count = graded.mesh.tet_count() as f64;
+                let r = count / n as f64;
+                tried.push((target, count));
                 if (2.0 / 3.0..=4.0 / 3.0).contains(&r) {
+                    let misses = graded.worst() > 2.0 * GRADED_TOLERANCE * diagonal;
                     if graded.worst() < done.worst() {
                         done = graded;
                         was_graded = true;
-                        spacing /= factor;
                     }
+                    // Still more than 1 % off with the count at most a tenth over the
+                    // target: once, about a fifth more tetrahedra (a thin lobe, a tip), the
+                    // count staying within the third.
+                    if !(misses && r < 1.1 && !spent_more) {
+                        break;
+                    }
+                    spent_more = true;
+                    desired = 1.2 * n as f64;
+                }
+                target = match tried[..] {
+                    [.., (t0, c0), (t1, c1)] if (c1 - c0) * (t1 - t0) > 0.0 => {
+                        t1 + (desired - c1) * (t1 - t0) / (c1 - c0)
+                    }
+                    _ => target * desired / count.max(1.0),
+                };
+                if !(target.is_finite() && target >= 1.0) {
                     break;
                 }
-                target = ((target as f64) / r).round().max(1.0) as usize;
+            }
+            if was_graded {
+                spacing /= factor;
             }
         }
     }
@@ -1107,30 +1132,32 @@ fn make_room(
     min_dihedral: f64,
     moved: &mut Vec<usize>,
 ) -> bool {
-    let quality = |x: &[Vec3], k: usize| tet_quality_deg(&tets[k].map(|v| x[v]));
-    let worst_at = |x: &[Vec3], v: usize| {
-        node_tets[v]
-            .iter()
-            .map(|&k| quality(x, k))
-            .fold(f64::INFINITY, f64::min)
-    };
+    // Compared as cosines (smaller is better): no acos in the search.
+    let bound = min_dihedral.to_radians().cos();
+    let cos = |x: &[Vec3], k: usize| tet_worst_cos(&tets[k].map(|v| x[v]));
+    let worst_at =
+        |x: &[Vec3], v: usize| node_tets[v].iter().map(|&k| cos(x, k)).fold(0.0, f64::max);
     let bad = |x: &[Vec3]| -> Vec<usize> {
         node_tets[m]
             .iter()
             .copied()
-            .filter(|&k| quality(x, k) < min_dihedral)
+            .filter(|&k| cos(x, k) > bound)
             .collect()
     };
     let mut first = bad(x);
     if first.is_empty() {
         return true;
     }
-    // A tetrahedron with all four nodes on the boundary cannot be helped here.
-    if first.iter().any(|&k| tets[k].iter().all(|&v| boundary[v])) {
+    // A tetrahedron with all four nodes on the boundary cannot be helped here, nor (for this
+    // search, which compares angles) a flat or inverted one.
+    if first
+        .iter()
+        .any(|&k| tets[k].iter().all(|&v| boundary[v]) || !cos(x, k).is_finite())
+    {
         return false;
     }
     let mut undo: Vec<(usize, Vec3)> = Vec::new();
-    for _pass in 0..3 {
+    for _pass in 0..2 {
         let mut nodes: Vec<usize> = first
             .iter()
             .flat_map(|&k| tets[k])
@@ -1159,7 +1186,7 @@ fn make_room(
                         p[axis] += sign * step;
                         x[n] = p;
                         let w = worst_at(x, n);
-                        if w > best {
+                        if w < best {
                             best = w;
                             found = Some(p);
                         }
@@ -1175,7 +1202,7 @@ fn make_room(
             }
         }
         first = bad(x);
-        let around_ok = undo.iter().all(|&(n, _)| worst_at(x, n) >= min_dihedral);
+        let around_ok = undo.iter().all(|&(n, _)| worst_at(x, n) <= bound);
         if first.is_empty() && around_ok {
             moved.extend(undo.iter().map(|&(n, _)| n));
             return true;
