@@ -612,8 +612,8 @@ pub fn tetrahedralize(
         };
         // Kept when nearer the surface and within a third of the target. Where the count
         // came out farther off (the edge splits add tetrahedra, the interior removal after
-        // the coarsening takes some), the coarsening runs again from the fine mesh toward
-        // the target divided by the same ratio.
+        // the coarsening takes some), the coarsening runs again from the fine mesh toward a
+        // corrected target; where the kept mesh still misses 1 %, once toward more.
         if let Some((fine, projected, snapped)) = fine {
             // The count after the splits follows the coarsening's target only roughly: the
             // next target comes from the last two tries (a secant), or from the ratio after
@@ -799,7 +799,8 @@ fn restore_volume(mesh: TetMesh, enclosed: f64, min_dihedral: f64, max_offset: f
 }
 
 /// The boundary coarsening's first tolerance on a graded mesh, as a fraction of the bounding
-/// box's diagonal; while the count is above the target it goes up to twice this (1 %).
+/// box's diagonal; while the count is above the target it goes up to twice this (1 %), then
+/// three times (1.5 %).
 pub const GRADED_TOLERANCE: f64 = 0.005;
 
 /// How near the boundary must come to every sample of the input surface before the feature
@@ -835,8 +836,9 @@ fn node_ok(mesh: &TetMesh, x: &[Vec3], v: usize, min_dihedral: f64) -> bool {
 /// Creases and corners the lattice rounded off: each sample of the input surface farther
 /// than `tol` from the boundary, farthest first, pulls the nearest node of the boundary
 /// triangle it is closest to onto itself, where that node's tetrahedra keep the quality
-/// bound; a node moves once. A few rounds, each against the boundary as the last left it.
-/// The moved nodes stay on the input surface. Returns the mesh and the nodes moved.
+/// bound (interior nodes may move to make room, see `make_room`); a node moves once. A few
+/// rounds, each against the boundary as the last left it. The moved nodes stay on the input
+/// surface. Returns the mesh and the nodes moved.
 fn fit_features(mesh: TetMesh, samples: &[Vec3], min_dihedral: f64, tol: f64) -> (TetMesh, usize) {
     let mut x = mesh.positions().to_vec();
     let triangles = mesh.surface().triangles().to_vec();
@@ -849,6 +851,7 @@ fn fit_features(mesh: TetMesh, samples: &[Vec3], min_dihedral: f64, tol: f64) ->
     for &v in mesh.surface().vertices() {
         boundary[v as usize] = true;
     }
+    // (Which interior nodes moved does not matter here.)
     let mut moved_inside = Vec::new();
     let mut snapped = 0;
     for _round in 0..4 {
@@ -918,8 +921,9 @@ fn fit_features(mesh: TetMesh, samples: &[Vec3], min_dihedral: f64, tol: f64) ->
 /// Where the boundary still passes farther than `tol` from the surface, or the surface from
 /// it, after the node moves: the boundary edge involved is split (every tetrahedron around
 /// it bisected) and the new node put on the input surface, where all the new tetrahedra
-/// keep the quality bound (else three quarters or half of the way there from the edge's
-/// midpoint). Candidates are boundary edges whose midpoint is far from the
+/// keep the quality bound (else three quarters, half or a quarter of the way there from the
+/// edge's midpoint; at each, interior nodes may move to make room, see `make_room`); a
+/// split no placement allows is undone. Candidates are boundary edges whose midpoint is far from the
 /// surface (the node goes to the midpoint's closest surface point), the longest edge of a
 /// boundary triangle whose centroid is far (the same), and surface samples far
 /// from the boundary (the nearest edge of the boundary triangle closest to the sample is
@@ -1132,16 +1136,17 @@ fn make_room(
     min_dihedral: f64,
     moved: &mut Vec<usize>,
 ) -> bool {
-    // Compared as cosines (smaller is better): no acos in the search.
-    let bound = min_dihedral.to_radians().cos();
+    // The search compares cosines (smaller is better): no acos in it.
     let cos = |x: &[Vec3], k: usize| tet_worst_cos(&tets[k].map(|v| x[v]));
     let worst_at =
         |x: &[Vec3], v: usize| node_tets[v].iter().map(|&k| cos(x, k)).fold(0.0, f64::max);
+    // Accepted by the bound's own check, as everywhere else in the mesher.
+    let holds = |x: &[Vec3], k: usize| tet_quality_deg(&tets[k].map(|v| x[v])) >= min_dihedral;
     let bad = |x: &[Vec3]| -> Vec<usize> {
         node_tets[m]
             .iter()
             .copied()
-            .filter(|&k| cos(x, k) > bound)
+            .filter(|&k| !holds(x, k))
             .collect()
     };
     let mut first = bad(x);
@@ -1202,7 +1207,9 @@ fn make_room(
             }
         }
         first = bad(x);
-        let around_ok = undo.iter().all(|&(n, _)| worst_at(x, n) <= bound);
+        let around_ok = undo
+            .iter()
+            .all(|&(n, _)| node_tets[n].iter().all(|&k| holds(x, k)));
         if first.is_empty() && around_ok {
             moved.extend(undo.iter().map(|&(n, _)| n));
             return true;
