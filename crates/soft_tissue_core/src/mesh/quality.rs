@@ -62,15 +62,20 @@ impl QualityReport {
     }
 }
 
-/// The six dihedral angles of a tetrahedron in degrees, at edges 01, 02, 03, 12, 13, 23.
-pub fn tet_dihedral_angles(p: &[Vec3; 4]) -> [f64; 6] {
-    // Outward face normals; face i is opposite corner i.
-    let n = super::topology::TET_FACES.map(|f| {
+/// Outward unit face normals of a tetrahedron; face i is opposite corner i (a zero normal
+/// for a degenerate face).
+fn unit_face_normals(p: &[Vec3; 4]) -> [Vec3; 4] {
+    super::topology::TET_FACES.map(|f| {
         let [a, b, c] = f.map(|i| p[i]);
         let v = (b - a).cross(&(c - a));
         let len = v.norm();
         if len > 0.0 { v / len } else { v }
-    });
+    })
+}
+
+/// The six dihedral angles of a tetrahedron in degrees, at edges 01, 02, 03, 12, 13, 23.
+pub fn tet_dihedral_angles(p: &[Vec3; 4]) -> [f64; 6] {
+    let n = unit_face_normals(p);
     // The edge (i, j) is shared by the faces opposite the two other corners k, l; the
     // dihedral angle is pi minus the angle between their outward normals.
     // Edges 01, 02, 03, 12, 13, 23 and the faces opposite their two other corners.
@@ -111,10 +116,7 @@ pub(crate) fn tet_worst_cos(p: &[Vec3; 4]) -> f64 {
     if volume.is_nan() || volume <= 0.0 {
         return f64::INFINITY;
     }
-    let n = super::topology::TET_FACES.map(|f| {
-        let [a, b, c] = f.map(|i| p[i]);
-        (b - a).cross(&(c - a)).normalize()
-    });
+    let n = unit_face_normals(p);
     let mut worst: f64 = 0.0;
     for (k, l) in [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)] {
         let c = n[k].dot(&n[l]).abs();

@@ -577,11 +577,13 @@ pub fn tetrahedralize(
     // The fine mesh has about factor^2.5 times the tetrahedra (most in the boundary layer):
     // at most 2.5 times finer, and at most about 25k tetrahedra, so that large targets stay
     // fast; below 1.2 times finer there is nothing to gain.
+    // The distance the graded mesh is there to reach: 1 % of the diagonal.
+    let one_percent = 2.0 * GRADED_TOLERANCE * diagonal;
     let factor = options
         .target_tets
         .map_or(0.0, |n| (25_000.0 / n as f64).powf(0.4).min(2.5));
     if let (None, Some(n)) = (options.edge_length, options.target_tets)
-        && done.worst() > 2.0 * GRADED_TOLERANCE * diagonal
+        && done.worst() > one_percent
         && factor >= 1.2
     {
         // The graded mesh is an improvement on the uniform one: should any step of it fail
@@ -631,7 +633,7 @@ pub fn tetrahedralize(
                 let r = count / n as f64;
                 tried.push((target, count));
                 if (2.0 / 3.0..=4.0 / 3.0).contains(&r) {
-                    let misses = graded.worst() > 2.0 * GRADED_TOLERANCE * diagonal;
+                    let misses = graded.worst() > one_percent;
                     if graded.worst() < done.worst() {
                         done = graded;
                         was_graded = true;
