@@ -119,9 +119,9 @@ pub struct SurfaceLoaderSettings {
     pub min_dihedral_deg: f64,
     /// The surface's unit in scene units (every coordinate is multiplied by it).
     pub units: f64,
-    /// Where meshed results are kept, keyed by the file's bytes and these settings, so a
-    /// second start does not mesh again (`None`: the system's temporary folder,
-    /// `bevy_soft_tissue-meshes`).
+    /// Where meshed results are kept, keyed by the file's bytes, these settings and the
+    /// mesher's revision, so a second start does not mesh again (`None`: the system's
+    /// temporary folder, `bevy_soft_tissue-meshes`).
     pub cache_dir: Option<std::path::PathBuf>,
 }
 
@@ -188,7 +188,9 @@ impl AssetLoader for SurfaceLoader {
         use soft_tissue_core::mesh::io::{
             gltf_external_uris, parse_gltf, parse_obj, parse_ply, parse_stl,
         };
-        use soft_tissue_core::mesh::tetrahedralize::{TetrahedralizeOptions, tetrahedralize};
+        use soft_tissue_core::mesh::tetrahedralize::{
+            REVISION, TetrahedralizeOptions, tetrahedralize,
+        };
         let path = load_context.path().path().to_path_buf();
         let name = path.display().to_string();
         let mut bytes = Vec::new();
@@ -266,8 +268,9 @@ impl AssetLoader for SurfaceLoader {
 
         let mut parts: Vec<&[u8]> = vec![&bytes];
         parts.extend(external.iter().map(|(_, d)| d.as_slice()));
+        // The mesher's revision too: an upgrade that changes its meshes meshes again.
         let settings_text = format!(
-            "{}|{:?}|{}|{}",
+            "{}|{:?}|{}|{}|r{REVISION}",
             settings.target_tets, settings.edge_length, settings.min_dihedral_deg, settings.units
         );
         parts.push(settings_text.as_bytes());

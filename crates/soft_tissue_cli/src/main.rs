@@ -424,9 +424,13 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
         r.nodes,
         r.tets,
         if r.graded {
-            "graded: meshed finer, the boundary coarsened where the surface is flat"
+            format!(
+                "graded: meshed {:.2} times finer, the boundary coarsened where the surface is \
+                 flat",
+                r.finer
+            )
         } else {
-            "uniform"
+            "uniform".to_owned()
         },
         r.spacing,
         r.min_dihedral_deg,

@@ -269,6 +269,18 @@ fn a_knife_edged_lens_meshes_graded_to_its_volume_and_surface() {
     assert!(r.graded, "the knife lens needs the graded mesh: {r:?}");
 }
 
+/// A wafer lens (c = 0.05: 0.1 thick, 4.3 % of its bounding box's diagonal): from the
+/// first graded level (2.5 times finer) its rim stayed 1.09 % of the diagonal from the
+/// boundary; the second level (3.5 times finer) brings it within 1 %.
+#[test]
+fn a_wafer_lens_meshes_from_the_finer_graded_level_to_its_volume_and_surface() {
+    let r = lens("wafer lens", 0.05);
+    assert!(
+        r.graded && r.finer > 2.5,
+        "the wafer lens needs the second graded level: {r:?}"
+    );
+}
+
 #[test]
 fn a_non_convex_l_prism_meshes_to_its_volume_and_surface() {
     let depth = 0.6;
