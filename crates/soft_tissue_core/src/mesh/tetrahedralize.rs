@@ -594,7 +594,6 @@ pub fn tetrahedralize(
     };
     let (mesh, projected, snapped) = onto_surface(mesh);
     let mut done = Finished::split_and_measure(mesh, &goal, projected, snapped);
-    let mut was_graded = false;
     // Graded: where the uniform lattice leaves the boundary more than 1 % of the diagonal
     // off the surface (or the surface off it), mesh finer, fit that, coarsen its boundary
     // where the surface is flat down to the target, and keep the nearer of the two.
@@ -608,104 +607,100 @@ pub fn tetrahedralize(
     // stop at the first level.
     // The distance the graded mesh is there to reach: 1 % of the diagonal.
     let one_percent = 2.0 * GRADED_TOLERANCE * diagonal;
-    let uniform_spacing = spacing;
+    // The fine mesh's boundary coarsened toward `target` tetrahedra (the same at each level).
+    // First within the tolerance; while the count stays a tenth over the target, again
+    // within up to twice it, then, a fifth over, three times (a surface too detailed for
+    // the count: the count first, within 1.5 % of the diagonal, since the edge splits
+    // after it add tetrahedra).
+    let coarsened = |fine: &TetMesh, target: usize| -> Option<TetMesh> {
+        use super::coarsen_boundary::{BoundaryCoarsening, coarsen_boundary};
+        let mut settings = BoundaryCoarsening {
+            min_dihedral_deg: min_dihedral,
+            tolerance: GRADED_TOLERANCE * diagonal,
+            target_tets: target,
+            levels: &[0.25, 0.5, 1.0],
+        };
+        let mut coarse = coarsen_boundary(fine, &tree, &settings).ok()?;
+        if coarse.tet_count() as f64 > 1.1 * target as f64 {
+            settings.levels = &[1.25, 1.5, 1.75, 2.0];
+            coarse = coarsen_boundary(&coarse, &tree, &settings).ok()?;
+        }
+        if coarse.tet_count() as f64 > 1.2 * target as f64 {
+            settings.levels = &[2.25, 2.5, 2.75, 3.0];
+            coarse = coarsen_boundary(&coarse, &tree, &settings).ok()?;
+        }
+        Some(coarse)
+    };
+    // How many times finer the kept mesh's lattice is than the uniform one (1: uniform).
     let mut finer = 1.0;
-    let levels = options.target_tets.map_or(Vec::new(), |n| {
-        let factor = |budget: f64, cap: f64| (budget / n as f64).powf(0.4).min(cap);
-        vec![factor(25_000.0, 2.5), factor(60_000.0, 3.5)]
-    });
-    for (level, factor) in levels.into_iter().enumerate() {
-        let Some(n) = options.target_tets else { break };
+    let levels: Vec<(usize, f64)> = match (options.edge_length, options.target_tets) {
+        (None, Some(n)) => {
+            let factor = |budget: f64, cap: f64| (budget / n as f64).powf(0.4).min(cap);
+            vec![(n, factor(25_000.0, 2.5)), (n, factor(60_000.0, 3.5))]
+        }
+        _ => Vec::new(),
+    };
+    for (level, (n, factor)) in levels.into_iter().enumerate() {
         // The second level only after the first ran, and only for a miss up to 2.5 %: its
         // lattice is 1.4 times finer, which shrinks a chord's distance about 1.4^2 = 2 times.
         // A surface farther off (a long tube) is not followed at this count by either.
         let worst = done.worst();
-        if options.edge_length.is_some()
-            || worst <= one_percent
-            || factor < 1.2
-            || (level > 0 && worst > 2.5 * one_percent)
-        {
+        if worst <= one_percent || factor < 1.2 || (level > 0 && worst > 2.5 * one_percent) {
             break;
         }
         // The graded mesh is an improvement on the uniform one: should any step of it fail
         // (a lattice too large, a mesh the coarsening left invalid), the uniform one stays.
-        let fine = mesh_at(uniform_spacing / factor).ok().map(onto_surface);
-        // First within the tolerance; while the count stays a tenth over the target, again
-        // within up to twice it, then, a fifth over, three times (a surface too detailed for
-        // the count: the count first, within 1.5 % of the diagonal, since the edge splits
-        // after it add tetrahedra).
-        let coarsened = |fine: &TetMesh, target: usize| -> Option<TetMesh> {
-            use super::coarsen_boundary::{BoundaryCoarsening, coarsen_boundary};
-            let mut settings = BoundaryCoarsening {
-                min_dihedral_deg: min_dihedral,
-                tolerance: GRADED_TOLERANCE * diagonal,
-                target_tets: target,
-                levels: &[0.25, 0.5, 1.0],
-            };
-            let mut coarse = coarsen_boundary(fine, &tree, &settings).ok()?;
-            if coarse.tet_count() as f64 > 1.1 * target as f64 {
-                settings.levels = &[1.25, 1.5, 1.75, 2.0];
-                coarse = coarsen_boundary(&coarse, &tree, &settings).ok()?;
-            }
-            if coarse.tet_count() as f64 > 1.2 * target as f64 {
-                settings.levels = &[2.25, 2.5, 2.75, 3.0];
-                coarse = coarsen_boundary(&coarse, &tree, &settings).ok()?;
-            }
-            Some(coarse)
+        let Some((fine, projected, snapped)) = mesh_at(spacing / factor).ok().map(onto_surface)
+        else {
+            break;
         };
         // Kept when nearer the surface and within a third of the target. Where the count
         // came out farther off (the edge splits add tetrahedra, the interior removal after
         // the coarsening takes some), the coarsening runs again from the fine mesh toward a
         // corrected target; where the kept mesh still misses 1 %, once toward more.
-        if let Some((fine, projected, snapped)) = fine {
-            // The count after the splits follows the coarsening's target only roughly: the
-            // next target comes from the last two tries (a secant), or from the ratio after
-            // the first.
-            let mut desired = n as f64;
-            let mut target = n as f64;
-            let mut tried: Vec<(f64, f64)> = Vec::new();
-            let mut spent_more = false;
-            let mut kept = false;
-            for _attempt in 0..4 {
-                let Some(coarse) = coarsened(&fine, target.round().max(1.0) as usize) else {
-                    break;
-                };
-                let graded = Finished::split_and_measure(coarse, &goal, projected, snapped);
-                let count = graded.mesh.tet_count() as f64;
-                let r = count / n as f64;
-                tried.push((target, count));
-                if (2.0 / 3.0..=4.0 / 3.0).contains(&r) {
-                    let misses = graded.worst() > one_percent;
-                    if graded.worst() < done.worst() {
-                        done = graded;
-                        was_graded = true;
-                        kept = true;
-                    }
-                    // Still more than 1 % off with the count at most a tenth over the
-                    // target: once, about a fifth more tetrahedra (a thin lobe, a tip), the
-                    // count staying within the third.
-                    if !(misses && r < 1.1 && !spent_more) {
-                        break;
-                    }
-                    spent_more = true;
-                    desired = 1.2 * n as f64;
+        // The count after the splits follows the coarsening's target only roughly: the
+        // next target comes from the last two tries (a secant), or from the ratio after
+        // the first.
+        let mut desired = n as f64;
+        let mut target = n as f64;
+        let mut tried: Vec<(f64, f64)> = Vec::new();
+        let mut spent_more = false;
+        for _attempt in 0..4 {
+            let Some(coarse) = coarsened(&fine, target.round().max(1.0) as usize) else {
+                break;
+            };
+            let graded = Finished::split_and_measure(coarse, &goal, projected, snapped);
+            let count = graded.mesh.tet_count() as f64;
+            let r = count / n as f64;
+            tried.push((target, count));
+            if (2.0 / 3.0..=4.0 / 3.0).contains(&r) {
+                let misses = graded.worst() > one_percent;
+                if graded.worst() < done.worst() {
+                    done = graded;
+                    finer = factor;
                 }
-                target = match tried[..] {
-                    [.., (t0, c0), (t1, c1)] if (c1 - c0) * (t1 - t0) > 0.0 => {
-                        t1 + (desired - c1) * (t1 - t0) / (c1 - c0)
-                    }
-                    _ => target * desired / count.max(1.0),
-                };
-                if !(target.is_finite() && target >= 1.0) {
+                // Still more than 1 % off with the count at most a tenth over the
+                // target: once, about a fifth more tetrahedra (a thin lobe, a tip), the
+                // count staying within the third.
+                if !(misses && r < 1.1 && !spent_more) {
                     break;
                 }
+                spent_more = true;
+                desired = 1.2 * n as f64;
             }
-            if kept {
-                spacing = uniform_spacing / factor;
-                finer = factor;
+            target = match tried[..] {
+                [.., (t0, c0), (t1, c1)] if (c1 - c0) * (t1 - t0) > 0.0 => {
+                    t1 + (desired - c1) * (t1 - t0) / (c1 - c0)
+                }
+                _ => target * desired / count.max(1.0),
+            };
+            if !(target.is_finite() && target >= 1.0) {
+                break;
             }
         }
     }
+    // The report gives the lattice spacing the kept mesh came from.
+    spacing /= finer;
     let Finished {
         mesh,
         chord_volume,
@@ -732,7 +727,7 @@ pub fn tetrahedralize(
         projected_nodes: projected,
         snapped_nodes: snapped,
         split_edges: split,
-        graded: was_graded,
+        graded: finer > 1.0,
         finer,
     };
     Ok((mesh, report))
