@@ -76,8 +76,9 @@ impl Default for TetrahedralizeOptions {
 
 /// The mesher's revision: raised whenever the same surface and options give a different
 /// mesh, so that caches of meshed surfaces (the plugin's `SurfaceLoader`) key on it and an
-/// upgrade meshes again. 2: a second, finer graded level for thin parts.
-pub const REVISION: u32 = 2;
+/// upgrade meshes again. 2: a second, finer graded level for thin parts. 3: other
+/// coarsening targets for a near miss; a spacing too thick for the shape is halved.
+pub const REVISION: u32 = 3;
 
 /// What [`tetrahedralize`] did.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -546,13 +547,23 @@ pub fn tetrahedralize(
             // between h^-2 (most tetrahedra in the boundary layer) and h^-3, so the second
             // pass assumes 2.5 and a third, where the second is more than 8 % off, takes
             // the exponent the first two measured. The pass nearest the target is kept.
+            // A shape thinner than the spacing the count asks for (a wafer, a membrane)
+            // leaves no lattice tetrahedron inside: that spacing is halved until one
+            // fits, up to 256 times finer, and the count comes out over the target.
+            let fitting = |mut h: f64| -> Result<(TetMesh, f64), TetrahedralizeError> {
+                for _ in 0..8 {
+                    match mesh_at(h) {
+                        Err(TetrahedralizeError::Generate(GenerateError::Empty(_))) => h *= 0.5,
+                        other => return Ok((other?, h)),
+                    }
+                }
+                Ok((mesh_at(h)?, h))
+            };
             let want = n as f64;
             let off = |m: &TetMesh| (m.tet_count().max(1) as f64 / want).ln().abs();
-            let h1 = (5.0 * s.enclosed_volume / want).cbrt();
-            let m1 = mesh_at(h1)?;
+            let (m1, h1) = fitting((5.0 * s.enclosed_volume / want).cbrt())?;
             let n1 = m1.tet_count().max(1) as f64;
-            let h2 = h1 * (n1 / want).powf(1.0 / 2.5);
-            let m2 = mesh_at(h2)?;
+            let (m2, h2) = fitting(h1 * (n1 / want).powf(1.0 / 2.5))?;
             let n2 = m2.tet_count().max(1) as f64;
             let mut best = if off(&m2) <= off(&m1) {
                 (m2, h2)
@@ -561,8 +572,7 @@ pub fn tetrahedralize(
             };
             if (n2 / want - 1.0).abs() > 0.08 && (h1 / h2 - 1.0).abs() > 1e-3 {
                 let p = ((n2 / n1).ln() / (h1 / h2).ln()).clamp(1.5, 3.5);
-                let h3 = h2 * (n2 / want).powf(1.0 / p);
-                let m3 = mesh_at(h3)?;
+                let (m3, h3) = fitting(h2 * (n2 / want).powf(1.0 / p))?;
                 if off(&m3) < off(&best.0) {
                     best = (m3, h3);
                 }
