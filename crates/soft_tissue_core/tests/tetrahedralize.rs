@@ -379,6 +379,15 @@ fn surfaces_too_broken_to_mesh_name_the_defect() {
         "{e}"
     );
     assert!(e.to_string().contains("boundary edges"), "{e}");
+    // The rim is the sphere's polygonal equator (or the ring just below it): at most the
+    // circle's 2 pi r, within the rings' spacing of it.
+    if let TetrahedralizeError::TooOpen { rim_length, .. } = e {
+        let circle = 2.0 * PI * 0.5;
+        assert!(
+            (0.95 * circle..=circle).contains(&rim_length),
+            "rim {rim_length} against the equator's {circle}"
+        );
+    }
     // A vertex that is not finite, a triangle past the vertices, bad options.
     let mut nan = sphere(0.5);
     nan.positions[3].x = f64::NAN;

@@ -166,14 +166,19 @@ pub enum TetrahedralizeError {
     /// span (a disc of the rims' total length as circumference) is more than
     /// [`MAX_OPEN_FRACTION`] of the surface's area.
     #[error(
-        "holes too large: {boundary_edges} boundary edges whose rims could span {percent:.1} % \
-         of the surface's area (at most {max:.0} %)",
+        "holes too large: {boundary_edges} boundary edges, {rim_length:.4} long in all; a disc \
+         with that circumference would cover {percent:.1} % of the surface's area (at most \
+         {max:.0} %)",
         max = 100.0 * MAX_OPEN_FRACTION
     )]
     TooOpen {
         /// Boundary edges.
         boundary_edges: usize,
-        /// The holes' estimated area as a percentage of the surface's.
+        /// Their total length (the rims of the holes), in the surface's units.
+        rim_length: f64,
+        /// The area of a disc with the rims' total length as circumference, as a percentage
+        /// of the surface's area: an upper bound on the holes' share (exact for one round
+        /// hole), so it can pass 100 %.
         percent: f64,
     },
     /// An option is out of range.
@@ -517,6 +522,7 @@ pub fn tetrahedralize(
         if holes > MAX_OPEN_FRACTION * area {
             return Err(TetrahedralizeError::TooOpen {
                 boundary_edges: s.defects.boundary_edges,
+                rim_length: rim,
                 percent: 100.0 * holes / area,
             });
         }
@@ -1033,7 +1039,7 @@ fn split_boundary_edges(
         let mut seen = std::collections::HashSet::new();
         for t in &triangles {
             for e in 0..3 {
-                let (a, b) = (t[e].min(t[(e + 1) % 3]), t[e].max(t[(e + 1) % 3]));
+                let (a, b) = edge_of(t, e);
                 if !seen.insert((a, b)) {
                     continue;
                 }
@@ -1052,7 +1058,7 @@ fn split_boundary_edges(
                 continue;
             }
             let (a, b) = (0..3)
-                .map(|e| (t[e].min(t[(e + 1) % 3]), t[e].max(t[(e + 1) % 3])))
+                .map(|e| edge_of(t, e))
                 .max_by(|&(a, b), &(c2, d2)| {
                     (x[a] - x[b])
                         .norm_squared()
@@ -1075,7 +1081,7 @@ fn split_boundary_edges(
                 }
                 let t = triangles[k];
                 let edge = (0..3)
-                    .map(|e| (t[e].min(t[(e + 1) % 3]), t[e].max(t[(e + 1) % 3])))
+                    .map(|e| edge_of(&t, e))
                     .min_by(|&(a, b), &(c, d2)| {
                         ((x[a] + x[b]) / 2.0 - q)
                             .norm_squared()
@@ -1196,6 +1202,12 @@ fn split_boundary_edges(
         }
     }
     (current, split)
+}
+
+/// Edge `e` of triangle `t`, its smaller node first.
+fn edge_of(t: &[usize; 3], e: usize) -> (usize, usize) {
+    let (a, b) = (t[e], t[(e + 1) % 3]);
+    (a.min(b), a.max(b))
 }
 
 /// Whether every tetrahedron around node `m` keeps the quality bound at positions `x`, after
