@@ -308,6 +308,9 @@ impl AssetLoader for SurfaceLoader {
             report.max_dihedral_deg,
             100.0 * (report.volume / report.enclosed_volume - 1.0)
         );
+        if let Some(short) = report.shortfall() {
+            warn!("{name}: {short}");
+        }
         // The cache is a convenience: failing to write it costs the next start a meshing.
         let written = std::fs::create_dir_all(&dir).and_then(|()| {
             let data = soft_tissue_core::mesh::io::write_tet_mesh_bytes(

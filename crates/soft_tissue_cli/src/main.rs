@@ -395,6 +395,7 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
             serde_json::to_string_pretty(&serde_json::json!({
                 "input": name, "output": args.out.display().to_string(),
                 "triangles": surface.triangles.len(), "seconds": seconds, "report": r,
+                "shortfall": r.shortfall(),
             }))?
         );
         return Ok(());
@@ -450,6 +451,9 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
         seconds,
         args.out.display()
     );
+    if let Some(short) = r.shortfall() {
+        eprintln!("warning: {name}: {short}");
+    }
     Ok(())
 }
 

@@ -208,7 +208,34 @@ fn check(
         r.tets
     );
     assert_eq!(mesh.tet_count(), r.tets);
+    // Within what the mesher aims at, its report says nothing is missed.
+    if mesh_to_surface <= 0.01 && surface_to_mesh <= 0.01 {
+        assert_eq!(r.shortfall(), None, "{name}");
+    }
     r
+}
+
+/// A sphere of radius 0.5 at a spacing of 0.3: its chords cut a cap of height
+/// r (1 - cos(theta / 2)) off the sphere, several % of the diagonal for chords this long,
+/// and the report says what it missed.
+#[test]
+fn a_mesh_too_coarse_for_the_surface_says_what_it_missed() {
+    let options = TetrahedralizeOptions {
+        edge_length: Some(0.3),
+        ..TetrahedralizeOptions::default()
+    };
+    let (_, r) = tetrahedralize(&sphere(0.5), &options).unwrap();
+    let worst = r.mesh_to_surface.max(r.surface_to_mesh) / r.bbox_diagonal;
+    assert!(worst > 0.01, "{r:?}");
+    let short = r.shortfall().expect("a shortfall");
+    assert!(
+        short.contains(&format!(
+            "{:.2} % of the bounding box's diagonal",
+            100.0 * worst
+        )),
+        "{short}"
+    );
+    assert!(short.contains(&format!("{} tetrahedra", r.tets)), "{short}");
 }
 
 #[test]

@@ -127,6 +127,39 @@ pub struct TetrahedralizeReport {
     pub finer: f64,
 }
 
+impl TetrahedralizeReport {
+    /// What the mesh misses of what the mesher aims at (the boundary within 1 % of the
+    /// bounding box's diagonal of the surface both ways, the volume within 3 % of the
+    /// enclosed one), in words; `None` where it reaches both. A mesh that misses is still
+    /// valid and keeps the quality bound; it follows the surface only that closely.
+    pub fn shortfall(&self) -> Option<String> {
+        let mut missed = Vec::new();
+        let worst = self.mesh_to_surface.max(self.surface_to_mesh) / self.bbox_diagonal;
+        if worst > 2.0 * GRADED_TOLERANCE {
+            missed.push(format!(
+                "the boundary lies up to {:.2} % of the bounding box's diagonal from the surface \
+                 (aimed at 1 %)",
+                100.0 * worst
+            ));
+        }
+        let volume = self.volume / self.enclosed_volume - 1.0;
+        if volume.abs() > 0.03 {
+            missed.push(format!(
+                "the volume is off by {:+.2} % (aimed at 3 %)",
+                100.0 * volume
+            ));
+        }
+        (!missed.is_empty()).then(|| {
+            format!(
+                "{}: parts thinner, narrower or more folded than {} tetrahedra can follow \
+                 (a larger target count or a smaller edge length follows them closer)",
+                missed.join(" and "),
+                self.tets
+            )
+        })
+    }
+}
+
 /// Why a surface could not be meshed.
 #[derive(Debug, thiserror::Error)]
 pub enum TetrahedralizeError {
