@@ -77,7 +77,8 @@ impl Default for TetrahedralizeOptions {
 /// The mesher's revision: raised whenever the same surface and options give a different
 /// mesh, so that caches of meshed surfaces (the plugin's `SurfaceLoader`) key on it and an
 /// upgrade meshes again. 2: a second, finer graded level for thin parts. 3: other
-/// coarsening targets for a near miss; a spacing too thick for the shape is halved.
+/// coarsening targets for a near miss, four graded levels instead of two; a spacing too
+/// thick for the shape is halved.
 pub const REVISION: u32 = 3;
 
 /// What [`tetrahedralize`] did.
@@ -122,8 +123,8 @@ pub struct TetrahedralizeReport {
     /// the surface is flat) rather than the uniform one.
     pub graded: bool,
     /// How many times finer than the uniform lattice the graded mesh's lattice was: 1 for
-    /// the uniform mesh, at most 2.5 at the first level, at most 3.5 where a thin part
-    /// needed the second.
+    /// the uniform mesh, at most 2.5 at the first level, at most 3, 3.5 or 4 where a thin
+    /// part needed a finer one.
     pub finer: f64,
 }
 
@@ -651,9 +652,12 @@ pub fn tetrahedralize(
     // fast; below 1.2 times finer there is nothing to gain. Where the kept mesh still
     // misses 1 % but stays within 2.5 % (a thin part: where it is about two fine
     // lattice spacings thick, its tetrahedra have every node on the boundary and no split
-    // there keeps the bound; a tip folded nearly flat), once more from a finer mesh: at most
-    // 3.5 times finer and about 60k tetrahedra. Surfaces that need it pay for it; the others
-    // stop at the first level.
+    // there keeps the bound; a tip folded nearly flat), again from finer meshes in turn:
+    // at most 3, 3.5 and 4 times finer and about 45k, 60k and 90k tetrahedra, until one is
+    // within 1 %. Each finer lattice puts interior nodes where the last had none, and each
+    // gives the coarsening and the splits after it other nodes to work with (where a result
+    // lies near 1 %, which side it falls on changes with the lattice, not steadily).
+    // Surfaces that need it pay for it; the others stop at the first level.
     // The distance the graded mesh is there to reach: 1 % of the diagonal.
     let one_percent = 2.0 * GRADED_TOLERANCE * diagonal;
     // The fine mesh's boundary coarsened toward `target` tetrahedra (the same at each level).
@@ -685,14 +689,22 @@ pub fn tetrahedralize(
     let levels: Vec<(usize, f64)> = match (options.edge_length, options.target_tets) {
         (None, Some(n)) => {
             let factor = |budget: f64, cap: f64| (budget / n as f64).powf(0.4).min(cap);
-            vec![(n, factor(25_000.0, 2.5)), (n, factor(60_000.0, 3.5))]
+            [
+                (25_000.0, 2.5),
+                (45_000.0, 3.0),
+                (60_000.0, 3.5),
+                (90_000.0, 4.0),
+            ]
+            .map(|(budget, cap)| (n, factor(budget, cap)))
+            .to_vec()
         }
         _ => Vec::new(),
     };
     for (level, (n, factor)) in levels.into_iter().enumerate() {
-        // The second level only after the first ran, and only for a miss up to 2.5 %: its
-        // lattice is 1.4 times finer, which shrinks a chord's distance about 1.4^2 = 2 times.
-        // A surface farther off (a long tube) is not followed at this count by either.
+        // The finer levels only after the first ran, and only for a miss up to 2.5 %: the
+        // finest lattice is 1.6 times finer than the first's, which shrinks a chord's
+        // distance about 1.6^2 = 2.6 times. A surface farther off (a long tube) is not
+        // followed at this count by any.
         let worst = done.worst();
         if worst <= one_percent || factor < 1.2 || (level > 0 && worst > 2.5 * one_percent) {
             break;
