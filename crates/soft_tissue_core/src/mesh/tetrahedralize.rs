@@ -653,8 +653,8 @@ pub fn tetrahedralize(
     // misses 1 % but stays within 2.5 % (a thin part: where it is about two fine
     // lattice spacings thick, its tetrahedra have every node on the boundary and no split
     // there keeps the bound; a tip folded nearly flat), again from finer meshes in turn:
-    // at most 3, 3.5 and 4 times finer and about 45k, 60k and 90k tetrahedra, until one is
-    // within 1 %. Each finer lattice puts interior nodes where the last had none, and each
+    // at most 3, 3.5 and 4 times finer and about 45k, 60k and 90k tetrahedra (see `levels`
+    // for which misses each runs for), until one is within 1 %. Each finer lattice puts interior nodes where the last had none, and each
     // gives the coarsening and the splits after it other nodes to work with (where a result
     // lies near 1 %, which side it falls on changes with the lattice, not steadily).
     // Surfaces that need it pay for it; the others stop at the first level.
@@ -686,28 +686,35 @@ pub fn tetrahedralize(
     };
     // How many times finer the kept mesh's lattice is than the uniform one (1: uniform).
     let mut finer = 1.0;
-    let levels: Vec<(usize, f64)> = match (options.edge_length, options.target_tets) {
+    // Each level: the count, how many times finer, and the largest miss (in % of the
+    // diagonal) it runs for. The finer levels only after the first ran: the one 3.5 times
+    // finer for a miss up to 2.5 % (1.4 times finer than the first's, it shrinks a chord's
+    // distance about 1.4^2 = 2 times); those 3 and 4 times finer only for a near miss, up
+    // to 1.5 %, where another lattice is another chance (a far miss, a thin-walled heart
+    // at 1.8 %, gained nothing from them, and a small intestine at 10000 tetrahedra took
+    // over 120 s instead of 53 s). A surface farther off (a long tube) is not followed at
+    // this count by any.
+    let levels: Vec<(usize, f64, f64)> = match (options.edge_length, options.target_tets) {
         (None, Some(n)) => {
             let factor = |budget: f64, cap: f64| (budget / n as f64).powf(0.4).min(cap);
             [
-                (25_000.0, 2.5),
-                (45_000.0, 3.0),
-                (60_000.0, 3.5),
-                (90_000.0, 4.0),
+                (25_000.0, 2.5, f64::INFINITY),
+                (45_000.0, 3.0, 1.5),
+                (60_000.0, 3.5, 2.5),
+                (90_000.0, 4.0, 1.5),
             ]
-            .map(|(budget, cap)| (n, factor(budget, cap)))
+            .map(|(budget, cap, reach)| (n, factor(budget, cap), reach))
             .to_vec()
         }
         _ => Vec::new(),
     };
-    for (level, (n, factor)) in levels.into_iter().enumerate() {
-        // The finer levels only after the first ran, and only for a miss up to 2.5 %: the
-        // finest lattice is 1.6 times finer than the first's, which shrinks a chord's
-        // distance about 1.6^2 = 2.6 times. A surface farther off (a long tube) is not
-        // followed at this count by any.
+    for (n, factor, reach) in levels {
         let worst = done.worst();
-        if worst <= one_percent || factor < 1.2 || (level > 0 && worst > 2.5 * one_percent) {
+        if worst <= one_percent || factor < 1.2 {
             break;
+        }
+        if worst > reach * one_percent {
+            continue;
         }
         // The graded mesh is an improvement on the uniform one: should any step of it fail
         // (a lattice too large, a mesh the coarsening left invalid), the uniform one stays.
