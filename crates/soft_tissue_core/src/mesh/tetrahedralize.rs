@@ -136,18 +136,20 @@ impl TetrahedralizeReport {
     pub fn shortfall(&self) -> Option<String> {
         let mut missed = Vec::new();
         let worst = self.mesh_to_surface.max(self.surface_to_mesh) / self.bbox_diagonal;
-        if worst > 2.0 * GRADED_TOLERANCE {
+        if worst > AIMED_DISTANCE {
             missed.push(format!(
                 "the boundary lies up to {:.2} % of the bounding box's diagonal from the surface \
-                 (aimed at 1 %)",
-                100.0 * worst
+                 (aimed at {:.0} %)",
+                100.0 * worst,
+                100.0 * AIMED_DISTANCE
             ));
         }
         let volume = self.volume / self.enclosed_volume - 1.0;
-        if volume.abs() > 0.03 {
+        if volume.abs() > AIMED_VOLUME {
             missed.push(format!(
-                "the volume is off by {:+.2} % (aimed at 3 %)",
-                100.0 * volume
+                "the volume is off by {:+.2} % (aimed at {:.0} %)",
+                100.0 * volume,
+                100.0 * AIMED_VOLUME
             ));
         }
         (!missed.is_empty()).then(|| {
@@ -659,7 +661,7 @@ pub fn tetrahedralize(
     // lies near 1 %, which side it falls on changes with the lattice, not steadily).
     // Surfaces that need it pay for it; the others stop at the first level.
     // The distance the graded mesh is there to reach: 1 % of the diagonal.
-    let one_percent = 2.0 * GRADED_TOLERANCE * diagonal;
+    let one_percent = AIMED_DISTANCE * diagonal;
     // The fine mesh's boundary coarsened toward `target` tetrahedra (the same at each level).
     // First within the tolerance; while the count stays a tenth over the target, again
     // within up to twice it, then, a fifth over, three times (a surface too detailed for
@@ -699,9 +701,9 @@ pub fn tetrahedralize(
             let factor = |budget: f64, cap: f64| (budget / n as f64).powf(0.4).min(cap);
             [
                 (25_000.0, 2.5, f64::INFINITY),
-                (45_000.0, 3.0, 1.5),
+                (45_000.0, 3.0, NEAR_MISS),
                 (60_000.0, 3.5, 2.5),
-                (90_000.0, 4.0, 1.5),
+                (90_000.0, 4.0, NEAR_MISS),
             ]
             .map(|(budget, cap, reach)| (n, factor(budget, cap), reach))
             .to_vec()
@@ -771,7 +773,7 @@ pub fn tetrahedralize(
         // the kept mesh misses; a result outside the third is not kept.
         if let Some(t) = in_window {
             for f in [1.2, 0.85, 1.4, 0.7] {
-                if !(one_percent..=1.5 * one_percent).contains(&done.worst()) {
+                if !(one_percent..=NEAR_MISS * one_percent).contains(&done.worst()) {
                     break;
                 }
                 if let Some(graded) = try_target((t * f).round()).filter(within_third)
@@ -936,6 +938,17 @@ fn restore_volume(mesh: TetMesh, enclosed: f64, min_dihedral: f64, max_offset: f
 /// box's diagonal; while the count is above the target it goes up to twice this (1 %), then
 /// three times (1.5 %).
 pub const GRADED_TOLERANCE: f64 = 0.005;
+
+/// What the mesher aims at, as fractions: the boundary within this much of the bounding
+/// box's diagonal of the surface, both ways (twice [`GRADED_TOLERANCE`])...
+pub const AIMED_DISTANCE: f64 = 2.0 * GRADED_TOLERANCE;
+
+/// ... and the volume within this much of the enclosed one.
+pub const AIMED_VOLUME: f64 = 0.03;
+
+/// A near miss, as a multiple of [`AIMED_DISTANCE`]: the misses the near-miss search and
+/// the graded levels 3 and 4 times finer run for.
+const NEAR_MISS: f64 = 1.5;
 
 /// How near the boundary must come to every sample of the input surface before the feature
 /// fit stops, as a fraction of the bounding box's diagonal.
