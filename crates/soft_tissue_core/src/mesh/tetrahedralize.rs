@@ -1293,6 +1293,18 @@ fn make_room(
     let cos = |x: &[Vec3], k: usize| tet_worst_cos(&tets[k].map(|v| x[v]));
     let worst_at =
         |x: &[Vec3], v: usize| node_tets[v].iter().map(|&k| cos(x, k)).fold(0.0, f64::max);
+    // The same worst, or `None` as soon as one tetrahedron reaches `bound`: a step the
+    // search would not take, found without the rest.
+    let worst_below = |x: &[Vec3], v: usize, bound: f64| -> Option<f64> {
+        let mut worst: f64 = 0.0;
+        for &k in &node_tets[v] {
+            worst = worst.max(cos(x, k));
+            if worst >= bound {
+                return None;
+            }
+        }
+        Some(worst)
+    };
     // Accepted by the bound's own check, as everywhere else in the mesher.
     let holds = |x: &[Vec3], k: usize| tet_quality_deg(&tets[k].map(|v| x[v])) >= min_dihedral;
     let bad = |x: &[Vec3]| -> Vec<usize> {
@@ -1343,8 +1355,7 @@ fn make_room(
                         let mut p = here;
                         p[axis] += sign * step;
                         x[n] = p;
-                        let w = worst_at(x, n);
-                        if w < best {
+                        if let Some(w) = worst_below(x, n, best) {
                             best = w;
                             found = Some(p);
                         }
