@@ -203,6 +203,64 @@ fn obj_round_trip_and_polygon_faces() {
     assert_eq!(q.triangles, vec![[0, 1, 2], [0, 2, 3], [0, 2, 3]]);
 }
 
+/// Negative indices count back from the vertices read so far (the OBJ rule), not from the
+/// file's last vertex: two objects, each a `v` block and its own relative faces, as
+/// exporters write them. Counted from the end, the first object's face took the second's
+/// vertices and a real file's volume came out 1.67 times too large.
+#[test]
+fn obj_negative_indices_count_back_from_the_vertices_read_so_far() {
+    let text = "o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n\
+                o b\nv 0 0 5\nv 1 0 5\nv 0 1 5\nf -3/1 -2/2 -1/3\n";
+    let s = parse_obj(text.as_bytes(), "two.obj").unwrap();
+    assert_eq!(s.triangles, vec![[0, 1, 2], [3, 4, 5]]);
+    let e = parse_obj(b"v 0 0 0\nv 1 0 0\nf -1 -2 -3\nv 0 1 0\n", "c.obj").unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("line 3: face refers to vertex -3, but 2 vertices come before the face"),
+        "{e}"
+    );
+}
+
+/// What real exporters put around the records: a UTF-8 byte order mark (it hid the first
+/// vertex and shifted every index by one), a `#` comment after a face, a line continued
+/// with `\\`, and CR line ends (classic Mac OS), whose lines are numbered in messages.
+#[test]
+fn obj_reads_a_byte_order_mark_trailing_comments_continuations_and_cr_line_ends() {
+    let want = SurfaceMesh {
+        positions: vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+        ],
+        triangles: vec![[0, 1, 2]],
+    };
+    let bom = b"\xEF\xBB\xBFv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+    assert_eq!(parse_obj(bom, "bom.obj").unwrap(), want);
+    let commented = "v 0 0 0 # origin\nv 1 \\\n 0 0\nv 0 1 0\nf 1 2 3 # the face\n";
+    assert_eq!(parse_obj(commented.as_bytes(), "c.obj").unwrap(), want);
+    let cr = "v 0 0 0\rv 1 0 0\rv 0 1 0\rf 1 2 3\r";
+    assert_eq!(parse_obj(cr.as_bytes(), "cr.obj").unwrap(), want);
+    let crlf = cr.replace('\r', "\r\n");
+    assert_eq!(parse_obj(crlf.as_bytes(), "crlf.obj").unwrap(), want);
+    for (text, name) in [(cr, "cr.obj"), (crlf.as_str(), "crlf.obj")] {
+        let e = parse_obj(text.replace("f 1 2 3", "f 1 2 9").as_bytes(), name).unwrap_err();
+        assert!(
+            e.to_string().contains(&format!("{name}: line 4: face refers to vertex 9")),
+            "{e}"
+        );
+    }
+}
+
+/// A corner repeated in a row is a smaller polygon (`f 1 2 3 3`, a triangle written in a
+/// quad's place, is the triangle); a face with fewer than three distinct corners stays,
+/// degenerate, for the mesher's repair to count and drop, as the other readers leave it.
+#[test]
+fn obj_faces_with_repeated_corners_are_read_not_refused() {
+    let text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3 3\nf 4 4 1\nf 1 2 1 4\n";
+    let s = parse_obj(text.as_bytes(), "r.obj").unwrap();
+    assert_eq!(s.triangles, vec![[0, 1, 2], [3, 3, 0], [0, 1, 0], [0, 0, 3]]);
+}
+
 #[test]
 fn gmsh_version_1_and_2_0() {
     let v1 = "$NOD\n4\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n$ENDNOD\n$ELM\n2\n1 4 1 1 4 1 2 3 4\n2 1 1 1 2 1 2\n$ENDELM\n";

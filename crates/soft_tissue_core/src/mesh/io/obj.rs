@@ -1,9 +1,11 @@
 //! Wavefront OBJ triangle surfaces (visual meshes, cages): `v` and `f` records are read
-//! (faces may use `v/vt/vn` forms and negative indices; polygons are fan-triangulated), every
-//! other record is ignored.
+//! (faces may use `v/vt/vn` forms and negative indices, which count back from the vertices
+//! read so far; polygons are fan-triangulated), every other record is ignored. `#` starts a
+//! comment anywhere on a line, a line ending in `\` goes on on the next, and lines may end in
+//! LF, CR LF or CR.
 
 use super::FormatError;
-use super::text::{Cursor, LineFields, parse_i64, show};
+use super::text::{Cursor, LineFields, parse_i64, show, tokens};
 use crate::Vec3;
 use crate::mesh::TetMesh;
 use std::fmt::Write as _;
@@ -37,9 +39,15 @@ impl SurfaceMesh {
 pub fn parse_obj(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
     let mut c = Cursor::new(data, name);
     let mut out = SurfaceMesh::default();
-    let mut faces: Vec<(usize, Vec<i64>)> = Vec::new();
-    while let Some((at, line)) = c.next_line() {
-        let f = LineFields::new(&c, at, line);
+    // Each face's line, its indices, and how many vertices came before it (a negative
+    // index counts back from there).
+    let mut faces: Vec<(usize, Vec<i64>, usize)> = Vec::new();
+    while let Some((at, toks)) = next_record(&mut c) {
+        let f = LineFields {
+            cursor: &c,
+            start: at,
+            toks,
+        };
         match f.toks[0] {
             b"v" => {
                 f.need(4, "vertex (v x y z)")?;
@@ -66,36 +74,79 @@ pub fn parse_obj(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
                     })?;
                     idx.push(v);
                 }
-                faces.push((at, idx));
+                faces.push((at, idx, out.positions.len()));
             }
             _ => {}
         }
     }
     let n = out.positions.len() as i64;
-    for (at, idx) in faces {
-        let mut resolved = Vec::with_capacity(idx.len());
+    for (at, idx, before) in faces {
+        let mut corners = Vec::with_capacity(idx.len());
         for v in idx {
-            let i = if v > 0 { v - 1 } else { n + v };
+            let i = if v > 0 { v - 1 } else { before as i64 + v };
             if !(0..n).contains(&i) || i > u32::MAX as i64 {
-                return Err(c.err_at(
-                    at,
-                    format!("face refers to vertex {v}, but there are {n} vertices"),
-                ));
+                let known = if v > 0 {
+                    format!("there are {n} vertices")
+                } else {
+                    format!("{before} vertices come before the face")
+                };
+                return Err(c.err_at(at, format!("face refers to vertex {v}, but {known}")));
             }
-            resolved.push(i as u32);
+            corners.push(i as u32);
         }
-        for k in 1..resolved.len() - 1 {
-            let t = [resolved[0], resolved[k], resolved[k + 1]];
-            if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
-                return Err(c.err_at(at, format!("face uses vertex {} twice", t[0] as i64 + 1)));
-            }
-            out.triangles.push(t);
-        }
+        out.triangles.extend(fan(&corners));
     }
     if out.triangles.is_empty() {
         return Err(FormatError::unsupported(name, "the OBJ file has no faces"));
     }
     Ok(out)
+}
+
+/// The next record's start and fields: a `#` starts a comment that runs to the end of the
+/// line, and a line that ends in `\` goes on on the next. `None` at the end.
+fn next_record<'a>(c: &mut Cursor<'a>) -> Option<(usize, Vec<&'a [u8]>)> {
+    loop {
+        let (at, mut line) = c.next_line()?;
+        let mut toks = Vec::new();
+        loop {
+            let body = line
+                .split(|&b| b == b'#')
+                .next()
+                .unwrap_or_default()
+                .trim_ascii_end();
+            let Some(head) = body.strip_suffix(b"\\") else {
+                toks.extend(tokens(body));
+                break;
+            };
+            toks.extend(tokens(head));
+            match c.raw_line() {
+                Some(next) => line = next,
+                None => break,
+            }
+        }
+        if !toks.is_empty() {
+            return Some((at, toks));
+        }
+    }
+}
+
+/// A polygon's triangles, fanned from its first corner. A corner repeated in a row (`f a b
+/// c c`: a triangle written in a quad's place) is the polygon without the repeat. A face
+/// with fewer than three corners left, or one that comes back to a corner later, keeps its
+/// degenerate triangles: the mesher's repair counts and drops them, as it does for every
+/// format.
+fn fan(corners: &[u32]) -> Vec<[u32; 3]> {
+    let mut ring = corners.to_vec();
+    ring.dedup();
+    while ring.len() > 1 && ring.first() == ring.last() {
+        ring.pop();
+    }
+    if ring.len() < 3 {
+        ring = corners.to_vec();
+    }
+    (1..ring.len() - 1)
+        .map(|k| [ring[0], ring[k], ring[k + 1]])
+        .collect()
 }
 
 /// Serialises a surface as OBJ text (1-based indices).

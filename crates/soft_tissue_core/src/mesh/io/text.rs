@@ -3,6 +3,9 @@
 
 use super::{FormatError, Location};
 
+/// The UTF-8 byte order mark some editors write at the start of a text file.
+pub(crate) const UTF8_BOM: &[u8] = b"\xEF\xBB\xBF";
+
 pub(crate) struct Cursor<'a> {
     pub data: &'a [u8],
     pub pos: usize,
@@ -13,16 +16,41 @@ pub(crate) struct Cursor<'a> {
 pub(crate) type Res<T> = Result<T, FormatError>;
 
 impl<'a> Cursor<'a> {
+    /// A cursor at the start of `data`, past a UTF-8 byte order mark if there is one.
     pub fn new(data: &'a [u8], name: &'a str) -> Self {
-        Self { data, pos: 0, name }
+        let pos = if data.starts_with(UTF8_BOM) {
+            UTF8_BOM.len()
+        } else {
+            0
+        };
+        Self { data, pos, name }
     }
 
-    /// 1-based line number of a byte position.
+    /// 1-based line number of a byte position. Lines end at LF, CR LF or a lone CR.
     pub fn line_of(&self, pos: usize) -> usize {
-        1 + self.data[..pos.min(self.data.len())]
+        let before = &self.data[..pos.min(self.data.len())];
+        let lone_cr = before
             .iter()
-            .filter(|&&b| b == b'\n')
-            .count()
+            .enumerate()
+            .filter(|&(i, &b)| b == b'\r' && self.data.get(i + 1) != Some(&b'\n'))
+            .count();
+        1 + lone_cr + before.iter().filter(|&&b| b == b'\n').count()
+    }
+
+    /// Where the line starting at `start` ends, and where the next one starts: at the first
+    /// LF, CR LF or lone CR (classic Mac OS text), else at the end of the data.
+    fn line_end(&self, start: usize) -> (usize, usize) {
+        match self.data[start..]
+            .iter()
+            .position(|&b| b == b'\n' || b == b'\r')
+        {
+            Some(i) => {
+                let end = start + i;
+                let crlf = self.data[end] == b'\r' && self.data.get(end + 1) == Some(&b'\n');
+                (end, end + 1 + usize::from(crlf))
+            }
+            None => (self.data.len(), self.data.len()),
+        }
     }
 
     /// An error at the line containing `pos`.
@@ -64,11 +92,8 @@ impl<'a> Cursor<'a> {
             return None;
         }
         let start = self.pos;
-        let end = self.data[start..]
-            .iter()
-            .position(|&b| b == b'\n')
-            .map_or(self.data.len(), |i| start + i);
-        self.pos = (end + 1).min(self.data.len());
+        let (end, next) = self.line_end(start);
+        self.pos = next;
         Some(self.data[start..end].trim_ascii())
     }
 
@@ -79,11 +104,8 @@ impl<'a> Cursor<'a> {
                 return None;
             }
             let start = self.pos;
-            let end = self.data[start..]
-                .iter()
-                .position(|&b| b == b'\n')
-                .map_or(self.data.len(), |i| start + i);
-            self.pos = (end + 1).min(self.data.len());
+            let (end, next) = self.line_end(start);
+            self.pos = next;
             let line = self.data[start..end].trim_ascii();
             if !line.is_empty() {
                 return Some((start, line));
