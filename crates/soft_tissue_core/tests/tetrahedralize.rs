@@ -654,6 +654,41 @@ fn gltf_files_written_by_trimesh_and_pygltflib_read_back_placed() {
     assert!(e.to_string().contains("no triangles"), "{e}");
 }
 
+/// A glTF node hierarchy is a set of trees: a node under two parents is refused with both
+/// named (walked as given, a chain of 40 such nodes placed its mesh 2^40 times and never
+/// finished), while a mesh shared by two nodes, the format's instancing, is placed twice.
+#[test]
+fn a_gltf_node_under_two_parents_is_refused_and_a_shared_mesh_is_placed_twice() {
+    use soft_tissue_core::mesh::io::parse_gltf;
+    // One triangle, (0,0,0) (1,0,0) (0,1,0), in a data URI.
+    let with_nodes = |nodes: &str, roots: &str| {
+        format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":{roots}}}],
+            "nodes":{nodes},"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],
+            "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3",
+            "min":[0,0,0],"max":[1,1,0]}}],"bufferViews":[{{"buffer":0,"byteLength":36}}],
+            "buffers":[{{"byteLength":36,
+            "uri":"data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAA"}}]}}"#
+        )
+    };
+    let diamond = with_nodes(r#"[{"children":[1,2]},{"children":[2]},{"mesh":0}]"#, "[0]");
+    let e = parse_gltf(diamond.as_bytes(), "diamond.gltf", &mut |_| unreachable!()).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("diamond.gltf: node 2 is a child of both node 0 and node 1"),
+        "{e}"
+    );
+    let shared = with_nodes(
+        r#"[{"children":[1,2]},{"mesh":0},{"mesh":0,"translation":[0,0,5]}]"#,
+        "[0]",
+    );
+    let s = parse_gltf(shared.as_bytes(), "shared.gltf", &mut |_| unreachable!()).unwrap();
+    assert_eq!(s.triangles.len(), 2);
+    for z in [0.0, 5.0] {
+        assert!(s.positions.contains(&Vec3::new(0.0, 1.0, z)), "{:?}", s.positions);
+    }
+}
+
 /// A meshed surface simulates: in a world with the organ material, the built-in `poke`
 /// raises it to its precise level and, after the withdrawal, it returns to its cage.
 #[test]

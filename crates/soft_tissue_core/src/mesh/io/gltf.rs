@@ -71,8 +71,27 @@ pub fn parse_gltf(
     let scene = gltf.default_scene().or_else(|| gltf.scenes().next());
     match scene {
         Some(scene) => {
-            // Parents first; a node may appear under several parents (instancing), and a
-            // cycle (which the format forbids) is refused by the depth bound.
+            // The format's node hierarchy is a set of trees (a mesh, not a node, is what
+            // several nodes share). A node under two parents is refused: walked as given,
+            // a chain of such nodes places its meshes exponentially many times.
+            let mut parent_of: Vec<Option<usize>> = vec![None; gltf.nodes().len()];
+            for node in gltf.nodes() {
+                for child in node.children() {
+                    if let Some(first) = parent_of[child.index()].replace(node.index()) {
+                        return Err(FormatError::unsupported(
+                            name,
+                            format!(
+                                "node {} is a child of both node {first} and node {}; glTF \
+                                 node hierarchies must be trees (share the mesh instead)",
+                                child.index(),
+                                node.index()
+                            ),
+                        ));
+                    }
+                }
+            }
+            // Parents first; a cycle (each node with one parent, which the format also
+            // forbids) is refused by the depth bound.
             let mut stack: Vec<(gltf::Node<'_>, Matrix4<f64>, usize)> =
                 scene.nodes().map(|n| (n, Matrix4::identity(), 0)).collect();
             let limit = gltf.nodes().len();
