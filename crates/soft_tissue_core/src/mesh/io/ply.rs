@@ -2,6 +2,11 @@
 //! element's `x`, `y`, `z` and the `face` element's index list (`vertex_indices` or
 //! `vertex_index`) are read; every other element and property is skipped by its declared
 //! type. Polygons are fan-triangulated.
+//!
+//! The header ends at the first line that is exactly `end_header` (trimmed), so a comment
+//! naming it does not cut the header short; its lines may end in `\n`, `\r\n`, or a lone
+//! `\r` where the `ply` line does. A face index that is not one of the file's vertices is
+//! refused with the face's number in its element, the index and the vertex count.
 
 use super::FormatError;
 use super::obj::SurfaceMesh;
@@ -117,22 +122,66 @@ impl Body<'_> {
 
 /// Parses a PLY file. `name` is used in messages.
 pub fn parse_ply(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
-    let bad = |msg: String| FormatError::unsupported(name, msg);
-    let end = data
-        .windows(10)
-        .position(|w| w == b"end_header")
-        .ok_or_else(|| bad("no `end_header`: not a PLY file".into()))?;
-    let header =
-        std::str::from_utf8(&data[..end]).map_err(|_| bad("the header is not text".into()))?;
-    let mut lines = header.lines().map(str::trim);
-    if lines.next() != Some("ply") {
-        return Err(bad("the file does not start with `ply`".into()));
+    let (lines, body_start) = split_header(data, name)?;
+    let (encoding, elements) = parse_header(&lines, name)?;
+    let mut body = Body {
+        data,
+        pos: body_start,
+        encoding,
+        name,
+    };
+    read_body(&mut body, &elements)
+}
+
+/// The header's lines, trimmed (`ply` first), and the byte where the body starts: after
+/// the first line that is exactly `end_header` (a comment naming it does not end the
+/// header). Lines end in `\n` or `\r\n`, or in a lone `\r` where the first line does.
+fn split_header<'a>(data: &'a [u8], name: &str) -> Result<(Vec<&'a [u8]>, usize), FormatError> {
+    let bad = |msg: &str| FormatError::unsupported(name, msg);
+    let first_end = data.iter().position(|&b| b == b'\n' || b == b'\r');
+    let cr_only = first_end
+        .and_then(|i| data.get(i..))
+        .is_some_and(|t| t.starts_with(b"\r") && !t.starts_with(b"\r\n"));
+    let mut lines = Vec::new();
+    let mut pos = 0;
+    while pos < data.len() {
+        let (line, next) = header_line(data, pos, cr_only);
+        if lines.is_empty() && line != b"ply" {
+            return Err(bad("the file does not start with `ply`"));
+        }
+        lines.push(line);
+        pos = next;
+        if line == b"end_header" {
+            return Ok((lines, pos));
+        }
     }
+    Err(bad(
+        "no `end_header` line: not a PLY file, or its header is cut short",
+    ))
+}
+
+/// The line starting at `pos`, trimmed, and where the next one starts.
+fn header_line(data: &[u8], pos: usize, cr_only: bool) -> (&[u8], usize) {
+    let rest = data.get(pos..).unwrap_or_default();
+    let Some(end) = rest.iter().position(|&b| b == b'\n' || b == b'\r') else {
+        return (rest.trim_ascii(), data.len());
+    };
+    let crlf = !cr_only && rest.get(end..end + 2) == Some(b"\r\n");
+    (
+        rest[..end].trim_ascii(),
+        pos + end + if crlf { 2 } else { 1 },
+    )
+}
+
+/// The encoding and the elements the header declares.
+fn parse_header(lines: &[&[u8]], name: &str) -> Result<(Encoding, Vec<Element>), FormatError> {
+    let bad = |msg: String| FormatError::unsupported(name, msg);
     let mut encoding = None;
     let mut elements: Vec<Element> = Vec::new();
-    for (k, line) in lines.enumerate() {
-        let line_no = k + 2;
-        let f: Vec<&str> = line.split_whitespace().collect();
+    for (k, line) in lines.iter().enumerate().skip(1) {
+        let line_no = k + 1;
+        let text = String::from_utf8_lossy(line);
+        let f: Vec<&str> = text.split_whitespace().collect();
         match f.first().copied() {
             Some("format") => {
                 encoding = Some(match f.get(1).copied() {
@@ -165,88 +214,59 @@ pub fn parse_ply(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
                         "header line {line_no}: a property before any element"
                     )));
                 };
-                let p = match f.as_slice() {
-                    ["property", "list", c, v, n] => match (Scalar::parse(c), Scalar::parse(v)) {
-                        (Some(c), Some(v)) => Property::List(n.to_string(), c, v),
-                        _ => {
-                            return Err(bad(format!(
-                                "header line {line_no}: unknown list types `{c}`, `{v}`"
-                            )));
-                        }
-                    },
-                    ["property", t, n] => match Scalar::parse(t) {
-                        Some(t) => Property::Scalar(n.to_string(), t),
-                        None => {
-                            return Err(bad(format!("header line {line_no}: unknown type `{t}`")));
-                        }
-                    },
-                    _ => {
-                        return Err(bad(format!(
-                            "header line {line_no}: `property TYPE NAME` expected"
-                        )));
-                    }
-                };
+                let p =
+                    parse_property(&f).map_err(|m| bad(format!("header line {line_no}: {m}")))?;
                 e.properties.push(p);
             }
             _ => {}
         }
     }
     let encoding = encoding.ok_or_else(|| bad("no `format` line".into()))?;
-    // The body starts after the line holding `end_header`.
-    let mut start = end + 10;
-    while start < data.len() && data[start] != b'\n' {
-        start += 1;
+    Ok((encoding, elements))
+}
+
+/// A `property TYPE NAME` or `property list COUNT_TYPE ITEM_TYPE NAME` line's fields.
+fn parse_property(f: &[&str]) -> Result<Property, String> {
+    match f {
+        ["property", "list", c, v, n] => match (Scalar::parse(c), Scalar::parse(v)) {
+            (Some(c), Some(v)) => Ok(Property::List(n.to_string(), c, v)),
+            _ => Err(format!("unknown list types `{c}`, `{v}`")),
+        },
+        ["property", t, n] => match Scalar::parse(t) {
+            Some(t) => Ok(Property::Scalar(n.to_string(), t)),
+            None => Err(format!("unknown type `{t}`")),
+        },
+        _ => Err("`property TYPE NAME` expected".into()),
     }
-    let mut body = Body {
-        data,
-        pos: (start + 1).min(data.len()),
-        encoding,
-        name,
-    };
+}
+
+/// One entry of an element: its `x`, `y`, `z` (NaN where absent) and its vertex index
+/// list, if it has one (`vertex_indices` or `vertex_index` of a `face`).
+type Entry = ([f64; 3], Option<Vec<f64>>);
+
+/// Reads every element's entries, keeping the vertices and the faces' triangles.
+fn read_body(body: &mut Body, elements: &[Element]) -> Result<SurfaceMesh, FormatError> {
+    let name = body.name;
+    let bad = |msg: String| FormatError::unsupported(name, msg);
+    // A count the data cannot hold is refused before anything is reserved.
+    if let Some(e) = elements.iter().find(|e| e.count > body.data.len()) {
+        return Err(bad(format!(
+            "element `{}` declares {} entries, more than the file's {} bytes",
+            e.name,
+            e.count,
+            body.data.len()
+        )));
+    }
+    // Each vertex entry gives one vertex, so the count is known before any face is read,
+    // wherever the faces come.
+    let vertices = elements
+        .iter()
+        .filter(|e| e.name == "vertex")
+        .fold(0usize, |n, e| n.saturating_add(e.count));
     let mut out = SurfaceMesh::default();
-    // The count of vertices is known before the faces only if the vertex element comes
-    // first, as PLY writers put it; indices are checked at the end either way.
-    for e in &elements {
-        // A count the data cannot hold is refused before anything is reserved.
-        if e.count > data.len() {
-            return Err(bad(format!(
-                "element `{}` declares {} entries, more than the file's {} bytes",
-                e.name,
-                e.count,
-                data.len()
-            )));
-        }
-        for _ in 0..e.count {
-            let mut xyz = [f64::NAN; 3];
-            let mut face: Option<Vec<f64>> = None;
-            for p in &e.properties {
-                match p {
-                    Property::Scalar(n, t) => {
-                        let v = body.value(*t)?;
-                        if e.name == "vertex" {
-                            match n.as_str() {
-                                "x" => xyz[0] = v,
-                                "y" => xyz[1] = v,
-                                "z" => xyz[2] = v,
-                                _ => {}
-                            }
-                        }
-                    }
-                    Property::List(n, c, v) => {
-                        let count = body.value(*c)?;
-                        if !(0.0..=1e6).contains(&count) {
-                            return Err(body.err(format!("a list of {count} entries")));
-                        }
-                        let mut items = Vec::with_capacity(count as usize);
-                        for _ in 0..count as usize {
-                            items.push(body.value(*v)?);
-                        }
-                        if e.name == "face" && (n == "vertex_indices" || n == "vertex_index") {
-                            face = Some(items);
-                        }
-                    }
-                }
-            }
+    for e in elements {
+        for j in 0..e.count {
+            let (xyz, face) = read_entry(body, e)?;
             if e.name == "vertex" {
                 if !xyz.iter().all(|c| c.is_finite()) {
                     return Err(bad(format!(
@@ -257,43 +277,81 @@ pub fn parse_ply(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
                 out.positions.push(Vec3::new(xyz[0], xyz[1], xyz[2]));
             }
             if let Some(items) = face {
-                if items.len() < 3 {
-                    return Err(bad(format!(
-                        "face {}: {} vertices (at least 3)",
-                        out.triangles.len(),
-                        items.len()
-                    )));
-                }
-                let idx: Vec<u32> = items
-                    .iter()
-                    .map(|&i| {
-                        if i >= 0.0 && i < u32::MAX as f64 && i.fract() == 0.0 {
-                            Ok(i as u32)
-                        } else {
-                            Err(bad(format!("face index {i} is not a vertex number")))
-                        }
-                    })
-                    .collect::<Result<_, _>>()?;
-                for k in 1..idx.len() - 1 {
-                    out.triangles.push([idx[0], idx[k], idx[k + 1]]);
-                }
+                add_face(&mut out.triangles, &items, j, vertices, body)?;
             }
         }
-    }
-    let n = out.positions.len();
-    if let Some((k, t)) = out
-        .triangles
-        .iter()
-        .enumerate()
-        .find(|(_, t)| t.iter().any(|&v| v as usize >= n))
-    {
-        return Err(bad(format!(
-            "triangle {k} names vertex {}, but there are {n} vertices",
-            t.iter().max().copied().unwrap_or_default()
-        )));
     }
     if out.triangles.is_empty() {
         return Err(bad("the PLY file has no faces".into()));
     }
     Ok(out)
+}
+
+/// Reads one entry of element `e`.
+fn read_entry(body: &mut Body, e: &Element) -> Result<Entry, FormatError> {
+    let mut xyz = [f64::NAN; 3];
+    let mut face = None;
+    for p in &e.properties {
+        match p {
+            Property::Scalar(n, t) => {
+                let v = body.value(*t)?;
+                if e.name == "vertex" {
+                    match n.as_str() {
+                        "x" => xyz[0] = v,
+                        "y" => xyz[1] = v,
+                        "z" => xyz[2] = v,
+                        _ => {}
+                    }
+                }
+            }
+            Property::List(n, c, v) => {
+                let count = body.value(*c)?;
+                if !(0.0..=1e6).contains(&count) {
+                    return Err(body.err(format!("a list of {count} entries")));
+                }
+                let mut items = Vec::with_capacity(count as usize);
+                for _ in 0..count as usize {
+                    items.push(body.value(*v)?);
+                }
+                if e.name == "face" && (n == "vertex_indices" || n == "vertex_index") {
+                    face = Some(items);
+                }
+            }
+        }
+    }
+    Ok((xyz, face))
+}
+
+/// Fan-triangulates face number `face` (0-based in its element), whose vertex indices must
+/// name one of the file's `vertices` vertices.
+fn add_face(
+    triangles: &mut Vec<[u32; 3]>,
+    items: &[f64],
+    face: usize,
+    vertices: usize,
+    body: &Body,
+) -> Result<(), FormatError> {
+    if items.len() < 3 {
+        return Err(body.err(format!(
+            "face {face}: {} vertices (at least 3)",
+            items.len()
+        )));
+    }
+    let idx = items
+        .iter()
+        .map(|&i| {
+            if i.fract() == 0.0 && i >= 0.0 && i < vertices as f64 && i < u32::MAX as f64 {
+                Ok(i as u32)
+            } else {
+                Err(body.err(format!(
+                    "face {face}: vertex index {i} is not a vertex number: the file has \
+                     {vertices} vertices, numbered from 0"
+                )))
+            }
+        })
+        .collect::<Result<Vec<u32>, _>>()?;
+    if let Some((&first, rest)) = idx.split_first() {
+        triangles.extend(rest.windows(2).map(|w| [first, w[0], w[1]]));
+    }
+    Ok(())
 }

@@ -1,0 +1,322 @@
+//! STL and PLY files as real exporters write them, beyond the tidy ones: binary STL headers
+//! whose triangle count is wrong (0 from streaming exporters, too many, too few, trailing
+//! padding, or a truncated file), ASCII STL in upper case, with a byte-order mark or with
+//! several solids, PLY headers with a comment naming `end_header` or with CR line ends, and
+//! PLY faces naming a vertex that does not exist. Every input is built here as bytes: a
+//! tetrahedron, read back triangle by triangle and vertex by vertex.
+
+use soft_tissue_core::Vec3;
+use soft_tissue_core::mesh::io::{SurfaceMesh, parse_ply, parse_stl};
+
+/// The tetrahedron's corners (exact in `f32`, so binary files read back exactly).
+fn corners() -> [Vec3; 4] {
+    [
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(2.5, 0.0, 0.0),
+        Vec3::new(0.0, 1.5, 0.0),
+        Vec3::new(0.25, -0.5, 3.0),
+    ]
+}
+
+/// Its faces, turning outwards.
+const FACES: [[usize; 3]; 4] = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+
+fn tetrahedron() -> Vec<[Vec3; 3]> {
+    let c = corners();
+    FACES.iter().map(|f| f.map(|v| c[v])).collect()
+}
+
+/// The surface's triangles as corner positions.
+fn triangles_of(s: &SurfaceMesh) -> Vec<[Vec3; 3]> {
+    s.triangles
+        .iter()
+        .map(|t| t.map(|v| s.positions[v as usize]))
+        .collect()
+}
+
+/// A binary STL: `header` padded with spaces to 80 bytes, the stated `count`, the
+/// triangles (zero normals), then `trailing` bytes.
+fn binary_stl(header: &str, count: u32, triangles: &[[Vec3; 3]], trailing: &[u8]) -> Vec<u8> {
+    let mut out = header.as_bytes().to_vec();
+    out.resize(80, b' ');
+    out.extend(count.to_le_bytes());
+    for t in triangles {
+        out.extend([0u8; 12]);
+        for x in t.iter().flat_map(|p| p.iter()) {
+            out.extend((*x as f32).to_le_bytes());
+        }
+        out.extend([0u8; 2]);
+    }
+    out.extend(trailing);
+    out
+}
+
+/// An ASCII STL solid holding the triangles (lower case, LF line ends).
+fn ascii_solid(name: &str, triangles: &[[Vec3; 3]]) -> String {
+    let mut s = format!("solid {name}\n");
+    for t in triangles {
+        s += "  facet normal 0 0 0\n    outer loop\n";
+        for p in t {
+            s += &format!("      vertex {} {} {}\n", p.x, p.y, p.z);
+        }
+        s += "    endloop\n  endfacet\n";
+    }
+    s + &format!("endsolid {name}\n")
+}
+
+fn stl_error(data: &[u8]) -> String {
+    match parse_stl(data, "t.stl") {
+        Ok(s) => panic!("read {} triangles, expected an error", s.triangles.len()),
+        Err(e) => e.to_string(),
+    }
+}
+
+/// A binary STL whose header says 0 triangles, as streaming exporters write it, is read
+/// with every triangle its bytes hold, with a `solid` header or without.
+#[test]
+fn binary_stl_with_a_zero_count_reads_every_triangle() {
+    for header in ["streamed", "solid streamed"] {
+        let data = binary_stl(header, 0, &tetrahedron(), &[]);
+        let s = parse_stl(&data, "t.stl").unwrap();
+        assert_eq!(triangles_of(&s), tetrahedron(), "{header}");
+    }
+}
+
+/// A header promising more triangles than a whole number of records holds, or fewer, is
+/// overruled by the data: every triangle is read, whatever the header starts with.
+#[test]
+fn binary_stl_with_a_wrong_count_reads_what_the_data_holds() {
+    for header in [
+        "exported",
+        "solid exported",
+        "solid sphere\nfacet normal 0 0 0\n",
+    ] {
+        for count in [1, 3, 5, 1000] {
+            let data = binary_stl(header, count, &tetrahedron(), &[]);
+            let s = parse_stl(&data, "t.stl")
+                .unwrap_or_else(|e| panic!("{header:?}, count {count}: {e}"));
+            assert_eq!(triangles_of(&s), tetrahedron(), "{header:?}, count {count}");
+        }
+    }
+}
+
+/// Fewer than 50 bytes after the stated triangles are padding: the header's count is read.
+#[test]
+fn binary_stl_with_trailing_padding_reads_the_header_count() {
+    for header in ["padded", "solid padded"] {
+        for pad in [1, 2, 7, 49] {
+            let data = binary_stl(header, 4, &tetrahedron(), &vec![0u8; pad]);
+            let s = parse_stl(&data, "t.stl").unwrap();
+            assert_eq!(triangles_of(&s), tetrahedron(), "{header}, {pad} bytes");
+        }
+    }
+}
+
+/// A file cut inside a triangle, with a header promising more, is a truncated file: the
+/// error names the header's count and the whole triangles the bytes hold.
+#[test]
+fn truncated_binary_stl_names_the_stated_and_the_real_count() {
+    for header in ["cut", "solid cut"] {
+        let mut data = binary_stl(header, 4, &tetrahedron(), &[]);
+        data.truncate(84 + 2 * 50 + 17);
+        let e = stl_error(&data);
+        assert!(e.contains("t.stl"), "{e}");
+        assert!(e.contains("says 4 triangles"), "{e}");
+        assert!(e.contains("hold 2 whole triangles"), "{e}");
+    }
+    // A header alone, promising triangles it does not have.
+    let e = stl_error(&binary_stl("empty", 1280, &[], &[]));
+    assert!(e.contains("1280") && e.contains("hold 0"), "{e}");
+}
+
+/// A non-finite vertex in a file whose header count is wrong names both counts.
+#[test]
+fn binary_stl_errors_name_both_counts_where_they_disagree() {
+    let mut t = tetrahedron();
+    t[2][1].y = f64::NAN;
+    let e = stl_error(&binary_stl("nan", 0, &t, &[]));
+    assert!(e.contains("triangle 2: vertex 1 is not finite"), "{e}");
+    assert!(e.contains("header says 0") && e.contains("holds 4"), "{e}");
+}
+
+/// No binary length or stated count makes the reader panic.
+#[test]
+fn binary_stl_of_any_length_and_count_never_panics() {
+    for count in [0, 1, 3, 4, 5, 50, u32::MAX] {
+        for header in ["x", "solid x"] {
+            let data = binary_stl(header, count, &tetrahedron(), &[0u8; 60]);
+            for len in 0..=data.len() {
+                let _ = parse_stl(&data[..len], "t.stl");
+            }
+        }
+    }
+}
+
+/// ASCII STL keywords are read in any case: upper case, as some CAD exporters write, and
+/// mixed.
+#[test]
+fn ascii_stl_keywords_are_read_in_any_case() {
+    let text = ascii_solid("part", &tetrahedron());
+    let mixed = text
+        .replace("solid", "Solid")
+        .replace("facet normal", "Facet Normal")
+        .replace("vertex", "Vertex")
+        .replace("endfacet", "EndFacet");
+    for t in [text.to_uppercase(), mixed] {
+        let s = parse_stl(t.as_bytes(), "t.stl").unwrap_or_else(|e| panic!("{e}\n{t}"));
+        assert_eq!(triangles_of(&s), tetrahedron());
+    }
+}
+
+/// A UTF-8 byte-order mark before `solid` is skipped, with LF or CRLF line ends.
+#[test]
+fn ascii_stl_after_a_byte_order_mark_is_read() {
+    let text = ascii_solid("bom", &tetrahedron());
+    for t in [
+        text.clone(),
+        text.replace('\n', "\r\n"),
+        text.to_uppercase(),
+    ] {
+        let mut data = b"\xEF\xBB\xBF".to_vec();
+        data.extend(t.as_bytes());
+        let s = parse_stl(&data, "t.stl").unwrap();
+        assert_eq!(triangles_of(&s), tetrahedron());
+    }
+}
+
+/// Every `solid` ... `endsolid` block of one ASCII file is read, in order.
+#[test]
+fn ascii_stl_with_several_solids_reads_them_all() {
+    let t = tetrahedron();
+    let text = ascii_solid("a", &t[..1]) + &ascii_solid("b", &t[1..3]) + &ascii_solid("", &t[3..]);
+    let s = parse_stl(text.as_bytes(), "t.stl").unwrap();
+    assert_eq!(triangles_of(&s), t);
+}
+
+/// A file starting with `solid` that is shorter than a binary header (84 bytes) is ASCII,
+/// with a byte-order mark or without, and its error is about facets.
+#[test]
+fn short_ascii_stl_is_read_as_ascii() {
+    let e = stl_error(b"solid x\nendsolid x\n");
+    assert!(e.contains("no facets"), "{e}");
+    let e = stl_error(b"\xEF\xBB\xBFSOLID\n");
+    assert!(e.contains("no facets"), "{e}");
+}
+
+/// A PLY header (from `ply` to `end_header`) with the given line end, the tetrahedron's
+/// four vertices and four faces, and the extra header lines after `format`.
+fn ply_header(format: &str, extra: &[&str], eol: &str) -> String {
+    let mut lines = vec!["ply".to_string(), format!("format {format} 1.0")];
+    lines.extend(extra.iter().map(|l| l.to_string()));
+    lines.extend(
+        [
+            "element vertex 4",
+            "property float x",
+            "property float y",
+            "property float z",
+            "element face 4",
+            "property list uchar int vertex_indices",
+            "end_header",
+        ]
+        .map(String::from),
+    );
+    lines.join(eol) + eol
+}
+
+/// An ASCII PLY of the tetrahedron, with the faces' indices as given.
+fn ascii_ply(extra: &[&str], eol: &str, faces: &[[i64; 3]]) -> Vec<u8> {
+    let mut s = ply_header("ascii", extra, eol);
+    for p in corners() {
+        s += &format!("{} {} {}\n", p.x, p.y, p.z);
+    }
+    for f in faces {
+        s += &format!("3 {} {} {}\n", f[0], f[1], f[2]);
+    }
+    s.into_bytes()
+}
+
+/// A binary little-endian PLY of the tetrahedron with the given corners.
+fn binary_ply(extra: &[&str], eol: &str, corners: &[Vec3; 4]) -> Vec<u8> {
+    let mut out = ply_header("binary_little_endian", extra, eol).into_bytes();
+    for x in corners.iter().flat_map(|p| p.iter()) {
+        out.extend((*x as f32).to_le_bytes());
+    }
+    for f in FACES {
+        out.push(3);
+        for v in f {
+            out.extend((v as i32).to_le_bytes());
+        }
+    }
+    out
+}
+
+fn tetra_faces() -> Vec<[i64; 3]> {
+    FACES.iter().map(|f| f.map(|v| v as i64)).collect()
+}
+
+/// The surface has the tetrahedron's corners and faces, in the file's order.
+fn assert_tetrahedron(s: &SurfaceMesh, corners: &[Vec3; 4]) {
+    assert_eq!(s.positions, corners.to_vec());
+    let faces: Vec<[u32; 3]> = FACES.iter().map(|f| f.map(|v| v as u32)).collect();
+    assert_eq!(s.triangles, faces);
+}
+
+/// A comment or `obj_info` line that names `end_header` does not end the header: only a
+/// line that is exactly `end_header` does.
+#[test]
+fn ply_comment_naming_end_header_does_not_end_the_header() {
+    let extra = [
+        "comment the header ends at end_header below",
+        "obj_info end_header",
+        "comment end_header",
+    ];
+    let s = parse_ply(&ascii_ply(&extra, "\n", &tetra_faces()), "t.ply").unwrap();
+    assert_tetrahedron(&s, &corners());
+    let s = parse_ply(&binary_ply(&extra, "\n", &corners()), "t.ply").unwrap();
+    assert_tetrahedron(&s, &corners());
+}
+
+/// Header lines ending in CRLF or in a lone CR are read, ASCII and binary; after a
+/// CR-only header the binary body starts right after the CR, even where its first byte is
+/// a newline.
+#[test]
+fn ply_headers_with_crlf_or_cr_line_ends_are_read() {
+    let comment = ["comment made on a Mac"];
+    for eol in ["\r\n", "\r"] {
+        let s = parse_ply(&ascii_ply(&comment, eol, &tetra_faces()), "t.ply")
+            .unwrap_or_else(|e| panic!("{eol:?}: {e}"));
+        assert_tetrahedron(&s, &corners());
+        // The first corner's x is 1 + 10 ulps: its first little-endian byte is `\n`.
+        let mut c = corners();
+        c[0].x = f32::from_bits(0x3F80_000A) as f64;
+        let data = binary_ply(&comment, eol, &c);
+        let s = parse_ply(&data, "t.ply").unwrap_or_else(|e| panic!("{eol:?}: {e}"));
+        assert_tetrahedron(&s, &c);
+    }
+}
+
+/// A negative or out-of-range face index names the face (0-based in the face element),
+/// the index and the vertex count, whether faces come after the vertices or not.
+#[test]
+fn ply_bad_face_index_names_the_face_the_index_and_the_vertex_count() {
+    for (face, index) in [(2, -1), (3, 4), (0, 70000)] {
+        let mut faces = tetra_faces();
+        faces[face][1] = index;
+        let e = parse_ply(&ascii_ply(&[], "\n", &faces), "t.ply")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("t.ply"), "{e}");
+        assert!(
+            e.contains(&format!("face {face}: vertex index {index} ")),
+            "{e}"
+        );
+        assert!(e.contains("4 vertices"), "{e}");
+    }
+    // Faces before the vertices: the vertex count is the header's.
+    let text = "ply\nformat ascii 1.0\nelement face 2\nproperty list uchar int vertex_index\n\
+                element vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+                end_header\n3 0 1 2\n3 2 1 -3\n0 0 0\n1 0 0\n0 1 0\n";
+    let e = parse_ply(text.as_bytes(), "t.ply").unwrap_err().to_string();
+    assert!(e.contains("face 1: vertex index -3 "), "{e}");
+    assert!(e.contains("3 vertices"), "{e}");
+}
