@@ -245,7 +245,8 @@ fn obj_reads_a_byte_order_mark_trailing_comments_continuations_and_cr_line_ends(
     for (text, name) in [(cr, "cr.obj"), (crlf.as_str(), "crlf.obj")] {
         let e = parse_obj(text.replace("f 1 2 3", "f 1 2 9").as_bytes(), name).unwrap_err();
         assert!(
-            e.to_string().contains(&format!("{name}: line 4: face refers to vertex 9")),
+            e.to_string()
+                .contains(&format!("{name}: line 4: face refers to vertex 9")),
             "{e}"
         );
     }
@@ -258,7 +259,10 @@ fn obj_reads_a_byte_order_mark_trailing_comments_continuations_and_cr_line_ends(
 fn obj_faces_with_repeated_corners_are_read_not_refused() {
     let text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3 3\nf 4 4 1\nf 1 2 1 4\n";
     let s = parse_obj(text.as_bytes(), "r.obj").unwrap();
-    assert_eq!(s.triangles, vec![[0, 1, 2], [3, 3, 0], [0, 1, 0], [0, 0, 3]]);
+    assert_eq!(
+        s.triangles,
+        vec![[0, 1, 2], [3, 3, 0], [0, 1, 0], [0, 0, 3]]
+    );
 }
 
 #[test]

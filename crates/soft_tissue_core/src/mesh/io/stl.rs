@@ -21,12 +21,11 @@
 
 use super::FormatError;
 use super::obj::SurfaceMesh;
-use super::text::{Cursor, LineFields};
+use super::text::{Cursor, LineFields, UTF8_BOM};
 use crate::Vec3;
 
 const HEADER: usize = 84;
 const RECORD: usize = 50;
-const BOM: &[u8] = b"\xEF\xBB\xBF";
 
 /// Parses an STL file, ASCII or binary. `name` is used in messages.
 pub fn parse_stl(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
@@ -36,7 +35,7 @@ pub fn parse_stl(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
     }) {
         return parse_binary(data, name);
     }
-    let text = data.strip_prefix(BOM).unwrap_or(data);
+    let text = data.strip_prefix(UTF8_BOM).unwrap_or(data);
     if starts_with_solid(text) && (data.len() < HEADER || looks_like_ascii_stl(text)) {
         return parse_ascii(text, name);
     }
