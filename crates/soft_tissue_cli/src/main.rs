@@ -403,9 +403,10 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
     let d = r.defects;
     println!(
         "{name}: {} vertices, {} triangles\n\
-         repaired: {} duplicate vertices welded, {} unused vertices and {} degenerate triangles \
-         dropped, {} triangles turned; {} boundary edges (holes), {} non-manifold edges; {} small \
-         separate pieces dropped\n\
+         repaired: {} duplicate vertices welded, {} unused vertices, {} degenerate and {} \
+         duplicate triangles dropped, {} triangles turned; {} boundary edges (holes), {} \
+         non-manifold edges; {} small separate pieces dropped, {} inner pieces kept as \
+         cavities\n\
          mesh: {} nodes, {} tetrahedra ({}, spacing {:.4}), dihedral {:.1} .. {:.1} deg\n\
          volume {:.6} against {:.6} enclosed ({:+.2} %; {:+.2} % before the boundary nodes \
          moved out to restore what the chords lost)\n\
@@ -418,10 +419,12 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
         d.duplicate_vertices,
         d.unused_vertices,
         d.degenerate_triangles,
+        d.duplicate_triangles,
         d.flipped_triangles,
         d.boundary_edges,
         d.non_manifold_edges,
         d.specks_dropped,
+        d.cavities,
         r.nodes,
         r.tets,
         if r.graded {

@@ -372,6 +372,139 @@ fn duplicated_vertices_flipped_triangles_and_a_small_hole_still_mesh() {
     );
 }
 
+/// Pieces joined into one surface, each renumbered; `inward` turns a piece inside out.
+fn joined(parts: &[(SurfaceMesh, bool)]) -> SurfaceMesh {
+    let mut out = SurfaceMesh::default();
+    for (part, inward) in parts {
+        let base = out.positions.len() as u32;
+        out.positions.extend(&part.positions);
+        out.triangles.extend(part.triangles.iter().map(|t| {
+            let t = t.map(|v| base + v);
+            if *inward { [t[0], t[2], t[1]] } else { t }
+        }));
+    }
+    out
+}
+
+/// A hollow organ: a sphere of radius 1 with one of radius 0.5 inside, written facing
+/// inward as segmentations write an inner wall, is a cavity (before, the repair turned it
+/// outward and the mesh filled it: 35 % off in volume). The winding number is zero in the
+/// cavity and one in the wall; the mesh has the shell's volume (4/3 pi (1 - 0.125)) and no
+/// tetrahedron in the cavity. The same file turned wholly inside out (as the Chaste hearts
+/// come) reads the same; a stone inside the cavity is solid again.
+#[test]
+fn a_sphere_inside_a_sphere_facing_inward_is_a_cavity() {
+    let (outer, inner) = (sphere(1.0), sphere(0.5));
+    let volume = |s: &SurfaceMesh| repair(s).unwrap().enclosed_volume;
+    let shell = volume(&outer) - volume(&inner);
+    for turned in [false, true] {
+        let hollow = joined(&[(outer.clone(), turned), (inner.clone(), !turned)]);
+        let fixed = repair(&hollow).unwrap();
+        assert_eq!(fixed.defects.cavities, 1, "turned {turned}");
+        assert!(
+            (fixed.enclosed_volume - shell).abs() < 1e-9 * shell,
+            "turned {turned}"
+        );
+        assert!(fixed.winding_number(&Vec3::zeros()).abs() < 1e-6);
+        assert!((fixed.winding_number(&Vec3::new(0.75, 0.0, 0.0)) - 1.0).abs() < 1e-6);
+    }
+    let hollow = joined(&[(outer.clone(), false), (inner.clone(), true)]);
+    let r = check(
+        "hollow sphere",
+        &hollow,
+        4.0 / 3.0 * PI * 0.875,
+        1500,
+        0.01,
+        0.01,
+    );
+    assert_eq!(r.defects.flipped_triangles, 0);
+    let (mesh, _) = tetrahedralize(&hollow, &TetrahedralizeOptions::default()).unwrap();
+    let deepest_in_cavity = mesh
+        .tets()
+        .iter()
+        .map(|t| {
+            t.iter()
+                .map(|&v| mesh.positions()[v as usize])
+                .sum::<Vec3>()
+                / 4.0
+        })
+        .map(|c| c.norm())
+        .fold(f64::INFINITY, f64::min);
+    assert!(
+        deepest_in_cavity > 0.45,
+        "a tetrahedron centred {deepest_in_cavity} from the centre"
+    );
+    let stone = joined(&[
+        (outer.clone(), false),
+        (inner.clone(), true),
+        (sphere(0.25), false),
+    ]);
+    let fixed = repair(&stone).unwrap();
+    assert_eq!(fixed.defects.cavities, 1);
+    let want = shell + volume(&sphere(0.25));
+    assert!((fixed.enclosed_volume - want).abs() < 1e-9 * want);
+}
+
+/// A second outward surface inside the first (a tumour exported with its organ) lies inside
+/// the union the mesh fills: dropped, so that neither the volume nor the distances count it
+/// (before, the enclosed volume added both and the tumour's surface stood off the boundary).
+/// A face written twice keeps one copy; two boxes sharing a face, each written closed, lose
+/// the face between them (it runs both ways) and become one closed block.
+#[test]
+fn inner_pieces_and_duplicated_faces_leave_the_union() {
+    let tumour = {
+        let mut t = sphere(0.3);
+        for p in &mut t.positions {
+            p.x += 0.2;
+        }
+        t
+    };
+    let fixed = repair(&joined(&[(sphere(1.0), false), (tumour, false)])).unwrap();
+    assert_eq!(fixed.defects.inner_pieces_dropped, 1);
+    assert_eq!(fixed.defects.cavities, 0);
+    let one = repair(&sphere(1.0)).unwrap();
+    assert_eq!(fixed.positions, one.positions);
+    assert_eq!(fixed.triangles, one.triangles);
+
+    let twice = joined(&[(sphere(1.0), false), (sphere(1.0), false)]);
+    let fixed = repair(&twice).unwrap();
+    assert_eq!(fixed.defects.duplicate_triangles, one.triangles.len());
+    assert_eq!(fixed.defects.non_manifold_edges, 0);
+    assert!((fixed.enclosed_volume - one.enclosed_volume).abs() < 1e-12);
+
+    // Unit boxes at x in [0, 1] and [1, 2], each face split along the same diagonal.
+    let unit_box = |x0: f64| {
+        let positions = (0..8)
+            .map(|i| Vec3::new(x0 + (i & 1) as f64, ((i >> 1) & 1) as f64, (i >> 2) as f64))
+            .collect();
+        let quads = [
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+        ];
+        let triangles = quads
+            .iter()
+            .flat_map(|q: &[u32; 4]| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+            .collect();
+        SurfaceMesh {
+            positions,
+            triangles,
+        }
+    };
+    let fixed = repair(&joined(&[(unit_box(0.0), false), (unit_box(1.0), false)])).unwrap();
+    assert_eq!(
+        fixed.defects.duplicate_triangles, 4,
+        "the shared face, written both ways"
+    );
+    assert_eq!(fixed.triangles.len(), 20);
+    assert_eq!(fixed.defects.boundary_edges, 0);
+    assert_eq!(fixed.defects.non_manifold_edges, 0);
+    assert!((fixed.enclosed_volume - 2.0).abs() < 1e-12);
+}
+
 #[test]
 fn surfaces_too_broken_to_mesh_name_the_defect() {
     // An open sheet: no volume.
@@ -685,7 +818,11 @@ fn a_gltf_node_under_two_parents_is_refused_and_a_shared_mesh_is_placed_twice() 
     let s = parse_gltf(shared.as_bytes(), "shared.gltf", &mut |_| unreachable!()).unwrap();
     assert_eq!(s.triangles.len(), 2);
     for z in [0.0, 5.0] {
-        assert!(s.positions.contains(&Vec3::new(0.0, 1.0, z)), "{:?}", s.positions);
+        assert!(
+            s.positions.contains(&Vec3::new(0.0, 1.0, z)),
+            "{:?}",
+            s.positions
+        );
     }
 }
 

@@ -23,6 +23,8 @@
 
 use std::collections::HashMap;
 
+use rayon::prelude::*;
+
 use super::generate::{GenerateError, coarsen_interior, stuff_fn_sign};
 use super::io::SurfaceMesh;
 use super::quality::{tet_quality_deg, tet_worst_cos};
@@ -49,6 +51,15 @@ pub struct SurfaceDefects {
     /// Small separate pieces dropped (under 0.1 % of the volume and 1 % of the area: specks
     /// a segmentation leaves floating).
     pub specks_dropped: usize,
+    /// Triangles over the same three vertices as another (dropped: one of a pair that runs
+    /// the same way, both of a pair that runs opposite ways).
+    pub duplicate_triangles: usize,
+    /// Closed pieces inside another that the file turns the other way from it: kept facing
+    /// inward, as cavities (a hollow organ's inner wall).
+    pub cavities: usize,
+    /// Closed pieces inside another that the file turns the same way (a tumour written as a
+    /// second surface inside its organ): inside the union the mesh fills, so dropped.
+    pub inner_pieces_dropped: usize,
 }
 
 /// How to mesh a surface.
@@ -79,7 +90,7 @@ impl Default for TetrahedralizeOptions {
 /// upgrade meshes again. 2: a second, finer graded level for thin parts. 3: other
 /// coarsening targets for a near miss, four graded levels instead of two; a spacing too
 /// thick for the shape is halved.
-pub const REVISION: u32 = 3;
+pub const REVISION: u32 = 4;
 
 /// What [`tetrahedralize`] did.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -293,6 +304,8 @@ pub fn repair(surface: &SurfaceMesh) -> Result<RepairedSurface, TetrahedralizeEr
         }
         triangles.push(t);
     }
+    let (mut triangles, duplicates) = drop_duplicate_triangles(triangles);
+    defects.duplicate_triangles = duplicates;
     if triangles.is_empty() {
         return Err(TetrahedralizeError::Empty);
     }
@@ -362,35 +375,54 @@ pub fn repair(surface: &SurfaceMesh) -> Result<RepairedSurface, TetrahedralizeEr
             t.swap(1, 2);
         }
     }
-    // Each piece faces outward: its enclosed volume positive.
-    let signed = |t: &[u32; 3], p: &[Vec3]| {
-        let [a, b, c] = t.map(|v| p[v as usize]);
-        a.dot(&b.cross(&c)) / 6.0
-    };
-    let mut enclosed = 0.0;
-    for members in &components {
+    // Each piece faces outward (its enclosed volume positive), then a piece inside another
+    // that the file turned the other way from it faces inward again: a cavity.
+    let centre = (lo + hi) / 2.0;
+    let mut pieces = Vec::with_capacity(components.len());
+    for members in components {
         let v: f64 = members
             .iter()
-            .map(|&k| signed(&triangles[k], &positions))
+            .map(|&k| signed_volume(&triangles[k], &positions, &centre))
             .sum();
         if v < 0.0 {
-            for &k in members {
+            for &k in &members {
                 triangles[k].swap(1, 2);
                 flip[k] = !flip[k];
             }
         }
-        enclosed += v.abs();
+        pieces.push(Piece::new(members, v.abs(), &triangles, &positions, &flip));
+    }
+    let facing = nesting(&pieces, &triangles, &positions);
+    let mut inner = vec![false; triangles.len()];
+    for (piece, facing) in pieces.iter().zip(&facing) {
+        match facing {
+            Facing::Outward => {}
+            Facing::Inward => {
+                defects.cavities += 1;
+                for &k in &piece.members {
+                    triangles[k].swap(1, 2);
+                    flip[k] = !flip[k];
+                }
+            }
+            Facing::Inner => {
+                defects.inner_pieces_dropped += 1;
+                for &k in &piece.members {
+                    inner[k] = true;
+                }
+            }
+        }
     }
     defects.flipped_triangles = flip.iter().filter(|&&f| f).count();
-    let (positions, triangles, dropped) = drop_specks(positions, triangles);
+    let (positions, triangles) = keep(&positions, &triangles, |k| !inner[k]);
+    let (positions, triangles, dropped) = drop_specks(positions, triangles, &centre);
     defects.specks_dropped = dropped;
-    if dropped > 0 {
-        enclosed = triangles
-            .iter()
-            .map(|t| signed(t, &positions))
-            .sum::<f64>()
-            .abs();
-    }
+    // (About the box's centre, not the origin: a surface placed far from the origin, in a
+    // scanner's coordinates, keeps its digits.)
+    let enclosed = triangles
+        .iter()
+        .map(|t| signed_volume(t, &positions, &centre))
+        .sum::<f64>()
+        .abs();
     Ok(RepairedSurface {
         positions,
         triangles,
@@ -406,6 +438,7 @@ pub fn repair(surface: &SurfaceMesh) -> Result<RepairedSurface, TetrahedralizeEr
 fn drop_specks(
     positions: Vec<Vec3>,
     triangles: Vec<[u32; 3]>,
+    centre: &Vec3,
 ) -> (Vec<Vec3>, Vec<[u32; 3]>, usize) {
     let mut parent: Vec<u32> = (0..positions.len() as u32).collect();
     fn root(parent: &mut [u32], mut v: u32) -> u32 {
@@ -430,7 +463,7 @@ fn drop_specks(
     for (t, &r) in triangles.iter().zip(&piece_of) {
         let [a, b, c] = t.map(|v| positions[v as usize]);
         let (v, s) = (
-            a.dot(&b.cross(&c)) / 6.0,
+            signed_volume(t, &positions, centre),
             0.5 * (b - a).cross(&(c - a)).norm(),
         );
         let e = piece.entry(r).or_default();
@@ -449,22 +482,182 @@ fn drop_specks(
     if dropped == 0 {
         return (positions, triangles, 0);
     }
+    let (positions, triangles) = keep(&positions, &triangles, |k| !speck(&piece_of[k]));
+    (positions, triangles, dropped)
+}
+
+/// The triangles `kept` says to keep (by index), and the vertices they use, renumbered in
+/// order.
+fn keep(
+    positions: &[Vec3],
+    triangles: &[[u32; 3]],
+    kept: impl Fn(usize) -> bool,
+) -> (Vec<Vec3>, Vec<[u32; 3]>) {
     let mut map = vec![u32::MAX; positions.len()];
     let mut kept_positions = Vec::new();
-    let mut kept = Vec::new();
-    for (t, r) in triangles.iter().zip(&piece_of) {
-        if speck(r) {
-            continue;
-        }
-        kept.push(t.map(|v| {
-            if map[v as usize] == u32::MAX {
-                map[v as usize] = kept_positions.len() as u32;
-                kept_positions.push(positions[v as usize]);
-            }
-            map[v as usize]
-        }));
+    let kept_triangles = (0..triangles.len())
+        .filter(|&k| kept(k))
+        .map(|k| {
+            triangles[k].map(|v| {
+                if map[v as usize] == u32::MAX {
+                    map[v as usize] = kept_positions.len() as u32;
+                    kept_positions.push(positions[v as usize]);
+                }
+                map[v as usize]
+            })
+        })
+        .collect();
+    (kept_positions, kept_triangles)
+}
+
+/// The signed volume of the tetrahedron from `centre` to triangle `t`: summed over a closed
+/// surface, the volume it encloses (the divergence theorem), positive where it faces out.
+fn signed_volume(t: &[u32; 3], positions: &[Vec3], centre: &Vec3) -> f64 {
+    let [a, b, c] = t.map(|v| positions[v as usize] - centre);
+    a.dot(&b.cross(&c)) / 6.0
+}
+
+/// Triangles over the same three vertices: where more run one way than the other, one is
+/// kept (a face written twice); where as many run each way, none (a wall of no thickness
+/// between two parts, which their union does not have). Returns the rest, in order, and how
+/// many were dropped.
+fn drop_duplicate_triangles(triangles: Vec<[u32; 3]>) -> (Vec<[u32; 3]>, usize) {
+    // Per vertex set: how many more run the way of its sorted order than against it.
+    let mut balance: HashMap<[u32; 3], i64> = HashMap::new();
+    let key = |t: &[u32; 3]| {
+        let mut k = *t;
+        k.sort_unstable();
+        // A rotation of the sorted order runs its way; a swap of two runs against it.
+        let along = [k, [k[1], k[2], k[0]], [k[2], k[0], k[1]]].contains(t);
+        (k, if along { 1 } else { -1 })
+    };
+    for t in &triangles {
+        let (k, way) = key(t);
+        *balance.entry(k).or_default() += way;
     }
-    (kept_positions, kept, dropped)
+    let total = triangles.len();
+    let mut kept_sets = std::collections::HashSet::new();
+    let kept: Vec<[u32; 3]> = triangles
+        .into_iter()
+        .filter(|t| {
+            let (k, way) = key(t);
+            balance[&k].signum() == way && kept_sets.insert(k)
+        })
+        .collect();
+    let dropped = total - kept.len();
+    (kept, dropped)
+}
+
+/// A piece of the surface joined across manifold edges, faced outward.
+struct Piece {
+    members: Vec<usize>,
+    volume: f64,
+    lo: Vec3,
+    hi: Vec3,
+    /// Whether the file had it facing outward (most of its area not turned).
+    outward_in_file: bool,
+}
+
+impl Piece {
+    fn new(
+        members: Vec<usize>,
+        volume: f64,
+        triangles: &[[u32; 3]],
+        positions: &[Vec3],
+        flip: &[bool],
+    ) -> Piece {
+        let corners: Vec<Vec3> = members
+            .iter()
+            .flat_map(|&k| triangles[k].map(|v| positions[v as usize]))
+            .collect();
+        let (lo, hi) = bounds(&corners);
+        let (mut kept, mut turned) = (0.0, 0.0);
+        for &k in &members {
+            let [a, b, c] = triangles[k].map(|v| positions[v as usize]);
+            let area = (b - a).cross(&(c - a)).norm();
+            if flip[k] {
+                turned += area;
+            } else {
+                kept += area;
+            }
+        }
+        Piece {
+            members,
+            volume,
+            lo,
+            hi,
+            outward_in_file: kept >= turned,
+        }
+    }
+}
+
+/// Which way a piece of the surface faces once nesting is read.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Facing {
+    Outward,
+    /// A cavity.
+    Inward,
+    /// Inside a piece that faces the same way: inside the union, no part of its boundary.
+    Inner,
+}
+
+/// Which way each piece faces. A piece lies inside another when the other's box holds its
+/// box and the other's winding number exceeds one half at (up to) eight of its vertices;
+/// the smallest such is around it. A piece around nothing faces outward. One inside another
+/// faces the other way from it where the file turned the two apart: a hollow organ's inner
+/// wall (written facing inward, as segmentations write it) is a cavity, and a stone inside
+/// the cavity is solid again. Where the file turned them alike (a tumour written as a second
+/// outward surface inside its organ), the inner one lies inside the union: not a boundary.
+fn nesting(pieces: &[Piece], triangles: &[[u32; 3]], positions: &[Vec3]) -> Vec<Facing> {
+    let mut order: Vec<usize> = (0..pieces.len()).collect();
+    order.sort_by(|&a, &b| {
+        pieces[b]
+            .volume
+            .total_cmp(&pieces[a].volume)
+            .then(a.cmp(&b))
+    });
+    // Each piece's own triangles, a tree over them (built where a smaller piece may be
+    // inside), and whether it ends up facing outward.
+    let own: Vec<Vec<[u32; 3]>> = pieces
+        .iter()
+        .map(|p| p.members.iter().map(|&k| triangles[k]).collect())
+        .collect();
+    let mut trees: Vec<Option<SurfaceTree<'_>>> = (0..pieces.len()).map(|_| None).collect();
+    let mut outward = vec![true; pieces.len()];
+    let mut facing = vec![Facing::Outward; pieces.len()];
+    for (rank, &c) in order.iter().enumerate() {
+        let piece = &pieces[c];
+        let stride = piece.members.len().div_ceil(8).max(1);
+        let probes: Vec<Vec3> = piece
+            .members
+            .iter()
+            .step_by(stride)
+            .map(|&k| positions[triangles[k][0] as usize])
+            .collect();
+        // The smallest larger piece around this one: the last in volume order that holds it.
+        let around = order[..rank].iter().rev().copied().find(|&a| {
+            let other = &pieces[a];
+            let boxed = (0..3).all(|i| other.lo[i] <= piece.lo[i] && piece.hi[i] <= other.hi[i]);
+            boxed && {
+                // (Every piece faces outward here: the cavities turn after.)
+                let tree = trees[a].get_or_insert_with(|| SurfaceTree::new(positions, &own[a]));
+                probes.iter().all(|p| tree.winding_number(p) > 0.5)
+            }
+        });
+        if let Some(a) = around {
+            if piece.outward_in_file == pieces[a].outward_in_file {
+                facing[c] = Facing::Inner;
+                // (What lies inside it is inside the union too: it faces as its outer one.)
+                outward[c] = outward[a];
+            } else {
+                outward[c] = !outward[a];
+                if !outward[c] {
+                    facing[c] = Facing::Inward;
+                }
+            }
+        }
+    }
+    facing
 }
 
 fn bounds(p: &[Vec3]) -> (Vec3, Vec3) {
@@ -859,14 +1052,14 @@ impl Finished {
         let boundary = SurfaceMesh::boundary_of(&mesh);
         let distance = |t: &SurfaceTree<'_>, p: &Vec3| t.closest(p).map_or(f64::INFINITY, |c| c.1);
         let mesh_to_surface = samples(&boundary.positions, &boundary.triangles)
-            .iter()
+            .par_iter()
             .map(|p| distance(tree, p))
-            .fold(0.0, f64::max);
+            .reduce(|| 0.0, f64::max);
         let boundary_tree = SurfaceTree::new(&boundary.positions, &boundary.triangles);
         let surface_to_mesh = surface_samples
-            .iter()
+            .par_iter()
             .map(|p| distance(&boundary_tree, p))
-            .fold(0.0, f64::max);
+            .reduce(|| 0.0, f64::max);
         Finished {
             mesh,
             projected,
@@ -1005,7 +1198,7 @@ fn fit_features(mesh: TetMesh, samples: &[Vec3], min_dihedral: f64, tol: f64) ->
         let far: Vec<(f64, usize, usize)> = {
             let tree = SurfaceTree::new(&x, &triangles);
             let mut far: Vec<(f64, usize, usize)> = samples
-                .iter()
+                .par_iter()
                 .enumerate()
                 .filter_map(|(i, q)| {
                     let (_, d, t) = tree.closest_triangle(q)?;
@@ -1137,13 +1330,14 @@ fn split_boundary_edges(
         {
             let tri32: Vec<[u32; 3]> = triangles.iter().map(|t| t.map(|v| v as u32)).collect();
             let boundary = SurfaceTree::new(&x, &tri32);
-            for q in samples {
-                let Some((_, d, k)) = boundary.closest_triangle(q) else {
-                    continue;
-                };
-                if d <= tol {
-                    continue;
-                }
+            let far: Vec<(f64, usize, &Vec3)> = samples
+                .par_iter()
+                .filter_map(|q| {
+                    let (_, d, k) = boundary.closest_triangle(q)?;
+                    (d > tol).then_some((d, k, q))
+                })
+                .collect();
+            for (d, k, q) in far {
                 let t = triangles[k];
                 let edge = (0..3)
                     .map(|e| edge_of(&t, e))
