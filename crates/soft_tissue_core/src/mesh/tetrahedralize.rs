@@ -1,10 +1,12 @@
 //! Tetrahedral meshes from closed triangle surfaces: an organ as a segmentation or an artist
 //! delivers it.
 //!
-//! 1. **Repair what a scan gets wrong**: duplicated vertices are welded, degenerate
-//!    triangles and unused vertices dropped, and the triangles oriented consistently across
-//!    their manifold edges, outward (positive enclosed volume). What was found is counted
-//!    ([`SurfaceDefects`]).
+//! 1. **Repair what a scan gets wrong**: duplicated vertices are welded, degenerate and
+//!    duplicated triangles and unused vertices dropped, the triangles oriented consistently
+//!    across their manifold edges and each piece outward (positive enclosed volume), specks
+//!    dropped, and nesting read from the file's orientation: a closed piece inside another
+//!    that the file turns the other way faces inward (a cavity), one it turns the same way
+//!    is inside the union and dropped. What was found is counted ([`SurfaceDefects`]).
 //! 2. **Inside and outside** from the generalized winding number (Jacobson, Kavan and
 //!    Sorkine-Hornung 2013): the solid angle the surface subtends at a point over 4 pi, one
 //!    inside a closed surface and zero outside, and still near those values where the
@@ -42,7 +44,8 @@ pub struct SurfaceDefects {
     pub unused_vertices: usize,
     /// Triangles with a repeated vertex or no area (dropped).
     pub degenerate_triangles: usize,
-    /// Triangles turned to agree with their neighbours or to face outward.
+    /// Triangles turned to agree with their neighbours, to face outward, or (a cavity's)
+    /// inward.
     pub flipped_triangles: usize,
     /// Edges with one triangle: the rims of holes.
     pub boundary_edges: usize,
@@ -89,7 +92,8 @@ impl Default for TetrahedralizeOptions {
 /// mesh, so that caches of meshed surfaces (the plugin's `SurfaceLoader`) key on it and an
 /// upgrade meshes again. 2: a second, finer graded level for thin parts. 3: other
 /// coarsening targets for a near miss, four graded levels instead of two; a spacing too
-/// thick for the shape is halved.
+/// thick for the shape is halved. 4: nesting read from the file's orientation (cavities;
+/// inner pieces dropped), duplicate triangles dropped, volumes summed about the centre.
 pub const REVISION: u32 = 4;
 
 /// What [`tetrahedralize`] did.
@@ -244,7 +248,7 @@ pub const MAX_OPEN_FRACTION: f64 = 0.05;
 pub struct RepairedSurface {
     /// Vertex positions.
     pub positions: Vec<Vec3>,
-    /// Triangles, oriented outward where the surface allows.
+    /// Triangles, oriented outward where the surface allows (a cavity's face into it).
     pub triangles: Vec<[u32; 3]>,
     /// What was found.
     pub defects: SurfaceDefects,
@@ -304,23 +308,13 @@ pub fn repair(surface: &SurfaceMesh) -> Result<RepairedSurface, TetrahedralizeEr
         }
         triangles.push(t);
     }
-    let (mut triangles, duplicates) = drop_duplicate_triangles(triangles);
+    let (triangles, duplicates) = drop_duplicate_triangles(triangles);
     defects.duplicate_triangles = duplicates;
     if triangles.is_empty() {
         return Err(TetrahedralizeError::Empty);
     }
     // Unused vertices dropped, the rest renumbered in order.
-    let mut used = vec![u32::MAX; welded.len()];
-    let mut positions = Vec::new();
-    for t in &mut triangles {
-        for v in t.iter_mut() {
-            if used[*v as usize] == u32::MAX {
-                used[*v as usize] = positions.len() as u32;
-                positions.push(welded[*v as usize]);
-            }
-            *v = used[*v as usize];
-        }
-    }
+    let (positions, mut triangles) = keep(&welded, &triangles, |_| true);
     defects.unused_vertices = welded.len() - positions.len();
     // Edges: which triangles hold each (and in which direction).
     let mut edges: HashMap<(u32, u32), Vec<(usize, bool)>> = HashMap::new();
@@ -375,23 +369,70 @@ pub fn repair(surface: &SurfaceMesh) -> Result<RepairedSurface, TetrahedralizeEr
             t.swap(1, 2);
         }
     }
-    // Each piece faces outward (its enclosed volume positive), then a piece inside another
-    // that the file turned the other way from it faces inward again: a cavity.
-    let centre = (lo + hi) / 2.0;
-    let mut pieces = Vec::with_capacity(components.len());
-    for members in components {
+    // Each piece faces outward: its enclosed volume positive. Volumes are summed about the
+    // origin, as before (the spacing a count asks for follows the volume's last bits, and
+    // the mesh the spacing's: surfaces near the origin mesh as they did), but about the
+    // box's centre for a surface more than eight diagonals away, where the sum about the
+    // origin loses its digits (a unit sphere 2e6 away was refused: its volume cancelled).
+    let centre = {
+        let (lo, hi) = bounds(&positions);
+        let centre = (lo + hi) / 2.0;
+        if centre.norm() > 8.0 * (hi - lo).norm() {
+            centre
+        } else {
+            Vec3::zeros()
+        }
+    };
+    for members in &components {
         let v: f64 = members
             .iter()
             .map(|&k| signed_volume(&triangles[k], &positions, &centre))
             .sum();
         if v < 0.0 {
-            for &k in &members {
+            for &k in members {
                 triangles[k].swap(1, 2);
                 flip[k] = !flip[k];
             }
         }
-        pieces.push(Piece::new(members, v.abs(), &triangles, &positions, &flip));
     }
+    // A piece is closed where each of its edges has two triangles (an open one, a patch
+    // that non-manifold edges cut off, bounds nothing and takes no part in the nesting).
+    let closed: Vec<bool> = components
+        .iter()
+        .map(|members| {
+            members.iter().all(|&k| {
+                let t = triangles[k];
+                (0..3).all(|e| {
+                    let (a, b) = (t[e], t[(e + 1) % 3]);
+                    edges[&(a.min(b), a.max(b))].len() == 2
+                })
+            })
+        })
+        .collect();
+    // Specks first (whole pieces joined through vertices), so that the nesting and its
+    // counts see only what is meshed; the pieces and turns renumbered to what is kept.
+    let (positions, triangles, specks, kept) = drop_specks(positions, triangles, &centre);
+    defects.specks_dropped = specks;
+    let mut renumbered = vec![usize::MAX; kept.len()];
+    for (new, old) in (0..kept.len()).filter(|&k| kept[k]).enumerate() {
+        renumbered[old] = new;
+    }
+    let mut flip: Vec<bool> = (0..kept.len())
+        .filter(|&k| kept[k])
+        .map(|k| flip[k])
+        .collect();
+    let mut triangles = triangles;
+    let pieces: Vec<Piece> = components
+        .into_iter()
+        .zip(closed)
+        .filter(|(members, _)| kept[members[0]])
+        .map(|(members, closed)| {
+            let members: Vec<usize> = members.into_iter().map(|k| renumbered[k]).collect();
+            Piece::new(members, closed, &triangles, &positions, &flip, &centre)
+        })
+        .collect();
+    // Then a piece inside another that the file turned the other way from it faces inward
+    // again (a cavity); one it turned the same way is inside the union, and dropped.
     let facing = nesting(&pieces, &triangles, &positions);
     let mut inner = vec![false; triangles.len()];
     for (piece, facing) in pieces.iter().zip(&facing) {
@@ -412,12 +453,8 @@ pub fn repair(surface: &SurfaceMesh) -> Result<RepairedSurface, TetrahedralizeEr
             }
         }
     }
-    defects.flipped_triangles = flip.iter().filter(|&&f| f).count();
+    defects.flipped_triangles = (0..flip.len()).filter(|&k| flip[k] && !inner[k]).count();
     let (positions, triangles) = keep(&positions, &triangles, |k| !inner[k]);
-    let (positions, triangles, dropped) = drop_specks(positions, triangles, &centre);
-    defects.specks_dropped = dropped;
-    // (About the box's centre, not the origin: a surface placed far from the origin, in a
-    // scanner's coordinates, keeps its digits.)
     let enclosed = triangles
         .iter()
         .map(|t| signed_volume(t, &positions, &centre))
@@ -434,12 +471,13 @@ pub fn repair(surface: &SurfaceMesh) -> Result<RepairedSurface, TetrahedralizeEr
 /// Pieces (triangles joined through shared vertices) that enclose less than 0.1 % of the
 /// whole volume and hold less than 1 % of the area: specks a segmentation leaves floating
 /// beside an organ, far too small for any lattice to mesh, which would only stand off the
-/// mesh. Returns the rest, renumbered, and how many pieces were dropped.
+/// mesh. Returns the rest, renumbered, how many pieces were dropped, and which of the
+/// triangles were kept.
 fn drop_specks(
     positions: Vec<Vec3>,
     triangles: Vec<[u32; 3]>,
     centre: &Vec3,
-) -> (Vec<Vec3>, Vec<[u32; 3]>, usize) {
+) -> (Vec<Vec3>, Vec<[u32; 3]>, usize, Vec<bool>) {
     let mut parent: Vec<u32> = (0..positions.len() as u32).collect();
     fn root(parent: &mut [u32], mut v: u32) -> u32 {
         while parent[v as usize] != v {
@@ -471,19 +509,23 @@ fn drop_specks(
         e.1 += s;
         area += s;
     }
-    for (v, _) in piece.values() {
-        volume += v.abs();
+    // (In the pieces' order, so that the sum's last bits do not follow the hash.)
+    let mut roots: Vec<u32> = piece.keys().copied().collect();
+    roots.sort_unstable();
+    for r in &roots {
+        volume += piece[r].0.abs();
     }
     let speck = |r: &u32| {
         let (v, s) = piece[r];
         piece.len() > 1 && v.abs() < 1e-3 * volume && s < 1e-2 * area
     };
-    let dropped = piece.keys().filter(|r| speck(r)).count();
+    let dropped = roots.iter().filter(|r| speck(r)).count();
+    let kept: Vec<bool> = piece_of.iter().map(|r| !speck(r)).collect();
     if dropped == 0 {
-        return (positions, triangles, 0);
+        return (positions, triangles, 0, kept);
     }
-    let (positions, triangles) = keep(&positions, &triangles, |k| !speck(&piece_of[k]));
-    (positions, triangles, dropped)
+    let (positions, triangles) = keep(&positions, &triangles, |k| kept[k]);
+    (positions, triangles, dropped, kept)
 }
 
 /// The triangles `kept` says to keep (by index), and the vertices they use, renumbered in
@@ -551,6 +593,8 @@ fn drop_duplicate_triangles(triangles: Vec<[u32; 3]>) -> (Vec<[u32; 3]>, usize) 
 /// A piece of the surface joined across manifold edges, faced outward.
 struct Piece {
     members: Vec<usize>,
+    /// Whether every edge of it has two triangles.
+    closed: bool,
     volume: f64,
     lo: Vec3,
     hi: Vec3,
@@ -561,11 +605,16 @@ struct Piece {
 impl Piece {
     fn new(
         members: Vec<usize>,
-        volume: f64,
+        closed: bool,
         triangles: &[[u32; 3]],
         positions: &[Vec3],
         flip: &[bool],
+        centre: &Vec3,
     ) -> Piece {
+        let volume = members
+            .iter()
+            .map(|&k| signed_volume(&triangles[k], positions, centre))
+            .sum();
         let corners: Vec<Vec3> = members
             .iter()
             .flat_map(|&k| triangles[k].map(|v| positions[v as usize]))
@@ -583,6 +632,7 @@ impl Piece {
         }
         Piece {
             members,
+            closed,
             volume,
             lo,
             hi,
@@ -601,15 +651,19 @@ enum Facing {
     Inner,
 }
 
-/// Which way each piece faces. A piece lies inside another when the other's box holds its
-/// box and the other's winding number exceeds one half at (up to) eight of its vertices;
-/// the smallest such is around it. A piece around nothing faces outward. One inside another
+/// Which way each piece faces. A closed piece lies inside another when the other's box
+/// holds its box and the other's winding number exceeds one half at the centroids of (up
+/// to) eight of its triangles; the smallest such is around it. Open pieces face outward. A piece around nothing faces outward. One inside another
 /// faces the other way from it where the file turned the two apart: a hollow organ's inner
 /// wall (written facing inward, as segmentations write it) is a cavity, and a stone inside
 /// the cavity is solid again. Where the file turned them alike (a tumour written as a second
 /// outward surface inside its organ), the inner one lies inside the union: not a boundary.
 fn nesting(pieces: &[Piece], triangles: &[[u32; 3]], positions: &[Vec3]) -> Vec<Facing> {
-    let mut order: Vec<usize> = (0..pieces.len()).collect();
+    let mut facing = vec![Facing::Outward; pieces.len()];
+    if pieces.iter().filter(|p| p.closed).count() < 2 {
+        return facing;
+    }
+    let mut order: Vec<usize> = (0..pieces.len()).filter(|&c| pieces[c].closed).collect();
     order.sort_by(|&a, &b| {
         pieces[b]
             .volume
@@ -620,19 +674,26 @@ fn nesting(pieces: &[Piece], triangles: &[[u32; 3]], positions: &[Vec3]) -> Vec<
     // inside), and whether it ends up facing outward.
     let own: Vec<Vec<[u32; 3]>> = pieces
         .iter()
-        .map(|p| p.members.iter().map(|&k| triangles[k]).collect())
+        .map(|p| match p.closed {
+            true => p.members.iter().map(|&k| triangles[k]).collect(),
+            false => Vec::new(),
+        })
         .collect();
     let mut trees: Vec<Option<SurfaceTree<'_>>> = (0..pieces.len()).map(|_| None).collect();
     let mut outward = vec![true; pieces.len()];
-    let mut facing = vec![Facing::Outward; pieces.len()];
     for (rank, &c) in order.iter().enumerate() {
         let piece = &pieces[c];
-        let stride = piece.members.len().div_ceil(8).max(1);
         let probes: Vec<Vec3> = piece
             .members
             .iter()
-            .step_by(stride)
-            .map(|&k| positions[triangles[k][0] as usize])
+            .step_by(piece.members.len().div_ceil(8))
+            .map(|&k| {
+                triangles[k]
+                    .iter()
+                    .map(|&v| positions[v as usize])
+                    .sum::<Vec3>()
+                    / 3.0
+            })
             .collect();
         // The smallest larger piece around this one: the last in volume order that holds it.
         let around = order[..rank].iter().rev().copied().find(|&a| {

@@ -78,13 +78,17 @@ pub fn parse_gltf(
             for node in gltf.nodes() {
                 for child in node.children() {
                     if let Some(first) = parent_of[child.index()].replace(node.index()) {
+                        let parents = if first == node.index() {
+                            format!("listed twice under node {first}")
+                        } else {
+                            format!("a child of both node {first} and node {}", node.index())
+                        };
                         return Err(FormatError::unsupported(
                             name,
                             format!(
-                                "node {} is a child of both node {first} and node {}; glTF \
-                                 node hierarchies must be trees (share the mesh instead)",
-                                child.index(),
-                                node.index()
+                                "node {} is {parents}; glTF node hierarchies must be trees \
+                                 (share the mesh instead)",
+                                child.index()
                             ),
                         ));
                     }

@@ -5,7 +5,7 @@
 //!
 //! The header ends at the first line that is exactly `end_header` (trimmed), so a comment
 //! naming it does not cut the header short; its lines may end in `\n`, `\r\n`, or a lone
-//! `\r` where the `ply` line does. A face index that is not one of the file's vertices is
+//! `\r` (where the `ply` line does, every `\r` ends a line alone). A face index that is not one of the file's vertices is
 //! refused with the face's number in its element, the index and the vertex count.
 
 use super::FormatError;
@@ -135,7 +135,8 @@ pub fn parse_ply(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
 
 /// The header's lines, trimmed (`ply` first), and the byte where the body starts: after
 /// the first line that is exactly `end_header` (a comment naming it does not end the
-/// header). Lines end in `\n` or `\r\n`, or in a lone `\r` where the first line does.
+/// header). Lines end in `\n`, `\r\n` or a lone `\r`; where the first line ends in a lone
+/// `\r`, every `\r` ends a line alone (a binary body that starts with `\n` keeps it).
 fn split_header<'a>(data: &'a [u8], name: &str) -> Result<(Vec<&'a [u8]>, usize), FormatError> {
     let bad = |msg: &str| FormatError::unsupported(name, msg);
     let first_end = data.iter().position(|&b| b == b'\n' || b == b'\r');

@@ -10,8 +10,8 @@
 //!    `endsolid` (a binary header may start with `solid` too, but its count field and its
 //!    floats hold zero bytes);
 //! 3. binary otherwise, when the file is at least 84 bytes long. The header's count is
-//!    trusted only where the bytes agree: a count of 0 (streaming exporters write it) or one
-//!    below what the bytes hold reads every whole triangle the bytes hold; a count equal to
+//!    trusted only where the bytes agree: a count of 0 (streaming exporters write it) or any
+//!    count below what the bytes hold reads every whole triangle the bytes hold; a count equal to
 //!    what they hold reads it and ignores fewer than 50 bytes of trailing padding; a count
 //!    above it reads what they hold when the data is a whole number of triangles, and is a
 //!    truncated file, refused with both numbers, when it is not.
