@@ -455,11 +455,26 @@ pub fn repair(surface: &SurfaceMesh) -> Result<RepairedSurface, TetrahedralizeEr
     }
     defects.flipped_triangles = (0..flip.len()).filter(|&k| flip[k] && !inner[k]).count();
     let (positions, triangles) = keep(&positions, &triangles, |k| !inner[k]);
-    let enclosed = triangles
-        .iter()
-        .map(|t| signed_volume(t, &positions, &centre))
-        .sum::<f64>()
-        .abs();
+    // The pieces' volumes, a cavity's taken away (summed piece by piece, as before: the same
+    // bits, so the same spacing and mesh); where specks went, over the kept triangles.
+    let enclosed = if specks == 0 {
+        pieces
+            .iter()
+            .zip(&facing)
+            .map(|(p, f)| match f {
+                Facing::Outward => p.volume,
+                Facing::Inward => -p.volume,
+                Facing::Inner => 0.0,
+            })
+            .sum::<f64>()
+            .abs()
+    } else {
+        triangles
+            .iter()
+            .map(|t| signed_volume(t, &positions, &centre))
+            .sum::<f64>()
+            .abs()
+    };
     Ok(RepairedSurface {
         positions,
         triangles,
