@@ -505,6 +505,30 @@ fn inner_pieces_and_duplicated_faces_leave_the_union() {
     assert!((fixed.enclosed_volume - 2.0).abs() < 1e-12);
 }
 
+/// A surface in a scanner's coordinates, far from the origin: a unit sphere 2e6 away has
+/// the volume it has at the origin (summed about the origin, its terms are 1e18 times the
+/// volume and it cancelled: the spacing came out 40 times too fine and the lattice was
+/// refused as too large), and meshes to it.
+#[test]
+fn a_surface_far_from_the_origin_keeps_its_volume_and_meshes() {
+    let near = sphere(1.0);
+    let mut far = near.clone();
+    for p in &mut far.positions {
+        *p += Vec3::new(1e6, -2e6, 5e5);
+    }
+    let (v_near, v_far) = (
+        repair(&near).unwrap().enclosed_volume,
+        repair(&far).unwrap().enclosed_volume,
+    );
+    assert!(
+        (v_far - v_near).abs() < 1e-6 * v_near,
+        "{v_far} against {v_near}"
+    );
+    let (_, r) = tetrahedralize(&far, &TetrahedralizeOptions::default()).unwrap();
+    assert!((1000..=2000).contains(&r.tets), "{r:?}");
+    assert!((r.volume - v_near).abs() < 0.03 * v_near, "{r:?}");
+}
+
 #[test]
 fn surfaces_too_broken_to_mesh_name_the_defect() {
     // An open sheet: no volume.

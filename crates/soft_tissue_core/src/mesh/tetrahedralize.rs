@@ -372,12 +372,13 @@ pub fn repair(surface: &SurfaceMesh) -> Result<RepairedSurface, TetrahedralizeEr
     // Each piece faces outward: its enclosed volume positive. Volumes are summed about the
     // origin, as before (the spacing a count asks for follows the volume's last bits, and
     // the mesh the spacing's: surfaces near the origin mesh as they did), but about the
-    // box's centre for a surface more than eight diagonals away, where the sum about the
-    // origin loses its digits (a unit sphere 2e6 away was refused: its volume cancelled).
+    // box's centre for a surface more than 100 diagonals away: about the origin, each term
+    // is about (distance / diagonal)^3 times the volume, so past that the sum keeps fewer
+    // than 10 of its 16 digits (a unit sphere 2e6 away was refused: its volume cancelled).
     let centre = {
         let (lo, hi) = bounds(&positions);
         let centre = (lo + hi) / 2.0;
-        if centre.norm() > 8.0 * (hi - lo).norm() {
+        if centre.norm() > 100.0 * (hi - lo).norm() {
             centre
         } else {
             Vec3::zeros()
