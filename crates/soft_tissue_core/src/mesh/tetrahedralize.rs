@@ -63,6 +63,11 @@ pub struct SurfaceDefects {
     /// Closed pieces inside another that the file turns the same way (a tumour written as a
     /// second surface inside its organ): inside the union the mesh fills, so dropped.
     pub inner_pieces_dropped: usize,
+    /// Triangles wholly or partly inside the union from both sides: where parts overlap (two
+    /// labels of a segmentation through each other, a fold of a surface through itself).
+    /// Meshed as the union; these parts of the input are not its boundary, so the
+    /// projection, the distances and the enclosed volume leave them out.
+    pub buried_triangles: usize,
 }
 
 /// How to mesh a surface.
@@ -94,7 +99,9 @@ impl Default for TetrahedralizeOptions {
 /// coarsening targets for a near miss, four graded levels instead of two; a spacing too
 /// thick for the shape is halved. 4: nesting read from the file's orientation (cavities;
 /// inner pieces dropped), duplicate triangles dropped, volumes summed about the centre.
-pub const REVISION: u32 = 4;
+/// 5: overlapping parts meshed toward their union's boundary (buried triangles left out of
+/// the projection, the distances and the enclosed volume).
+pub const REVISION: u32 = 5;
 
 /// What [`tetrahedralize`] did.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -252,8 +259,12 @@ pub struct RepairedSurface {
     pub triangles: Vec<[u32; 3]>,
     /// What was found.
     pub defects: SurfaceDefects,
-    /// Volume enclosed (the divergence theorem over the oriented triangles).
+    /// Volume enclosed (the divergence theorem over the oriented triangles; where parts
+    /// overlap, over the parts of them that bound the union).
     pub enclosed_volume: f64,
+    /// Per triangle, the share of its area buried inside the union (see
+    /// [`SurfaceDefects::buried_triangles`]), in sixteenths; empty where none is.
+    pub buried: Vec<f64>,
 }
 
 /// Repairs `surface` (see the module docs).
@@ -476,13 +487,112 @@ pub fn repair(surface: &SurfaceMesh) -> Result<RepairedSurface, TetrahedralizeEr
             .sum::<f64>()
             .abs()
     };
+    // Overlapping parts: the union's volume from the parts of its triangles that bound it
+    // (on a flat triangle the divergence theorem's integrand is constant, so its term
+    // scales with the share of its area kept).
+    let buried = buried_shares(&positions, &triangles);
+    let enclosed = if buried.is_empty() {
+        enclosed
+    } else {
+        defects.buried_triangles = buried.iter().filter(|&&b| b > 0.0).count();
+        triangles
+            .iter()
+            .zip(&buried)
+            .map(|(t, b)| signed_volume(t, &positions, &centre) * (1.0 - b))
+            .sum::<f64>()
+            .abs()
+    };
     Ok(RepairedSurface {
         positions,
         triangles,
         defects,
         enclosed_volume: enclosed,
+        buried,
     })
 }
+
+/// How far off a triangle its outer side is probed, as a fraction of the diagonal.
+const PROBE_OFFSET: f64 = 1e-7;
+
+/// Whether the point at barycentric weights `w` of triangle `t` is buried: just off the
+/// triangle on its outer side, the winding number is still over one half (inside another
+/// part). On the union's boundary it is near zero there, also on a cavity's wall (which
+/// faces into the cavity).
+fn buried_at(
+    tree: &SurfaceTree<'_>,
+    positions: &[Vec3],
+    t: &[u32; 3],
+    w: [f64; 3],
+    eps: f64,
+) -> bool {
+    let [a, b, c] = t.map(|v| positions[v as usize]);
+    let Some(n) = (b - a).cross(&(c - a)).try_normalize(1e-300) else {
+        return false;
+    };
+    let p = a * w[0] + b * w[1] + c * w[2];
+    tree.winding_number(&(p + n * eps)) > 0.5
+}
+
+/// Per triangle, the share of its area buried inside the union (see
+/// [`SurfaceDefects::buried_triangles`]): probed first at every centroid; where one is
+/// buried, at the centroids of each triangle's 16 sub-triangles (split in four twice).
+/// Empty where no centroid is: the surfaces whose parts do not overlap.
+fn buried_shares(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<f64> {
+    let (lo, hi) = bounds(positions);
+    let eps = PROBE_OFFSET * (hi - lo).norm();
+    let tree = SurfaceTree::new(positions, triangles);
+    let third = [1.0 / 3.0; 3];
+    if !triangles
+        .par_iter()
+        .any(|t| buried_at(&tree, positions, t, third, eps))
+    {
+        return Vec::new();
+    }
+    triangles
+        .par_iter()
+        .map(|t| {
+            let n = SUB_CENTROIDS
+                .iter()
+                .filter(|&&w| buried_at(&tree, positions, t, w, eps))
+                .count();
+            n as f64 / SUB_CENTROIDS.len() as f64
+        })
+        .collect()
+}
+
+/// Barycentric weights of the centroids of a triangle's 16 equal sub-triangles (each edge
+/// cut in four): 10 upright (i + j + k = 3 of the quarter steps, plus one third each) and
+/// 6 upside down.
+const SUB_CENTROIDS: [[f64; 3]; 16] = {
+    let mut out = [[0.0; 3]; 16];
+    let mut n = 0;
+    let mut i = 0;
+    while i < 4 {
+        let mut j = 0;
+        while i + j < 4 {
+            let k = 3 - i - j;
+            // Upright: corners (i,j,k+1), (i+1,j,k), (i,j+1,k) in quarters.
+            out[n] = [
+                (3 * i + 1) as f64 / 12.0,
+                (3 * j + 1) as f64 / 12.0,
+                (3 * k + 1) as f64 / 12.0,
+            ];
+            n += 1;
+            // Upside down: corners (i+1,j,k), (i,j+1,k), (i+1,j+1,k-1), where k >= 1.
+            if k >= 1 {
+                out[n] = [
+                    (3 * i + 2) as f64 / 12.0,
+                    (3 * j + 2) as f64 / 12.0,
+                    (3 * k - 1) as f64 / 12.0,
+                ];
+                n += 1;
+            }
+            j += 1;
+        }
+        i += 1;
+    }
+    out
+};
 
 /// Pieces (triangles joined through shared vertices) that enclose less than 0.1 % of the
 /// whole volume and hold less than 1 % of the area: specks a segmentation leaves floating
@@ -765,10 +875,11 @@ impl RepairedSurface {
     }
 }
 
-/// The signed field the mesher reads: distance, negative inside.
-fn signed_distance(tree: &SurfaceTree<'_>, p: &Vec3) -> f64 {
-    let d = tree.closest(p).map_or(f64::INFINITY, |(_, d)| d);
-    if inside(tree, p) { -d } else { d }
+/// The signed field the mesher reads: the distance to the surface's boundary part (`near`),
+/// negative inside the whole surface (`whole`).
+fn signed_distance(near: &SurfaceTree<'_>, whole: &SurfaceTree<'_>, p: &Vec3) -> f64 {
+    let d = near.closest(p).map_or(f64::INFINITY, |(_, d)| d);
+    if inside(whole, p) { -d } else { d }
 }
 
 /// Whether `p` is inside: the generalized winding number over one half. It agrees with
@@ -834,11 +945,26 @@ pub fn tetrahedralize(
         }
     }
     let tree = s.tree();
+    // Where parts overlap, what lies inside the union is not its boundary: the closest
+    // points, the projection and the distances take the triangles not wholly buried (those
+    // partly buried cross where the parts meet); inside and outside still the whole.
+    let outer: Vec<[u32; 3]> = (!s.buried.is_empty())
+        .then(|| {
+            s.triangles
+                .iter()
+                .zip(&s.buried)
+                .filter(|&(_, &b)| b < 1.0)
+                .map(|(t, _)| *t)
+                .collect()
+        })
+        .unwrap_or_default();
+    let outer_tree = (!s.buried.is_empty()).then(|| SurfaceTree::new(&s.positions, &outer));
+    let near = outer_tree.as_ref().unwrap_or(&tree);
     let mesh_at = |h: f64| -> Result<TetMesh, TetrahedralizeError> {
         // 16 bisections (h / 65536): the boundary nodes are moved onto the surface after.
         // The bisections need only the side (the winding number), not the distance.
         let stuffed = stuff_fn_sign(
-            |p| signed_distance(&tree, p),
+            |p| signed_distance(near, &tree, p),
             |p| inside(&tree, p),
             (lo, hi),
             h,
@@ -899,9 +1025,13 @@ pub fn tetrahedralize(
     };
     let diagonal = extent.norm();
     let tol = FIT_TOLERANCE * diagonal;
-    let surface_samples = samples(&s.positions, &s.triangles);
+    let surface_samples = if s.buried.is_empty() {
+        samples(&s.positions, &s.triangles)
+    } else {
+        unburied_samples(&s, &tree)
+    };
     let goal = Goal {
-        tree: &tree,
+        tree: near,
         surface_samples: &surface_samples,
         min_dihedral,
         tol,
@@ -910,7 +1040,7 @@ pub fn tetrahedralize(
     // Projection and crease fit; then (in `Finished`) edge splits, the volume the chords
     // lost and the distances both ways.
     let onto_surface = |mesh: TetMesh| -> (TetMesh, usize, usize) {
-        let (mesh, projected) = project_boundary(mesh, &tree, min_dihedral);
+        let (mesh, projected) = project_boundary(mesh, near, min_dihedral);
         let (mesh, snapped) = fit_features(mesh, &surface_samples, min_dihedral, tol);
         (mesh, projected, snapped)
     };
@@ -945,14 +1075,14 @@ pub fn tetrahedralize(
             target_tets: target,
             levels: &[0.25, 0.5, 1.0],
         };
-        let mut coarse = coarsen_boundary(fine, &tree, &settings).ok()?;
+        let mut coarse = coarsen_boundary(fine, near, &settings).ok()?;
         if coarse.tet_count() as f64 > 1.1 * target as f64 {
             settings.levels = &[1.25, 1.5, 1.75, 2.0];
-            coarse = coarsen_boundary(&coarse, &tree, &settings).ok()?;
+            coarse = coarsen_boundary(&coarse, near, &settings).ok()?;
         }
         if coarse.tet_count() as f64 > 1.2 * target as f64 {
             settings.levels = &[2.25, 2.5, 2.75, 3.0];
-            coarse = coarsen_boundary(&coarse, &tree, &settings).ok()?;
+            coarse = coarsen_boundary(&coarse, near, &settings).ok()?;
         }
         Some(coarse)
     };
@@ -1237,6 +1367,49 @@ fn samples(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
             }
         }
         out.push((a + b + c) / 3.0);
+    }
+    out
+}
+
+/// [`samples`] of a surface whose parts overlap, those buried left out: each point is
+/// probed from the triangles it lies on (see [`buried_at`]) and kept where one keeps it.
+fn unburied_samples(s: &RepairedSurface, tree: &SurfaceTree<'_>) -> Vec<Vec3> {
+    let (lo, hi) = bounds(&s.positions);
+    let eps = PROBE_OFFSET * (hi - lo).norm();
+    // Corners, edge midpoints (edge k from corner k to k + 1), centroid.
+    const AT: [[f64; 3]; 7] = [
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, 0.0, 1.0],
+        [0.5, 0.5, 0.0],
+        [0.0, 0.5, 0.5],
+        [0.5, 0.0, 0.5],
+        [1.0 / 3.0; 3],
+    ];
+    let kept: Vec<[bool; 7]> = s
+        .triangles
+        .par_iter()
+        .zip(&s.buried)
+        .map(|(t, &b)| {
+            AT.map(|w| b < 1.0 && (b == 0.0 || !buried_at(tree, &s.positions, t, w, eps)))
+        })
+        .collect();
+    let mut vertex = vec![false; s.positions.len()];
+    let mut edge = std::collections::HashSet::new();
+    let mut out = Vec::new();
+    for (t, keep) in s.triangles.iter().zip(&kept) {
+        for k in 0..3 {
+            if keep[k] && !std::mem::replace(&mut vertex[t[k] as usize], true) {
+                out.push(s.positions[t[k] as usize]);
+            }
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            if keep[3 + k] && edge.insert((a.min(b), a.max(b))) {
+                out.push((s.positions[a as usize] + s.positions[b as usize]) / 2.0);
+            }
+        }
+        if keep[6] {
+            out.push(t.map(|v| s.positions[v as usize]).iter().sum::<Vec3>() / 3.0);
+        }
     }
     out
 }
