@@ -373,7 +373,7 @@ fn generate(args: &GenerateArgs) -> Res {
 fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
     use soft_tissue_core::mesh::tetrahedralize::{TetrahedralizeOptions, tetrahedralize};
     let name = args.input.display().to_string();
-    let mut surface = io::read_surface(&args.input)?;
+    let io::LoadedSurface { mut surface, notes } = io::read_surface_with_notes(&args.input)?;
     if !(args.units.is_finite() && args.units > 0.0) {
         return Err(format!("--units must be positive, found {}", args.units).into());
     }
@@ -394,15 +394,17 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
             "{}",
             serde_json::to_string_pretty(&serde_json::json!({
                 "input": name, "output": args.out.display().to_string(),
-                "triangles": surface.triangles.len(), "seconds": seconds, "report": r,
-                "shortfall": r.shortfall(),
+                "triangles": surface.triangles.len(), "notes": notes, "seconds": seconds,
+                "report": r, "shortfall": r.shortfall(),
             }))?
         );
         return Ok(());
     }
     let d = r.defects;
+    // What the reader overruled in the file, one line each, before what the repair did.
+    let notes: String = notes.iter().map(|n| format!("\nnote: {n}")).collect();
     println!(
-        "{name}: {} vertices, {} triangles\n\
+        "{name}: {} vertices, {} triangles{notes}\n\
          repaired: {} duplicate vertices welded, {} unused vertices, {} degenerate and {} \
          duplicate triangles dropped, {} triangles turned; {} boundary edges (holes), {} \
          non-manifold edges; {} small separate pieces dropped, {} inner pieces kept as \

@@ -665,3 +665,74 @@ fn no_panic_on_truncated_or_corrupted_input() {
     );
     assert!(parse_tet_mesh(v1.as_bytes(), MeshFormat::Gmsh, "t").is_err());
 }
+
+/// A glTF file with one triangle, (0,0,0) (1,0,0) (0,1,0), in a data URI (the nine floats'
+/// little-endian bytes in base64), the given nodes, scenes and default scene.
+fn gltf_with(nodes: &str, scenes: &str, scene: usize) -> String {
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":{scene},"scenes":{scenes},"nodes":{nodes},
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3",
+        "min":[0,0,0],"max":[1,1,0]}}],"bufferViews":[{{"buffer":0,"byteLength":36}}],
+        "buffers":[{{"byteLength":36,
+        "uri":"data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAA"}}]}}"#
+    )
+}
+
+/// A scene's nodes must be root nodes (glTF 2.0, 3.5.1: listed in no node's `children`,
+/// each once). A root that is also a child was walked twice, from the scene and from its
+/// parent (a chain listed whole as roots is walked quadratically), and is refused naming
+/// the node, the scene and the parent; a root listed twice is refused too. One node as the
+/// root of two scenes is allowed, and two roots placing one mesh place it twice.
+#[test]
+fn a_gltf_scene_root_that_is_also_a_child_is_refused() {
+    use soft_tissue_core::mesh::io::parse_gltf;
+    let err = |text: &str| match parse_gltf(text.as_bytes(), "r.gltf", &mut |_| unreachable!()) {
+        Ok(s) => panic!("read {} triangles, expected an error", s.triangles.len()),
+        Err(e) => e.to_string(),
+    };
+    let chain = r#"[{"children":[1],"mesh":0},{"children":[2],"mesh":0},{"mesh":0}]"#;
+    for (scenes, scene, node, parent) in [
+        (r#"[{"nodes":[0,1]}]"#, 0, 1, 0),
+        (r#"[{"nodes":[0,1,2]}]"#, 0, 1, 0),
+        (r#"[{"nodes":[2,0]}]"#, 0, 2, 1),
+        (r#"[{"nodes":[0]},{"nodes":[1]}]"#, 1, 1, 0),
+    ] {
+        let e = err(&gltf_with(chain, scenes, scene));
+        assert!(
+            e.contains(&format!(
+                "r.gltf: node {node} is a root of scene {scene} and a child of node {parent}"
+            )),
+            "{scenes}: {e}"
+        );
+    }
+    let twice = gltf_with(r#"[{"mesh":0}]"#, r#"[{"nodes":[0,0]}]"#, 0);
+    let e = err(&twice);
+    assert!(
+        e.contains("r.gltf: node 0 is listed twice in scene 0's nodes"),
+        "{e}"
+    );
+    // Allowed: node 0 is the root of both scenes; two roots share the mesh.
+    let two_roots = gltf_with(
+        r#"[{"mesh":0},{"mesh":0,"translation":[0,0,5]}]"#,
+        r#"[{"nodes":[0]},{"nodes":[0,1]}]"#,
+        1,
+    );
+    let s = parse_gltf(two_roots.as_bytes(), "r.gltf", &mut |_| unreachable!()).unwrap();
+    assert_eq!(s.triangles.len(), 2);
+    for z in [0.0, 5.0] {
+        assert!(
+            s.positions.contains(&Vec3::new(0.0, 1.0, z)),
+            "{:?}",
+            s.positions
+        );
+    }
+    // The chain with only its top as the root: three triangles, one per node.
+    let s = parse_gltf(
+        gltf_with(chain, r#"[{"nodes":[0]}]"#, 0).as_bytes(),
+        "r.gltf",
+        &mut |_| unreachable!(),
+    )
+    .unwrap();
+    assert_eq!(s.triangles.len(), 3);
+}

@@ -2,11 +2,14 @@
 //! whose triangle count is wrong (0 from streaming exporters, too many, too few, trailing
 //! padding, or a truncated file), ASCII STL in upper case, with a byte-order mark or with
 //! several solids, PLY headers with a comment naming `end_header` or with CR line ends, and
-//! PLY faces naming a vertex that does not exist. Every input is built here as bytes: a
-//! tetrahedron, read back triangle by triangle and vertex by vertex.
+//! PLY faces naming a vertex that does not exist, PLY after a byte-order mark, and PLY
+//! faces given as triangle strips. Every input is built here as bytes: a tetrahedron, read
+//! back triangle by triangle and vertex by vertex.
 
 use soft_tissue_core::Vec3;
-use soft_tissue_core::mesh::io::{SurfaceMesh, parse_ply, parse_stl};
+use soft_tissue_core::mesh::io::{
+    SurfaceMesh, parse_ply, parse_stl, parse_stl_with_notes, read_surface_with_notes,
+};
 
 /// The tetrahedron's corners (exact in `f32`, so binary files read back exactly).
 fn corners() -> [Vec3; 4] {
@@ -137,6 +140,64 @@ fn binary_stl_errors_name_both_counts_where_they_disagree() {
     let e = stl_error(&binary_stl("nan", 0, &t, &[]));
     assert!(e.contains("triangle 2: vertex 1 is not finite"), "{e}");
     assert!(e.contains("header says 0") && e.contains("holds 4"), "{e}");
+}
+
+/// Where the data overrules the header's count (0, too large, too small) or bytes follow the
+/// last whole triangle, the reader says so in a note naming both counts; a header that
+/// agrees with its data, and an ASCII file, give none. `read_surface_with_notes` passes the
+/// note on.
+#[test]
+fn binary_stl_whose_header_count_is_overruled_says_so_in_a_note() {
+    // The tetrahedron's 4 triangles, with each stated count and trailing bytes.
+    let held = |stated: u32| {
+        format!("binary STL header says {stated} triangles; the data holds 4 (read those)")
+    };
+    for (count, trailing, want) in [
+        (0, 0, held(0)),
+        (1000, 0, held(1000)),
+        (5, 0, held(5)),
+        (3, 0, held(3)),
+        (1, 0, held(1)),
+        (
+            3,
+            7,
+            held(3) + ", and 7 bytes after them, less than a triangle (ignored)",
+        ),
+        (
+            4,
+            7,
+            "binary STL: 7 bytes after the header's 4 triangles, less than a triangle \
+             (ignored)"
+                .to_string(),
+        ),
+    ] {
+        for header in ["x", "solid x"] {
+            let data = binary_stl(header, count, &tetrahedron(), &vec![0u8; trailing]);
+            let read = parse_stl_with_notes(&data, "t.stl")
+                .unwrap_or_else(|e| panic!("count {count}, {trailing} bytes: {e}"));
+            assert_eq!(triangles_of(&read.surface), tetrahedron());
+            assert_eq!(read.notes, vec![want.clone()], "{header:?}");
+            // The plain reader gives the same surface.
+            assert_eq!(parse_stl(&data, "t.stl").unwrap(), read.surface);
+        }
+    }
+    for data in [
+        binary_stl("agrees", 4, &tetrahedron(), &[]),
+        ascii_solid("a", &tetrahedron()).into_bytes(),
+    ] {
+        let read = parse_stl_with_notes(&data, "t.stl").unwrap();
+        assert_eq!(triangles_of(&read.surface), tetrahedron());
+        assert!(read.notes.is_empty(), "{:?}", read.notes);
+    }
+    let dir = std::env::temp_dir().join(format!("st-stl-notes-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("zero.stl");
+    std::fs::write(&path, binary_stl("x", 0, &tetrahedron(), &[])).unwrap();
+    let read = read_surface_with_notes(&path);
+    std::fs::remove_dir_all(&dir).unwrap();
+    let read = read.unwrap();
+    assert_eq!(triangles_of(&read.surface), tetrahedron());
+    assert_eq!(read.notes, vec![held(0)]);
 }
 
 /// No binary length or stated count makes the reader panic.
@@ -319,4 +380,184 @@ fn ply_bad_face_index_names_the_face_the_index_and_the_vertex_count() {
     let e = parse_ply(text.as_bytes(), "t.ply").unwrap_err().to_string();
     assert!(e.contains("face 1: vertex index -3 "), "{e}");
     assert!(e.contains("3 vertices"), "{e}");
+}
+
+/// A UTF-8 byte-order mark before `ply` is skipped, ASCII and binary, with LF or CRLF
+/// header lines.
+#[test]
+fn ply_after_a_byte_order_mark_is_read() {
+    for eol in ["\n", "\r\n"] {
+        for data in [
+            ascii_ply(&[], eol, &tetra_faces()),
+            binary_ply(&[], eol, &corners()),
+        ] {
+            let mut bom = b"\xEF\xBB\xBF".to_vec();
+            bom.extend(&data);
+            let s = parse_ply(&bom, "t.ply").unwrap_or_else(|e| panic!("{eol:?}: {e}"));
+            assert_tetrahedron(&s, &corners());
+        }
+    }
+}
+
+/// The volume the triangles enclose, by the divergence theorem: positive where they turn
+/// outward.
+fn enclosed_volume(s: &SurfaceMesh) -> f64 {
+    triangles_of(s)
+        .iter()
+        .map(|[a, b, c]| a.dot(&b.cross(c)) / 6.0)
+        .sum()
+}
+
+/// The tetrahedron's volume from its corners (outward faces): a sixth of the triple product.
+fn tetrahedron_volume() -> f64 {
+    let c = corners();
+    (c[1] - c[0])
+        .dot(&(c[2] - c[0]).cross(&(c[3] - c[0])))
+        .abs()
+        / 6.0
+}
+
+/// Each triangle as its smallest corner first (the same triangle, the same winding).
+fn rotated(t: [u32; 3]) -> [u32; 3] {
+    let k = (0..3).min_by_key(|&k| t[k]).unwrap_or(0);
+    [t[k], t[(k + 1) % 3], t[(k + 2) % 3]]
+}
+
+/// The tetrahedron's faces, each with its smallest corner first, sorted.
+fn sorted_faces(triangles: &[[u32; 3]]) -> Vec<[u32; 3]> {
+    let mut f: Vec<[u32; 3]> = triangles.iter().map(|&t| rotated(t)).collect();
+    f.sort();
+    f
+}
+
+/// A PLY with the tetrahedron's corners, `faces` in a `face` element (none: no element) and
+/// `strips` as the rows of a `tristrips` element (a list property `vertex_indices`), ASCII or
+/// binary little-endian.
+fn strips_ply(binary: bool, faces: &[[i64; 3]], strips: &[Vec<i64>]) -> Vec<u8> {
+    let format = if binary {
+        "binary_little_endian"
+    } else {
+        "ascii"
+    };
+    let mut h = format!(
+        "ply\nformat {format} 1.0\ncomment Cyberware/Stanford style\nelement vertex 4\n\
+         property float x\nproperty float y\nproperty float z\n"
+    );
+    if !faces.is_empty() {
+        h += &format!(
+            "element face {}\nproperty list uchar int vertex_indices\n",
+            faces.len()
+        );
+    }
+    h += &format!(
+        "element tristrips {}\nproperty list int int vertex_indices\nend_header\n",
+        strips.len()
+    );
+    let mut out = h.into_bytes();
+    let mut text = String::new();
+    for p in corners() {
+        if binary {
+            for x in p.iter() {
+                out.extend((*x as f32).to_le_bytes());
+            }
+        } else {
+            text += &format!("{} {} {}\n", p.x, p.y, p.z);
+        }
+    }
+    for f in faces {
+        if binary {
+            out.push(3);
+            for v in f {
+                out.extend((*v as i32).to_le_bytes());
+            }
+        } else {
+            text += &format!("3 {} {} {}\n", f[0], f[1], f[2]);
+        }
+    }
+    for strip in strips {
+        if binary {
+            out.extend((strip.len() as i32).to_le_bytes());
+            for v in strip {
+                out.extend((*v as i32).to_le_bytes());
+            }
+        } else {
+            let items: Vec<String> = strip.iter().map(|v| v.to_string()).collect();
+            text += &format!("{} {}\n", strip.len(), items.join(" "));
+        }
+    }
+    out.extend(text.into_bytes());
+    out
+}
+
+/// Faces given only as triangle strips (old Stanford and Cyberware scans) are read: each
+/// strip's triangles alternate so that all keep the strip's winding, -1 starts a new strip,
+/// and the degenerate triangles that join strips are skipped. Each file below is the
+/// tetrahedron, its four faces turned outward: the reader gives those four triangles and
+/// the tetrahedron's volume.
+#[test]
+fn ply_triangle_strips_are_read() {
+    // Strip (0 2 1 3 0 2) gives (0 2 1), (1 2 3), (1 3 0), (0 3 2): the four faces.
+    let one = vec![0, 2, 1, 3, 0, 2];
+    // Two strips after a restart: (0 2 1), (1 2 3), then (1 3 0), (0 3 2).
+    let restarted = vec![0, 2, 1, 3, -1, 1, 3, 0, 2];
+    // The same two joined by repeating 3 and 1: four degenerate triangles between them.
+    let joined = vec![0, 2, 1, 3, 3, 1, 1, 3, 0, 2];
+    // Strips over two rows, with -1 at the end of one and at the start of the other.
+    let rows = [vec![0, 2, 1, 3, -1], vec![-1, 1, 3, 0, 2]];
+    let want = sorted_faces(&FACES.map(|f| f.map(|v| v as u32)));
+    for binary in [false, true] {
+        for (what, strips) in [
+            ("one strip", vec![one.clone()]),
+            ("a restart", vec![restarted.clone()]),
+            ("degenerate joins", vec![joined.clone()]),
+            ("two rows", rows.to_vec()),
+        ] {
+            let s = parse_ply(&strips_ply(binary, &[], &strips), "t.ply")
+                .unwrap_or_else(|e| panic!("{what}, binary {binary}: {e}"));
+            assert_eq!(s.positions, corners().to_vec(), "{what}");
+            assert_eq!(s.triangles.len(), 4, "{what}: {:?}", s.triangles);
+            assert_eq!(sorted_faces(&s.triangles), want, "{what}");
+            let v = enclosed_volume(&s);
+            assert!((v - tetrahedron_volume()).abs() < 1e-12, "{what}: {v}");
+            // Cut anywhere, after a byte order mark or not: an error or a surface, no panic.
+            let mut bom = b"\xEF\xBB\xBF".to_vec();
+            bom.extend(strips_ply(binary, &[], &strips));
+            for len in 0..=bom.len() {
+                let _ = parse_ply(&bom[..len], "t.ply");
+                let _ = parse_ply(&bom[3.min(len)..len], "t.ply");
+            }
+        }
+        // A file with both: two faces in `face`, the other two in a strip; both are read.
+        let faces = [[0, 2, 1], [0, 1, 3]];
+        let s = parse_ply(&strips_ply(binary, &faces, &[vec![0, 3, 2, 1]]), "t.ply")
+            .unwrap_or_else(|e| panic!("face and tristrips, binary {binary}: {e}"));
+        assert_eq!(
+            s.triangles,
+            vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [2, 3, 1]]
+        );
+        assert!((enclosed_volume(&s) - tetrahedron_volume()).abs() < 1e-12);
+    }
+}
+
+/// A strip index that is not a vertex (and not the -1 that restarts a strip) names the
+/// `tristrips` row, the index and the vertex count.
+#[test]
+fn ply_bad_strip_index_names_the_row_the_index_and_the_vertex_count() {
+    for binary in [false, true] {
+        for (strips, row, index) in [
+            (vec![vec![0, 2, 1, 4]], 0, 4),
+            (vec![vec![0, 2, 1, 3], vec![1, 3, -2, 0]], 1, -2),
+            (vec![vec![0, 1], vec![2, 3], vec![70000, 0, 1]], 2, 70000),
+        ] {
+            let e = parse_ply(&strips_ply(binary, &[], &strips), "t.ply")
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("t.ply"), "{e}");
+            assert!(
+                e.contains(&format!("tristrips {row}: vertex index {index} ")),
+                "{e}"
+            );
+            assert!(e.contains("4 vertices"), "{e}");
+        }
+    }
 }

@@ -5,8 +5,11 @@
 //! other URIs, from the caller (files beside the `.gltf`).
 //!
 //! The scene is the file's default scene, else its first; a file with no scene gives every
-//! mesh once, untransformed. Points and lines are skipped; strips and fans become triangles.
-//! Positions must be 32-bit floats (quantized positions are refused with a message).
+//! mesh once, untransformed. Node hierarchies must be trees and a scene's nodes its roots,
+//! each listed once (a node under two parents, or a scene root that is also a child or
+//! listed twice, is refused: walked as given, it places its meshes more than once). Points
+//! and lines are skipped; strips and fans become triangles. Positions must be 32-bit floats
+//! (quantized positions are refused with a message).
 
 use std::collections::HashMap;
 
@@ -93,6 +96,30 @@ pub fn parse_gltf(
                         ));
                     }
                 }
+            }
+            // A scene's nodes must be root nodes, each listed once (glTF 2.0, 3.5.1: "MUST
+            // NOT be listed in a node.children array of any node"; scene.nodes has unique
+            // items). A root that is also a child is walked from the scene and again from
+            // its parent (a chain listed whole as roots, quadratically often).
+            let mut listed = vec![false; gltf.nodes().len()];
+            for root in scene.nodes() {
+                let r = root.index();
+                let why = if let Some(parent) = parent_of[r] {
+                    format!(
+                        "node {r} is a root of scene {} and a child of node {parent}; a glTF \
+                         scene's nodes must be root nodes, listed in no node's children",
+                        scene.index()
+                    )
+                } else if std::mem::replace(&mut listed[r], true) {
+                    format!(
+                        "node {r} is listed twice in scene {}'s nodes; a glTF scene lists \
+                         each root node once",
+                        scene.index()
+                    )
+                } else {
+                    continue;
+                };
+                return Err(FormatError::unsupported(name, why));
             }
             // Parents first; a cycle (each node with one parent, which the format also
             // forbids) is refused by the depth bound.

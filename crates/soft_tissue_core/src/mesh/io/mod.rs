@@ -16,6 +16,8 @@
 //! face is cut along the diagonal through its smallest node, hexahedra and wedges get a centre
 //! node); points, lines and surface elements are skipped. Every such change is listed in
 //! [`LoadedMesh::notes`]. The boundary surface is always derived from the tetrahedra.
+//! Surface readers note what they overruled in a file (a binary STL header's triangle count
+//! that its data contradicts) in [`LoadedSurface::notes`], from [`read_surface_with_notes`].
 //!
 //! Every malformed input gives a [`FormatError`] naming the file, the line (or byte offset,
 //! or element) and the problem; no input makes a reader panic.
@@ -33,7 +35,7 @@ mod vtk;
 pub use gltf::{gltf_external_uris, parse_gltf};
 pub use obj::{SurfaceMesh, parse_obj, write_obj};
 pub use ply::parse_ply;
-pub use stl::{parse_stl, write_stl};
+pub use stl::{parse_stl, parse_stl_with_notes, write_stl};
 
 use super::{MeshError, TetMesh};
 use crate::Vec3;
@@ -171,6 +173,25 @@ pub struct LoadedMesh {
     /// Notes about the conversion (skipped element types with counts, split elements,
     /// reduced element order) followed by the mesh's own warnings, as sentences.
     pub notes: Vec<String>,
+}
+
+/// A triangle surface read from a file, with what the reader overruled in it.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LoadedSurface {
+    /// The surface.
+    pub surface: SurfaceMesh,
+    /// Notes about the file that the reader worked around (a binary STL header's triangle
+    /// count overruled by its data, naming both counts), as sentences. Empty for most files.
+    pub notes: Vec<String>,
+}
+
+impl From<SurfaceMesh> for LoadedSurface {
+    fn from(surface: SurfaceMesh) -> Self {
+        Self {
+            surface,
+            notes: Vec::new(),
+        }
+    }
 }
 
 /// Nodes and tetrahedra as a reader produced them, before validation.
@@ -329,8 +350,15 @@ pub fn parse_tetgen(
 }
 
 /// Reads a triangle surface; the format follows the extension (`.obj`, `.stl` ASCII or
-/// binary, `.ply` ASCII or binary).
+/// binary, `.ply` ASCII or binary, `.gltf` with its buffers beside it, `.glb`). The notes
+/// [`read_surface_with_notes`] gives are dropped.
 pub fn read_surface(path: impl AsRef<Path>) -> Result<SurfaceMesh, FormatError> {
+    read_surface_with_notes(path).map(|read| read.surface)
+}
+
+/// Reads a triangle surface as [`read_surface`] does, with notes on what the reader
+/// overruled in the file.
+pub fn read_surface_with_notes(path: impl AsRef<Path>) -> Result<LoadedSurface, FormatError> {
     let path = path.as_ref();
     let name = path.display().to_string();
     let data = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
@@ -339,10 +367,10 @@ pub fn read_surface(path: impl AsRef<Path>) -> Result<SurfaceMesh, FormatError> 
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
     match ext.as_deref() {
-        Some("obj") => parse_obj(&data, &name),
-        Some("stl") => parse_stl(&data, &name),
-        Some("ply") => parse_ply(&data, &name),
-        Some("gltf" | "glb") => gltf::read_beside(&data, path),
+        Some("obj") => parse_obj(&data, &name).map(LoadedSurface::from),
+        Some("stl") => parse_stl_with_notes(&data, &name),
+        Some("ply") => parse_ply(&data, &name).map(LoadedSurface::from),
+        Some("gltf" | "glb") => gltf::read_beside(&data, path).map(LoadedSurface::from),
         _ => Err(FormatError::unsupported(
             &name,
             "unknown surface extension: expected .obj, .stl, .ply, .gltf or .glb",

@@ -1,15 +1,22 @@
 //! PLY triangle surfaces: ASCII, binary little-endian and binary big-endian. The `vertex`
-//! element's `x`, `y`, `z` and the `face` element's index list (`vertex_indices` or
-//! `vertex_index`) are read; every other element and property is skipped by its declared
-//! type. Polygons are fan-triangulated.
+//! element's `x`, `y`, `z`, the `face` element's index list (`vertex_indices` or
+//! `vertex_index`) and the `tristrips` element's (old Stanford and Cyberware scans give
+//! their faces so) are read; every other element and property is skipped by its declared
+//! type. Polygons are fan-triangulated. A strip's triangles alternate, (i0 i1 i2),
+//! (i2 i1 i3), (i2 i3 i4), ..., so that all keep its winding; -1 ends a strip and starts
+//! another (so does each row of the element), and the degenerate triangles that join strips
+//! (a repeated index) are skipped. A file with both elements gives both.
 //!
-//! The header ends at the first line that is exactly `end_header` (trimmed), so a comment
-//! naming it does not cut the header short; its lines may end in `\n`, `\r\n`, or a lone
-//! `\r` (where the `ply` line does, every `\r` ends a line alone). A face index that is not one of the file's vertices is
-//! refused with the face's number in its element, the index and the vertex count.
+//! A UTF-8 byte order mark before `ply` is skipped. The header ends at the first line that
+//! is exactly `end_header` (trimmed), so a comment naming it does not cut the header short;
+//! its lines may end in `\n`, `\r\n`, or a lone `\r` (where the `ply` line does, every `\r`
+//! ends a line alone). A face or strip index that is not one of the file's vertices is
+//! refused with the face's (or strip row's) number in its element, the index and the vertex
+//! count.
 
 use super::FormatError;
 use super::obj::SurfaceMesh;
+use super::text::UTF8_BOM;
 use crate::Vec3;
 
 #[derive(Clone, Copy, PartialEq)]
@@ -135,16 +142,25 @@ pub fn parse_ply(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
 
 /// The header's lines, trimmed (`ply` first), and the byte where the body starts: after
 /// the first line that is exactly `end_header` (a comment naming it does not end the
-/// header). Lines end in `\n`, `\r\n` or a lone `\r`; where the first line ends in a lone
-/// `\r`, every `\r` ends a line alone (a binary body that starts with `\n` keeps it).
+/// header). A UTF-8 byte order mark before `ply` is skipped. Lines end in `\n`, `\r\n` or
+/// a lone `\r`; where the first line ends in a lone `\r`, every `\r` ends a line alone (a
+/// binary body that starts with `\n` keeps it).
 fn split_header<'a>(data: &'a [u8], name: &str) -> Result<(Vec<&'a [u8]>, usize), FormatError> {
     let bad = |msg: &str| FormatError::unsupported(name, msg);
-    let first_end = data.iter().position(|&b| b == b'\n' || b == b'\r');
+    let mut pos = if data.starts_with(UTF8_BOM) {
+        UTF8_BOM.len()
+    } else {
+        0
+    };
+    let first_end = data
+        .iter()
+        .skip(pos)
+        .position(|&b| b == b'\n' || b == b'\r')
+        .map(|i| pos + i);
     let cr_only = first_end
         .and_then(|i| data.get(i..))
         .is_some_and(|t| t.starts_with(b"\r") && !t.starts_with(b"\r\n"));
     let mut lines = Vec::new();
-    let mut pos = 0;
     while pos < data.len() {
         let (line, next) = header_line(data, pos, cr_only);
         if lines.is_empty() && line != b"ply" {
@@ -242,7 +258,7 @@ fn parse_property(f: &[&str]) -> Result<Property, String> {
 }
 
 /// One entry of an element: its `x`, `y`, `z` (NaN where absent) and its vertex index
-/// list, if it has one (`vertex_indices` or `vertex_index` of a `face`).
+/// list, if it has one (`vertex_indices` or `vertex_index` of a `face` or a `tristrips`).
 type Entry = ([f64; 3], Option<Vec<f64>>);
 
 /// Reads every element's entries, keeping the vertices and the faces' triangles.
@@ -258,8 +274,8 @@ fn read_body(body: &mut Body, elements: &[Element]) -> Result<SurfaceMesh, Forma
             body.data.len()
         )));
     }
-    // Each vertex entry gives one vertex, so the count is known before any face is read,
-    // wherever the faces come.
+    // Each vertex entry gives one vertex, so the count is known before any face or strip
+    // is read, wherever they come.
     let vertices = elements
         .iter()
         .filter(|e| e.name == "vertex")
@@ -277,13 +293,21 @@ fn read_body(body: &mut Body, elements: &[Element]) -> Result<SurfaceMesh, Forma
                 }
                 out.positions.push(Vec3::new(xyz[0], xyz[1], xyz[2]));
             }
-            if let Some(items) = face {
-                add_face(&mut out.triangles, &items, j, vertices, body)?;
+            match (e.name.as_str(), face) {
+                ("tristrips", Some(items)) => {
+                    add_strips(&mut out.triangles, &items, j, vertices, body)?;
+                }
+                (_, Some(items)) => add_face(&mut out.triangles, &items, j, vertices, body)?,
+                (_, None) => {}
             }
         }
     }
     if out.triangles.is_empty() {
-        return Err(bad("the PLY file has no faces".into()));
+        return Err(bad(
+            "the PLY file has no faces: neither a `face` nor a `tristrips` element gives a \
+             triangle"
+                .into(),
+        ));
     }
     Ok(out)
 }
@@ -307,14 +331,22 @@ fn read_entry(body: &mut Body, e: &Element) -> Result<Entry, FormatError> {
             }
             Property::List(n, c, v) => {
                 let count = body.value(*c)?;
-                if !(0.0..=1e6).contains(&count) {
-                    return Err(body.err(format!("a list of {count} entries")));
+                // Each entry takes at least a byte, in either encoding: a longer list is
+                // refused before anything is reserved, and what is reserved up front is
+                // bounded (a strip row of a large scan holds millions of entries).
+                let left = body.data.len().saturating_sub(body.pos);
+                if !(count >= 0.0 && count <= left as f64) {
+                    return Err(body.err(format!(
+                        "a list of {count} entries, more than the {left} bytes left"
+                    )));
                 }
-                let mut items = Vec::with_capacity(count as usize);
+                let mut items = Vec::with_capacity((count as usize).min(1 << 16));
                 for _ in 0..count as usize {
                     items.push(body.value(*v)?);
                 }
-                if e.name == "face" && (n == "vertex_indices" || n == "vertex_index") {
+                if (e.name == "face" || e.name == "tristrips")
+                    && (n == "vertex_indices" || n == "vertex_index")
+                {
                     face = Some(items);
                 }
             }
@@ -340,19 +372,55 @@ fn add_face(
     }
     let idx = items
         .iter()
-        .map(|&i| {
-            if i.fract() == 0.0 && i >= 0.0 && i < vertices as f64 && i < u32::MAX as f64 {
-                Ok(i as u32)
-            } else {
-                Err(body.err(format!(
-                    "face {face}: vertex index {i} is not a vertex number: the file has \
-                     {vertices} vertices, numbered from 0"
-                )))
-            }
-        })
+        .map(|&i| vertex_number(i, &format!("face {face}"), vertices, body))
         .collect::<Result<Vec<u32>, _>>()?;
     if let Some((&first, rest)) = idx.split_first() {
         triangles.extend(rest.windows(2).map(|w| [first, w[0], w[1]]));
     }
     Ok(())
+}
+
+/// Adds the triangles of row `row` (0-based in its element) of a `tristrips` element: -1
+/// ends a strip and starts another; in each strip triangle `k` is (i_k, i_k+1, i_k+2) for
+/// even `k` and (i_k+1, i_k, i_k+2) for odd `k`, so that all keep the strip's winding.
+/// Triangles with a repeated index (strip joins) are skipped. Every other index must name
+/// one of the file's `vertices` vertices.
+fn add_strips(
+    triangles: &mut Vec<[u32; 3]>,
+    items: &[f64],
+    row: usize,
+    vertices: usize,
+    body: &Body,
+) -> Result<(), FormatError> {
+    let at = format!("tristrips {row}");
+    for strip in items.split(|&i| i == -1.0) {
+        let idx = strip
+            .iter()
+            .map(|&i| vertex_number(i, &at, vertices, body))
+            .collect::<Result<Vec<u32>, _>>()?;
+        for (k, w) in idx.windows(3).enumerate() {
+            let t = if k % 2 == 0 {
+                [w[0], w[1], w[2]]
+            } else {
+                [w[1], w[0], w[2]]
+            };
+            if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
+                triangles.push(t);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Index `i` of the face or strip `at` as a vertex number, or an error naming `at`, the
+/// index and the vertex count.
+fn vertex_number(i: f64, at: &str, vertices: usize, body: &Body) -> Result<u32, FormatError> {
+    if i.fract() == 0.0 && i >= 0.0 && i < vertices as f64 && i < u32::MAX as f64 {
+        Ok(i as u32)
+    } else {
+        Err(body.err(format!(
+            "{at}: vertex index {i} is not a vertex number: the file has {vertices} \
+             vertices, numbered from 0"
+        )))
+    }
 }

@@ -14,21 +14,31 @@
 //!    count below what the bytes hold reads every whole triangle the bytes hold; a count equal to
 //!    what they hold reads it and ignores fewer than 50 bytes of trailing padding; a count
 //!    above it reads what they hold when the data is a whole number of triangles, and is a
-//!    truncated file, refused with both numbers, when it is not.
+//!    truncated file, refused with both numbers, when it is not. Wherever the data overrules
+//!    the count, or bytes after the last triangle are ignored, [`parse_stl_with_notes`]
+//!    says so in a note naming both counts.
 //!
 //! ASCII keywords are matched in any case, and every `solid` ... `endsolid` block of a file
 //! is read.
 
-use super::FormatError;
 use super::obj::SurfaceMesh;
 use super::text::{Cursor, LineFields, UTF8_BOM};
+use super::{FormatError, LoadedSurface};
 use crate::Vec3;
 
 const HEADER: usize = 84;
 const RECORD: usize = 50;
 
-/// Parses an STL file, ASCII or binary. `name` is used in messages.
+/// Parses an STL file, ASCII or binary. `name` is used in messages. The notes
+/// [`parse_stl_with_notes`] gives are dropped.
 pub fn parse_stl(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
+    parse_stl_with_notes(data, name).map(|read| read.surface)
+}
+
+/// Parses an STL file, ASCII or binary, with a note where a binary file's header count is
+/// overruled by its data or bytes after its last triangle are ignored. `name` is used in
+/// messages.
+pub fn parse_stl_with_notes(data: &[u8], name: &str) -> Result<LoadedSurface, FormatError> {
     let stated = stated_count(data);
     if stated.is_some_and(|n| {
         n.checked_mul(RECORD).and_then(|b| b.checked_add(HEADER)) == Some(data.len())
@@ -37,7 +47,7 @@ pub fn parse_stl(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
     }
     let text = data.strip_prefix(UTF8_BOM).unwrap_or(data);
     if starts_with_solid(text) && (data.len() < HEADER || looks_like_ascii_stl(text)) {
-        return parse_ascii(text, name);
+        return parse_ascii(text, name).map(LoadedSurface::from);
     }
     if stated.is_some() {
         return parse_binary(data, name);
@@ -104,14 +114,29 @@ fn binary_count(data: &[u8], name: &str) -> Result<usize, FormatError> {
     Ok(n)
 }
 
-fn parse_binary(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
+fn parse_binary(data: &[u8], name: &str) -> Result<LoadedSurface, FormatError> {
     let n = binary_count(data, name)?;
     let stated = stated_count(data).unwrap_or(0);
-    // Where the header disagrees, every message names both counts.
+    // Where the header disagrees, every message names both counts, and so does the note.
     let counts = if stated == n {
         String::new()
     } else {
         format!(" (the header says {stated} triangles; the file holds {n})")
+    };
+    let ignored = data.len().saturating_sub(HEADER + n * RECORD);
+    let note = match (stated == n, ignored) {
+        (true, 0) => None,
+        (true, _) => Some(format!(
+            "binary STL: {ignored} bytes after the header's {n} triangles, less than a \
+             triangle (ignored)"
+        )),
+        (false, 0) => Some(format!(
+            "binary STL header says {stated} triangles; the data holds {n} (read those)"
+        )),
+        (false, _) => Some(format!(
+            "binary STL header says {stated} triangles; the data holds {n} (read those), \
+             and {ignored} bytes after them, less than a triangle (ignored)"
+        )),
     };
     let mut out = SurfaceMesh {
         positions: Vec::with_capacity(3 * n),
@@ -133,7 +158,10 @@ fn parse_binary(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
         let b = 3 * k as u32;
         out.triangles.push([b, b + 1, b + 2]);
     }
-    Ok(out)
+    Ok(LoadedSurface {
+        surface: out,
+        notes: note.into_iter().collect(),
+    })
 }
 
 /// The `i`-th little-endian float of a record (NaN past its end, which cannot happen for a
