@@ -535,22 +535,32 @@ fn buried_at(
 
 /// Per triangle, the share of its area buried inside the union (see
 /// [`SurfaceDefects::buried_triangles`]): probed first at every centroid; where one is
-/// buried, at the centroids of each triangle's 16 sub-triangles (split in four twice).
-/// Empty where no centroid is: the surfaces whose parts do not overlap.
+/// buried, each triangle with a vertex on a buried-centred one (those a seam between parts
+/// can cross) at the centroids of its 16 sub-triangles (split in four twice). Empty where
+/// no centroid is: the surfaces whose parts do not overlap.
 fn buried_shares(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<f64> {
     let (lo, hi) = bounds(positions);
     let eps = PROBE_OFFSET * (hi - lo).norm();
     let tree = SurfaceTree::new(positions, triangles);
-    let third = [1.0 / 3.0; 3];
-    if !triangles
+    let centred: Vec<bool> = triangles
         .par_iter()
-        .any(|t| buried_at(&tree, positions, t, third, eps))
-    {
+        .map(|t| buried_at(&tree, positions, t, [1.0 / 3.0; 3], eps))
+        .collect();
+    if !centred.contains(&true) {
         return Vec::new();
+    }
+    let mut near = vec![false; positions.len()];
+    for (t, _) in triangles.iter().zip(&centred).filter(|(_, b)| **b) {
+        for &v in t {
+            near[v as usize] = true;
+        }
     }
     triangles
         .par_iter()
         .map(|t| {
+            if !t.iter().any(|&v| near[v as usize]) {
+                return 0.0;
+            }
             let n = SUB_CENTROIDS
                 .iter()
                 .filter(|&&w| buried_at(&tree, positions, t, w, eps))
@@ -948,16 +958,16 @@ pub fn tetrahedralize(
     // Where parts overlap, what lies inside the union is not its boundary: the closest
     // points, the projection and the distances take the triangles not wholly buried (those
     // partly buried cross where the parts meet); inside and outside still the whole.
-    let outer: Vec<[u32; 3]> = (!s.buried.is_empty())
-        .then(|| {
-            s.triangles
-                .iter()
-                .zip(&s.buried)
-                .filter(|&(_, &b)| b < 1.0)
-                .map(|(t, _)| *t)
-                .collect()
-        })
-        .unwrap_or_default();
+    let outer: Vec<[u32; 3]> = if s.buried.is_empty() {
+        Vec::new()
+    } else {
+        s.triangles
+            .iter()
+            .zip(&s.buried)
+            .filter(|&(_, &b)| b < 1.0)
+            .map(|(t, _)| *t)
+            .collect()
+    };
     let outer_tree = (!s.buried.is_empty()).then(|| SurfaceTree::new(&s.positions, &outer));
     let near = outer_tree.as_ref().unwrap_or(&tree);
     let mesh_at = |h: f64| -> Result<TetMesh, TetrahedralizeError> {
