@@ -186,7 +186,7 @@ impl AssetLoader for SurfaceLoader {
         load_context: &mut LoadContext<'_>,
     ) -> Result<TetMeshAsset, SurfaceLoadError> {
         use soft_tissue_core::mesh::io::{
-            gltf_external_uris, parse_gltf, parse_obj, parse_ply, parse_stl,
+            gltf_external_uris, parse_gltf, parse_obj, parse_ply, parse_stl_with_notes,
         };
         use soft_tissue_core::mesh::tetrahedralize::{
             REVISION, TetrahedralizeOptions, tetrahedralize,
@@ -209,7 +209,13 @@ impl AssetLoader for SurfaceLoader {
         // their bytes join the cache key.
         let mut external: Vec<(String, Vec<u8>)> = Vec::new();
         let parsed = match ext.as_deref() {
-            Some("stl") => parse_stl(&bytes, &name),
+            // A binary STL whose header count its data overrules is read, with a note.
+            Some("stl") => parse_stl_with_notes(&bytes, &name).map(|loaded| {
+                for note in &loaded.notes {
+                    info!("{name}: {note}");
+                }
+                loaded.surface
+            }),
             Some("ply") => parse_ply(&bytes, &name),
             Some("gltf" | "glb") => {
                 let dir = path.parent().map(|p| p.to_path_buf()).unwrap_or_default();

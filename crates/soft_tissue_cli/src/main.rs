@@ -408,7 +408,7 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
          repaired: {} duplicate vertices welded, {} unused vertices, {} degenerate and {} \
          duplicate triangles dropped, {} triangles turned; {} boundary edges (holes), {} \
          non-manifold edges; {} small separate pieces dropped, {} inner pieces kept as \
-         cavities, {} inside the union dropped\n\
+         cavities, {} inside the union dropped, {} triangles buried where parts overlap\n\
          mesh: {} nodes, {} tetrahedra ({}, spacing {:.4}), dihedral {:.1} .. {:.1} deg\n\
          volume {:.6} against {:.6} enclosed ({:+.2} %; {:+.2} % before the boundary nodes \
          moved out to restore what the chords lost)\n\
@@ -428,6 +428,7 @@ fn tetrahedralize(args: &TetrahedralizeArgs) -> Res {
         d.specks_dropped,
         d.cavities,
         d.inner_pieces_dropped,
+        d.buried_triangles,
         r.nodes,
         r.tets,
         if r.graded {
