@@ -511,13 +511,15 @@ pub fn repair(surface: &SurfaceMesh) -> Result<RepairedSurface, TetrahedralizeEr
     })
 }
 
-/// How far off a triangle its outer side is probed, as a fraction of the diagonal.
+/// How far off a triangle its sides are probed, as a fraction of the diagonal.
 const PROBE_OFFSET: f64 = 1e-7;
 
 /// Whether the point at barycentric weights `w` of triangle `t` is buried: just off the
-/// triangle on its outer side, the winding number is still over one half (inside another
-/// part). On the union's boundary it is near zero there, also on a cavity's wall (which
-/// faces into the cavity).
+/// triangle on both sides, the winding number is over one half (inside another part). On
+/// the union's boundary one side is near zero: the outer side, also on a cavity's wall
+/// (which faces into the cavity), and the inner side of a triangle the repair could not
+/// turn (the field near it is turned with it). Probing the outer side alone took such
+/// triangles for buried (one in sofa_env's liver, four in a Chaste lung lobe).
 fn buried_at(
     tree: &SurfaceTree<'_>,
     positions: &[Vec3],
@@ -530,7 +532,7 @@ fn buried_at(
         return false;
     };
     let p = a * w[0] + b * w[1] + c * w[2];
-    tree.winding_number(&(p + n * eps)) > 0.5
+    tree.winding_number(&(p + n * eps)) > 0.5 && tree.winding_number(&(p - n * eps)) > 0.5
 }
 
 /// Per triangle, the share of its area buried inside the union (see
