@@ -372,7 +372,7 @@ fn add_face(
     }
     let idx = items
         .iter()
-        .map(|&i| vertex_number(i, &format!("face {face}"), vertices, body))
+        .map(|&i| vertex_number(i, || format!("face {face}"), vertices, body))
         .collect::<Result<Vec<u32>, _>>()?;
     if let Some((&first, rest)) = idx.split_first() {
         triangles.extend(rest.windows(2).map(|w| [first, w[0], w[1]]));
@@ -392,11 +392,11 @@ fn add_strips(
     vertices: usize,
     body: &Body,
 ) -> Result<(), FormatError> {
-    let at = format!("tristrips {row}");
+    let at = || format!("tristrips {row}");
     for strip in items.split(|&i| i == -1.0) {
         let idx = strip
             .iter()
-            .map(|&i| vertex_number(i, &at, vertices, body))
+            .map(|&i| vertex_number(i, at, vertices, body))
             .collect::<Result<Vec<u32>, _>>()?;
         for (k, w) in idx.windows(3).enumerate() {
             let t = if k % 2 == 0 {
@@ -412,15 +412,21 @@ fn add_strips(
     Ok(())
 }
 
-/// Index `i` of the face or strip `at` as a vertex number, or an error naming `at`, the
-/// index and the vertex count.
-fn vertex_number(i: f64, at: &str, vertices: usize, body: &Body) -> Result<u32, FormatError> {
+/// Index `i` of the face or strip `at` names as a vertex number, or an error naming it, the
+/// index and the vertex count (the name is written only for the error).
+fn vertex_number(
+    i: f64,
+    at: impl Fn() -> String,
+    vertices: usize,
+    body: &Body,
+) -> Result<u32, FormatError> {
     if i.fract() == 0.0 && i >= 0.0 && i < vertices as f64 && i < u32::MAX as f64 {
         Ok(i as u32)
     } else {
         Err(body.err(format!(
-            "{at}: vertex index {i} is not a vertex number: the file has {vertices} \
-             vertices, numbered from 0"
+            "{}: vertex index {i} is not a vertex number: the file has {vertices} \
+             vertices, numbered from 0",
+            at()
         )))
     }
 }
