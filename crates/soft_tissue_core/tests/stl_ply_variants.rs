@@ -537,6 +537,20 @@ fn ply_triangle_strips_are_read() {
         );
         assert!((enclosed_volume(&s) - tetrahedron_volume()).abs() < 1e-12);
     }
+    // An unsigned index list writes the restart as -1's 32-bit pattern.
+    let mut text = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\n\
+                    property float y\nproperty float z\nelement tristrips 1\n\
+                    property list int uint vertex_indices\nend_header\n"
+        .to_owned();
+    for p in corners() {
+        text += &format!("{} {} {}\n", p.x, p.y, p.z);
+    }
+    text += "9 0 2 1 3 4294967295 1 3 0 2\n";
+    let s = parse_ply(text.as_bytes(), "t.ply").unwrap();
+    assert_eq!(
+        sorted_faces(&s.triangles),
+        sorted_faces(&FACES.map(|f| f.map(|v| v as u32)))
+    );
 }
 
 /// A strip index that is not a vertex (and not the -1 that restarts a strip) names the

@@ -512,7 +512,9 @@ fn inner_pieces_and_duplicated_faces_leave_the_union() {
 /// closed forms: the union's volume (two balls less the lens, pi (4 r + d) (2 r - d)^2 / 12),
 /// the buried share of the triangles well inside the other sphere (all) and well outside it
 /// (none), and every boundary node of the mesh against the union's signed distance,
-/// min(|p - c1|, |p - c2|) - 1. A hollow organ's cavity and a lone sphere bury nothing.
+/// min(|p - c1|, |p - c2|) - 1. Two cavities through each other, and a small ball on an
+/// edge of a coarse one (no centroid of the coarse one buried), keep their union's volume.
+/// A hollow organ's cavity and a lone sphere bury nothing.
 #[test]
 fn overlapping_parts_mesh_to_their_union() {
     let centres = [Vec3::zeros(), Vec3::new(1.0, 0.0, 0.0)];
@@ -573,6 +575,48 @@ fn overlapping_parts_mesh_to_their_union() {
     assert!(
         worst <= 0.01 * r.bbox_diagonal,
         "a boundary node {worst} from the union's surface"
+    );
+    // Two cavities through each other in a ball of radius 3: each wall inside the other
+    // cavity is outside on both sides, so buried too; the organ keeps the ball less the
+    // cavities' union (before, their lens was taken away twice, 1.2 % off).
+    let moved = |mut s: SurfaceMesh, d: Vec3| {
+        for p in &mut s.positions {
+            *p += d;
+        }
+        s
+    };
+    let two_cavities = joined(&[
+        (sphere(3.0), false),
+        (sphere(1.0), true),
+        (moved(sphere(1.0), centres[1]), true),
+    ]);
+    let fixed = repair(&two_cavities).unwrap();
+    assert_eq!(fixed.defects.cavities, 2);
+    assert!(fixed.defects.buried_triangles > 0);
+    let want = ratio * (27.0 * ball - union);
+    assert!(
+        (fixed.enclosed_volume / want - 1.0).abs() < 1e-3,
+        "{} against {want}",
+        fixed.enclosed_volume
+    );
+    // A small ball on an edge of a coarse one (8 x 4 cells): no centroid of the coarse one
+    // is buried, but its triangles across the seam are found by their boxes. The union
+    // keeps the coarse ball and the part of the small one outside it: more than half of
+    // it at a convex edge, less than all (before: more than both together).
+    let coarse = grid(8, 4, false, |u, v| {
+        let (t, p) = (2.0 * PI * u, PI * v);
+        Vec3::new(p.sin() * t.cos(), p.sin() * t.sin(), -p.cos())
+    });
+    let big = repair(&coarse).unwrap();
+    let t = big.triangles[0];
+    let edge = (big.positions[t[0] as usize] + big.positions[t[1] as usize]) / 2.0;
+    let small = moved(sphere(0.12), edge);
+    let small_volume = repair(&small).unwrap().enclosed_volume;
+    let fixed = repair(&joined(&[(coarse, false), (small, false)])).unwrap();
+    let outside = (fixed.enclosed_volume - big.enclosed_volume) / small_volume;
+    assert!(
+        (0.5..0.8).contains(&outside),
+        "{outside} of the small ball outside the coarse one"
     );
     for lone in [
         sphere(1.0),

@@ -381,7 +381,7 @@ fn add_face(
 }
 
 /// Adds the triangles of row `row` (0-based in its element) of a `tristrips` element: -1
-/// ends a strip and starts another; in each strip triangle `k` is (i_k, i_k+1, i_k+2) for
+/// (4294967295 in an unsigned list) ends a strip and starts another; in each strip triangle `k` is (i_k, i_k+1, i_k+2) for
 /// even `k` and (i_k+1, i_k, i_k+2) for odd `k`, so that all keep the strip's winding.
 /// Triangles with a repeated index (strip joins) are skipped. Every other index must name
 /// one of the file's `vertices` vertices.
@@ -393,7 +393,8 @@ fn add_strips(
     body: &Body,
 ) -> Result<(), FormatError> {
     let at = || format!("tristrips {row}");
-    for strip in items.split(|&i| i == -1.0) {
+    // -1 as a signed index; as an unsigned one (`list uchar uint`), its 32-bit pattern.
+    for strip in items.split(|&i| i == -1.0 || i == u32::MAX as f64) {
         let idx = strip
             .iter()
             .map(|&i| vertex_number(i, at, vertices, body))
