@@ -4,34 +4,20 @@
 # sampled as `soft-tissue mesh tetrahedralize` reports them (vertices, edge midpoints and
 # centroids), by trimesh's closest-point query.
 #
-#   pip install trimesh pymeshlab rtree
+#   pip install trimesh pymeshlab rtree   (run from this folder: it imports surface_distance.py)
 #   python3 decimate_to_one_percent.py SURFACE
 #
 # Prints the input's triangle count, then COUNT:IN->OUT/OUT->IN (% of the diagonal) per
 # count tried, stopping below 0.95 % both ways.
 import sys
 
-import numpy as np
 import pymeshlab
-import trimesh
 
-surf = trimesh.load(sys.argv[1], force='mesh', process=True)
-D = np.linalg.norm(surf.bounds[1] - surf.bounds[0])
+from surface_distance import Reference
 
-
-def samples(v, f):
-    mid = lambda i, j: (v[f[:, i]] + v[f[:, j]]) / 2
-    return np.concatenate([v, mid(0, 1), mid(1, 2), mid(2, 0), v[f].mean(1)])
-
-
-S = samples(surf.vertices, surf.faces)
-
-
-def two_way(v, f):
-    m = trimesh.Trimesh(v, f, process=False)
-    _, d1, _ = trimesh.proximity.closest_point(m, S)
-    _, d2, _ = trimesh.proximity.closest_point(surf, samples(v, f))
-    return 100 * d1.max() / D, 100 * d2.max() / D
+ref = Reference(sys.argv[1])
+surf = ref.surf
+two_way = ref.two_way
 
 
 out = []

@@ -6,7 +6,7 @@
 # nothing of it is in the project. Each TetGen run is a child process (it can crash on
 # a surface that intersects itself).
 #
-#   pip install trimesh fast-simplification tetgen rtree
+#   pip install trimesh fast-simplification tetgen rtree   (run from this folder or with it on PYTHONPATH)
 #   python3 tetgen_behind_a_boundary.py SURFACE [COUNT,COUNT,...]
 import multiprocessing as mp
 import sys
@@ -15,27 +15,12 @@ from collections import Counter
 import fast_simplification as fs
 import numpy as np
 import tetgen
-import trimesh
 
-surf = trimesh.load(sys.argv[1], force='mesh', process=True)
-if surf.volume < 0:
-    surf.invert()
-D = np.linalg.norm(surf.bounds[1] - surf.bounds[0])
+from surface_distance import Reference
 
-
-def samples(v, f):
-    mid = lambda i, j: (v[f[:, i]] + v[f[:, j]]) / 2
-    return np.concatenate([v, mid(0, 1), mid(1, 2), mid(2, 0), v[f].mean(1)])
-
-
-S = samples(surf.vertices, surf.faces)
-
-
-def two_way(v, f):
-    m = trimesh.Trimesh(v, f, process=False)
-    _, d1, _ = trimesh.proximity.closest_point(m, S)
-    _, d2, _ = trimesh.proximity.closest_point(surf, samples(v, f))
-    return 100 * d1.max() / D, 100 * d2.max() / D
+ref = Reference(sys.argv[1])
+surf = ref.surf
+two_way = ref.two_way
 
 
 def dihedrals(p, t):
