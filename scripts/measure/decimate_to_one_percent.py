@@ -4,7 +4,7 @@
 # sampled as `soft-tissue mesh tetrahedralize` reports them (vertices, edge midpoints and
 # centroids), by trimesh's closest-point query.
 #
-#   pip install trimesh pymeshlab rtree   (run from this folder: it imports surface_distance.py)
+#   pip install trimesh pymeshlab rtree   (it imports surface_distance.py, beside it)
 #   python3 decimate_to_one_percent.py SURFACE
 #
 # Prints the input's triangle count, then COUNT:IN->OUT/OUT->IN (% of the diagonal) per

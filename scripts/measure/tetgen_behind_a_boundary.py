@@ -6,7 +6,7 @@
 # nothing of it is in the project. Each TetGen run is a child process (it can crash on
 # a surface that intersects itself).
 #
-#   pip install trimesh fast-simplification tetgen rtree   (run from this folder or with it on PYTHONPATH)
+#   pip install trimesh fast-simplification tetgen rtree   (it imports surface_distance.py, beside it)
 #   python3 tetgen_behind_a_boundary.py SURFACE [COUNT,COUNT,...]
 import multiprocessing as mp
 import sys
