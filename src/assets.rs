@@ -66,10 +66,15 @@ async fn parse_mesh(
         }
         _ => parse_tet_mesh(bytes, format, &name)?,
     };
-    for note in &loaded.notes {
+    log_notes(&name, &loaded.notes);
+    Ok(loaded.mesh)
+}
+
+/// Logs what a reader worked around in file `name`, a line each.
+fn log_notes(name: &str, notes: &[String]) {
+    for note in notes {
         info!("{name}: {note}");
     }
-    Ok(loaded.mesh)
 }
 
 /// Loads `.msh` (Gmsh 1, 2.2, 4.1), `.vtk`, `.vtu` and `.node` (with the `.ele` beside it).
@@ -211,9 +216,7 @@ impl AssetLoader for SurfaceLoader {
         let parsed = match ext.as_deref() {
             // A binary STL whose header count its data overrules is read, with a note.
             Some("stl") => parse_stl_with_notes(&bytes, &name).map(|loaded| {
-                for note in &loaded.notes {
-                    info!("{name}: {note}");
-                }
+                log_notes(&name, &loaded.notes);
                 loaded.surface
             }),
             Some("ply") => parse_ply(&bytes, &name),
@@ -314,6 +317,13 @@ impl AssetLoader for SurfaceLoader {
             report.max_dihedral_deg,
             100.0 * (report.volume / report.enclosed_volume - 1.0)
         );
+        if report.defects.buried_triangles > 0 {
+            info!(
+                "{name}: parts of the surface overlap; meshed as their union ({} triangles \
+                 buried inside it)",
+                report.defects.buried_triangles
+            );
+        }
         if let Some(short) = report.shortfall() {
             warn!("{name}: {short}");
         }
