@@ -108,15 +108,11 @@ fn run_core(
     let dt = world.config().dt;
     for k in 1..=a.steps {
         let t = k as f64 * dt;
-        let (p, axis) = script.pose_at(t);
+        let (p, r) = script.pose_rotation_at(t);
         let tl = &mut world.tools_mut()[tool];
-        tl.set_pose(p, axis)?;
+        tl.set_pose_rotation(p, r)?;
         for e in script.events_in(t - dt, t) {
-            match e.action {
-                ScriptAction::Grab => tl.grab(),
-                ScriptAction::Release => tl.release(),
-                ScriptAction::Cautery(w) => tl.set_cautery(w)?,
-            }
+            e.action.apply(tl)?;
         }
         world.step_fixed()?;
         out.push(&world.stage_times());
@@ -142,10 +138,10 @@ fn clock_stop(mut c: ResMut<PhysicsClock>) {
 }
 
 fn tool_transform(script: &Script, t: f64) -> Transform {
-    let (p, a) = script.pose_at(t);
-    let axis = Vec3::new(a.x as f32, a.y as f32, a.z as f32).normalize();
-    Transform::from_xyz(p.x as f32, p.y as f32, p.z as f32)
-        .with_rotation(Quat::from_rotation_arc(Vec3::Y, axis))
+    let (p, r) = script.pose_rotation_at(t);
+    Transform::from_xyz(p.x as f32, p.y as f32, p.z as f32).with_rotation(Quat::from_xyzw(
+        r.i as f32, r.j as f32, r.k as f32, r.w as f32,
+    ))
 }
 
 /// The plugin's steps: its physics step (`First`..`Last`, as stage times with the whole
@@ -193,6 +189,8 @@ fn run_plugin(
                 shape: script.tool,
                 grab: false,
                 cautery_watts: 0.0,
+                jaws: 0.0,
+                friction: Default::default(),
             },
             tool_transform(script, 0.0),
         ))
@@ -209,6 +207,7 @@ fn run_plugin(
                     ScriptAction::Grab => spec.grab = true,
                     ScriptAction::Release => spec.grab = false,
                     ScriptAction::Cautery(w) => spec.cautery_watts = w,
+                    ScriptAction::Jaws(w) => spec.jaws = w,
                 }
             }
         }

@@ -519,6 +519,7 @@ fn scene_body(asset: &SceneAsset, i: usize) -> (Name, SoftBody, TissueMaterial, 
                 params: msd,
                 springs,
             },
+            friction: spec.friction.unwrap_or_default(),
         },
         tuning,
     )

@@ -9,7 +9,7 @@
 
 use bevy::prelude::*;
 use soft_tissue_core::cage::CageDynamics;
-use soft_tissue_core::contact::{Tool, ToolShape};
+use soft_tissue_core::contact::{Friction, JawShape, MeshShape, RigidShape, Tool, ToolShape};
 use soft_tissue_core::fem::FemIntegrator;
 use soft_tissue_core::heat::HeatParams;
 use soft_tissue_core::material::{FemParams, MsdParams};
@@ -94,6 +94,8 @@ pub struct TissueMaterial {
     pub fem: FemParams,
     /// What an MSD precise method uses.
     pub msd: MsdMaterial,
+    /// Surface friction against tools, obstacles and other bodies (combined with theirs).
+    pub friction: Friction,
 }
 
 impl Default for TissueMaterial {
@@ -101,6 +103,7 @@ impl Default for TissueMaterial {
         TissueMaterial {
             fem: ORGAN_FEM.params,
             msd: MsdMaterial::FromFem,
+            friction: Friction::default(),
         }
     }
 }
@@ -282,8 +285,10 @@ pub struct Temperature {
 pub struct SoftBodyDiagnostics {
     /// Wall time of this body's solver step (level and heat), microseconds.
     pub step_us: f64,
-    /// Contacts found this step.
+    /// Contacts of this step's contact solve with a force on the body.
     pub contacts: u32,
+    /// Deepest penetration of its contacts after this step, scene units.
+    pub max_penetration: f64,
     /// Largest surface displacement from the settled shape, scene units.
     pub max_displacement: f64,
     /// Distance of the cage level from a shadow precise simulation, as a fraction of the
@@ -434,8 +439,8 @@ impl SimulatedBody {
     }
 }
 
-/// A kinematic tool driven by its entity's `Transform` (position: translation; axis: the
-/// local +Y axis, for capsules).
+/// A kinematic tool driven by its entity's `Transform` (position: translation; the tool
+/// frame: its rotation, the shaft along local +Y, a grasper's jaws closing along local +X).
 #[derive(Component, Reflect, Clone, Copy, Debug)]
 #[reflect(Component, from_reflect = false)]
 #[require(Transform, ToolReaction)]
@@ -444,10 +449,15 @@ pub struct SoftTool {
     #[reflect(ignore)]
     pub shape: ToolShape,
     /// Hold: grabs the surface points under the tip on the step it turns on, releases them
-    /// when it turns off.
+    /// when it turns off (an exact attach, whatever the friction).
     pub grab: bool,
     /// Electrocautery power delivered at the contact, W (0: off).
     pub cautery_watts: f64,
+    /// A grasper's jaw opening the jaws move toward, scene units (0 closes them; ignored by
+    /// other tools).
+    pub jaws: f64,
+    /// The tool's surface friction (combined with the tissue's).
+    pub friction: Friction,
 }
 
 impl SoftTool {
@@ -457,6 +467,19 @@ impl SoftTool {
             shape: ToolShape::Sphere { radius },
             grab: false,
             cautery_watts: 0.0,
+            jaws: 0.0,
+            friction: Friction::default(),
+        }
+    }
+
+    /// A grasper with two `jaw`s opening up to `max_opening` (scene units), open.
+    pub fn grasper(jaw: JawShape, max_opening: f64) -> Self {
+        SoftTool {
+            shape: ToolShape::Grasper { jaw, max_opening },
+            grab: false,
+            cautery_watts: 0.0,
+            jaws: max_opening,
+            friction: Friction::default(),
         }
     }
 }
@@ -465,12 +488,108 @@ impl SoftTool {
 #[derive(Component, Reflect, Clone, Copy, Debug, Default, PartialEq)]
 #[reflect(Component)]
 pub struct ToolReaction {
-    /// Reaction force on the tool, N (scene units).
+    /// Contact force on the tool, N (scene units): the sum of the forces of its contacts as
+    /// the step's contact solve balanced them.
     pub force: Vec3,
-    /// Surface triangles in contact.
+    /// Contacts with a force.
     pub contacts: u32,
     /// Grabbed surface points.
     pub grips: u32,
+    /// A grasper's jaw opening now, scene units.
+    pub opening: f64,
+    /// The normal force on each jaw (a probe's in the first), scene units.
+    pub jaw_forces: [f64; 2],
+}
+
+/// The shape of a static obstacle, in its entity's frame (the entity's translation and
+/// rotation place it; its scale is not applied: the shape holds the sizes).
+#[derive(Clone, Debug)]
+pub enum ObstacleCollider {
+    /// The half-space below the local plane y = 0 (a table top).
+    Plane,
+    /// A box centred on the entity.
+    Box {
+        /// Half extents, scene units.
+        half_extents: Vec3,
+    },
+    /// A ball.
+    Sphere {
+        /// Radius, scene units.
+        radius: f64,
+    },
+    /// A capsule around the segment from the entity along local +Y (a rib, a rod).
+    Capsule {
+        /// Radius, scene units.
+        radius: f64,
+        /// Segment length, scene units.
+        length: f64,
+    },
+    /// A closed triangle surface (a bone), built once and shared.
+    Mesh(std::sync::Arc<MeshShape>),
+}
+
+impl ObstacleCollider {
+    /// The core shape.
+    pub fn shape(&self) -> RigidShape {
+        match self {
+            ObstacleCollider::Plane => RigidShape::Plane,
+            ObstacleCollider::Box { half_extents } => RigidShape::Box {
+                half_extents: crate::convert::to_core(*half_extents),
+            },
+            ObstacleCollider::Sphere { radius } => RigidShape::Sphere { radius: *radius },
+            ObstacleCollider::Capsule { radius, length } => RigidShape::Capsule {
+                radius: *radius,
+                length: *length,
+            },
+            ObstacleCollider::Mesh(m) => RigidShape::Mesh(m.clone()),
+        }
+    }
+
+    /// A mesh obstacle from a Bevy triangle mesh's positions and indices (its own frame); a
+    /// mesh without positions or triangles is refused, naming what is missing.
+    pub fn from_mesh(mesh: &Mesh) -> Result<Self, String> {
+        let positions = mesh
+            .attribute(Mesh::ATTRIBUTE_POSITION)
+            .and_then(|a| a.as_float3())
+            .ok_or("the mesh has no float3 positions")?;
+        let vertices: Vec<_> = positions
+            .iter()
+            .map(|p| crate::convert::to_core(Vec3::from_array(*p)))
+            .collect();
+        let indices: Vec<u32> = match mesh.indices() {
+            Some(i) => i.iter().map(|k| k as u32).collect(),
+            None => (0..vertices.len() as u32).collect(),
+        };
+        let triangles = indices
+            .chunks_exact(3)
+            .map(|t| [t[0], t[1], t[2]])
+            .collect();
+        MeshShape::new(vertices, triangles)
+            .map(|m| ObstacleCollider::Mesh(std::sync::Arc::new(m)))
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// A static rigid obstacle the bodies rest on or are pushed against (a table, a rib, an
+/// instrument port), placed by its entity's `Transform`. Moving the entity moves it (bodies
+/// touching it are pushed by the contact solve, as by a tool).
+#[derive(Component, Clone, Debug)]
+#[require(Transform)]
+pub struct SoftObstacle {
+    /// Shape.
+    pub collider: ObstacleCollider,
+    /// Surface friction (combined with the tissue's).
+    pub friction: Friction,
+}
+
+impl SoftObstacle {
+    /// An obstacle of `collider` with the default friction.
+    pub fn new(collider: ObstacleCollider) -> Self {
+        SoftObstacle {
+            collider,
+            friction: Friction::default(),
+        }
+    }
 }
 
 /// The core tool of a [`SoftTool`].

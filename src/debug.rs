@@ -86,13 +86,18 @@ fn draw_cages(
 
 fn draw_tools(
     settings: Res<SoftTissueDebugSettings>,
-    tools: Query<(&SoftTool, &GlobalTransform, &ToolReaction)>,
+    tools: Query<(
+        &SoftTool,
+        &GlobalTransform,
+        &ToolReaction,
+        Option<&crate::components::ToolState>,
+    )>,
     mut gizmos: Gizmos,
 ) {
     if !settings.tools {
         return;
     }
-    for (tool, pose, reaction) in &tools {
+    for (tool, pose, reaction, state) in &tools {
         let colour = if reaction.contacts > 0 {
             Color::srgb(1.0, 0.55, 0.1)
         } else {
@@ -108,6 +113,42 @@ fn draw_tools(
                 gizmos.sphere(Isometry3d::from_translation(p), radius as f32, colour);
                 gizmos.sphere(Isometry3d::from_translation(q), radius as f32, colour);
                 gizmos.line(p, q, colour);
+            }
+            crate::core::contact::ToolShape::Grasper { jaw, .. } => {
+                // The jaws where the simulation has them (the opening moves over steps).
+                let Some(state) = state else { continue };
+                for k in 0..2 {
+                    let part = state.tool().part_pose(k);
+                    let centre = crate::convert::to_bevy(&part.translation.vector);
+                    let rotation = {
+                        let q = part.rotation;
+                        Quat::from_xyzw(q.i as f32, q.j as f32, q.k as f32, q.w as f32)
+                    };
+                    match jaw {
+                        crate::core::contact::JawShape::Capsule { radius, length } => {
+                            let q = centre + rotation * Vec3::Y * length as f32;
+                            gizmos.sphere(Isometry3d::from_translation(centre), radius as f32, colour);
+                            gizmos.sphere(Isometry3d::from_translation(q), radius as f32, colour);
+                            gizmos.line(centre, q, colour);
+                        }
+                        crate::core::contact::JawShape::Box {
+                            thickness,
+                            width,
+                            length,
+                        } => {
+                            gizmos.cube(
+                                Transform::from_translation(centre)
+                                    .with_rotation(rotation)
+                                    .with_scale(Vec3::new(
+                                        thickness as f32,
+                                        length as f32,
+                                        width as f32,
+                                    )),
+                                colour,
+                            );
+                        }
+                    }
+                }
             }
         }
         if reaction.force.length_squared() > 0.0 {

@@ -95,8 +95,8 @@ pub use components::*;
 pub use messages::{BodyTouched, LevelChanged};
 pub use physics::{
     ContactPartner, ResetSimulation, SoftBodyError, SoftContact, SoftPhysics, SoftTissueConfig,
-    SoftTissueContacts, SoftTissueError, SoftTissuePhysicsPlugin, SoftTissueSchedule,
-    SoftTissueStatus, SoftTissueStep, SoftTissueSystems, SoftTissueThreads,
+    SoftTissueContacts, SoftTissueError, SoftTissueObstacles, SoftTissuePhysicsPlugin,
+    SoftTissueSchedule, SoftTissueStatus, SoftTissueStep, SoftTissueSystems, SoftTissueThreads,
 };
 pub use render::{EmbeddedVisual, SoftBodyMesh, SoftTissueMeshPlugin, SoftTissueMeshSystems};
 
@@ -105,6 +105,7 @@ pub mod prelude {
     pub use crate::SoftTissuePlugins;
     pub use crate::assets::{SceneAsset, SceneBodies, SoftTissueSceneRoot, TetMeshAsset};
     pub use crate::components::*;
+    pub use crate::core::contact::{Friction, FrictionCombine, JawShape, ToolShape};
     pub use crate::core::heat::HeatParams;
     pub use crate::core::material::{FemParams, MsdParams};
     pub use crate::core::msd::SpringStiffness;
@@ -112,8 +113,8 @@ pub mod prelude {
     pub use crate::messages::{BodyTouched, LevelChanged};
     pub use crate::physics::{
         ContactPartner, ResetSimulation, SoftContact, SoftPhysics, SoftTissueConfig,
-        SoftTissueContacts, SoftTissueSchedule, SoftTissueStatus, SoftTissueStep,
-        SoftTissueSystems,
+        SoftTissueContacts, SoftTissueObstacles, SoftTissueSchedule, SoftTissueStatus,
+        SoftTissueStep, SoftTissueSystems,
     };
 }
 

@@ -509,15 +509,15 @@ fn scripted_tool(
     };
     // The pose for the next step (physics time), and every event up to it.
     let t = (status.steps + 1) as f64 * driver.dt;
-    let (p, a) = script.pose_at(t);
+    let (p, r) = script.pose_rotation_at(t);
     pose.translation = Vec3::new(p.x as f32, p.y as f32, p.z as f32);
-    let axis = Vec3::new(a.x as f32, a.y as f32, a.z as f32).normalize_or(Vec3::Y);
-    pose.rotation = Quat::from_rotation_arc(Vec3::Y, axis);
+    pose.rotation = Quat::from_xyzw(r.i as f32, r.j as f32, r.k as f32, r.w as f32);
     for e in script.events_in(f64::NEG_INFINITY, t) {
         match e.action {
             ScriptAction::Grab => tool.grab = true,
             ScriptAction::Release => tool.grab = false,
             ScriptAction::Cautery(w) => tool.cautery_watts = w,
+            ScriptAction::Jaws(w) => tool.jaws = w,
         }
     }
 }

@@ -150,6 +150,11 @@ pub(super) fn build_bodies(
                 })?;
             let heat = heat.map(|h| (h.0, HeatBoundary::insulated()));
             let mut body = SimBody::new(name.clone(), mesh, settings, heat)?;
+            body.set_friction(material.friction)
+                .map_err(|e| SoftBodyError::Settings {
+                    body: name.clone(),
+                    message: format!("friction: {e}"),
+                })?;
             if shadow {
                 body.set_shadow(true)?;
             }
@@ -229,15 +234,54 @@ pub(super) fn retry_failed_bodies(
     }
 }
 
-/// The pose of a tool entity now: position and axis (local +Y) in core vectors.
+/// The pose of a tool entity now: position and frame orientation (local +Y the shaft) in
+/// core types.
 pub(super) fn tool_pose(
     poses: &TransformHelper,
     entity: Entity,
-) -> Option<(soft_tissue_core::Vec3, soft_tissue_core::Vec3)> {
+) -> Option<(soft_tissue_core::Vec3, nalgebra::UnitQuaternion<f64>)> {
     // Computed now, not the one propagated at the end of the last frame.
     let pose = poses.compute_global_transform(entity).ok()?;
     let (_, rotation, translation) = pose.to_scale_rotation_translation();
-    Some((to_core(translation), to_core(rotation * Vec3::Y)))
+    Some((to_core(translation), crate::convert::to_core_rotation(rotation)))
+}
+
+/// Builds the core obstacles of every [`SoftObstacle`] again when one was added, changed,
+/// moved or removed (sorted by entity, so the order does not depend on the query's).
+pub(super) fn build_obstacles(
+    changed: Query<(), Or<(Changed<SoftObstacle>, Changed<GlobalTransform>)>>,
+    all: Query<(Entity, &SoftObstacle, Option<&Name>)>,
+    mut removed: RemovedComponents<SoftObstacle>,
+    poses: TransformHelper,
+    mut obstacles: ResMut<SoftTissueObstacles>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    let removed = removed.read().count() > 0;
+    let count = all.iter().count();
+    if !removed && changed.is_empty() && count == obstacles.entities.len() {
+        return;
+    }
+    let mut list: Vec<_> = all.iter().collect();
+    list.sort_unstable_by_key(|(e, ..)| *e);
+    obstacles.obstacles.clear();
+    obstacles.entities.clear();
+    for (entity, spec, name) in list {
+        let name = name.map_or_else(|| format!("{entity}"), |n| n.as_str().to_owned());
+        let Some((position, rotation)) = tool_pose(&poses, entity) else {
+            continue;
+        };
+        let pose = soft_tissue_core::contact::Pose::from_parts(
+            nalgebra::Translation3::from(position),
+            rotation,
+        );
+        match Obstacle::new(name, spec.collider.shape(), pose, spec.friction) {
+            Ok(o) => {
+                obstacles.obstacles.push(o);
+                obstacles.entities.push(entity);
+            }
+            Err(e) => fail(&mut status, stage_error("an obstacle", Some(entity), e)),
+        }
+    }
 }
 
 pub(super) fn build_tools(
@@ -250,8 +294,12 @@ pub(super) fn build_tools(
         let name = name.map_or_else(|| format!("{entity}"), |n| n.as_str().to_owned());
         // The tool starts where its entity is (not at the origin).
         let built = Tool::new(name.clone(), spec.shape).and_then(|mut t| {
-            if let Some((p, a)) = tool_pose(&poses, entity) {
-                t.set_pose(p, a)?;
+            if let Some((p, r)) = tool_pose(&poses, entity) {
+                t.set_pose_rotation(p, r)?;
+            }
+            t.set_friction(spec.friction)?;
+            if let ToolShape::Grasper { .. } = spec.shape {
+                t.set_opening(spec.jaws)?;
             }
             Ok(t)
         });

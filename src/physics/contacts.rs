@@ -1,6 +1,7 @@
 //! Contacts of the last step, by entity.
 
 use super::*;
+use soft_tissue_core::contact::Counterpart;
 
 /// Contacts of the last step, by entity ([`SoftTissueContacts::iter`]).
 #[derive(Resource, Default)]
@@ -22,6 +23,8 @@ pub enum ContactPartner {
     Tool(Entity),
     /// Another body's entity ([`SoftBody`]).
     Body(Entity),
+    /// A static obstacle's entity ([`SoftObstacle`]).
+    Obstacle(Entity),
 }
 
 /// The contacts between a body and one partner this step.
@@ -31,11 +34,12 @@ pub struct SoftContact {
     pub body: Entity,
     /// What it touches.
     pub partner: ContactPartner,
-    /// Contact points (tool: surface triangles under the tip; bodies: vertex-triangle
-    /// pairs).
+    /// Contact points of the step's contact solve (with a force, or penetrating).
     pub points: u32,
-    /// Deepest penetration at detection, scene units.
+    /// Deepest penetration after the step, scene units (0 when none penetrates).
     pub max_depth: f64,
+    /// The force of the partner on the body, summed over the points (scene units).
+    pub force: Vec3,
 }
 
 impl SoftTissueContacts {
@@ -48,7 +52,7 @@ impl SoftTissueContacts {
     pub fn involving(&self, entity: Entity) -> impl Iterator<Item = &SoftContact> {
         self.pairs.iter().filter(move |c| {
             c.body == entity
-                || matches!(c.partner, ContactPartner::Tool(t) | ContactPartner::Body(t) if t == entity)
+                || matches!(c.partner, ContactPartner::Tool(t) | ContactPartner::Body(t) | ContactPartner::Obstacle(t) if t == entity)
         })
     }
 
@@ -68,13 +72,35 @@ impl SoftTissueContacts {
         self.tools.get(index as usize).copied()
     }
 
-    /// The pairs gathered from the core's state.
-    pub(super) fn gather(&mut self) {
+    /// The pairs gathered from the core's contact solve (`obstacles`: the obstacle entities
+    /// in the core's order).
+    pub(super) fn gather(&mut self, obstacles: &[Entity]) {
         self.pairs.clear();
-        let mut add = |body: Option<Entity>, partner: Option<ContactPartner>, depth: f64| {
-            let (Some(body), Some(partner)) = (body, partner) else {
-                return;
+        for r in self.state.rows() {
+            let penetration = if r.is_contact() { (-r.gap).max(0.0) } else { 0.0 };
+            if r.force == soft_tissue_core::Vec3::zeros() && penetration == 0.0 {
+                continue;
+            }
+            let body = self.bodies.get(r.a.body as usize).copied();
+            let partner = match r.other {
+                Counterpart::Tool { tool, .. } => self
+                    .tools
+                    .get(tool as usize)
+                    .copied()
+                    .map(ContactPartner::Tool),
+                Counterpart::Body(p) => self
+                    .bodies
+                    .get(p.body as usize)
+                    .copied()
+                    .map(ContactPartner::Body),
+                Counterpart::Obstacle(i) => {
+                    obstacles.get(i as usize).copied().map(ContactPartner::Obstacle)
+                }
             };
+            let (Some(body), Some(partner)) = (body, partner) else {
+                continue;
+            };
+            let force = to_bevy(&r.world_force());
             match self
                 .pairs
                 .iter_mut()
@@ -82,35 +108,17 @@ impl SoftTissueContacts {
             {
                 Some(c) => {
                     c.points += 1;
-                    c.max_depth = c.max_depth.max(depth);
+                    c.max_depth = c.max_depth.max(penetration);
+                    c.force += force;
                 }
                 None => self.pairs.push(SoftContact {
                     body,
                     partner,
                     points: 1,
-                    max_depth: depth,
+                    max_depth: penetration,
+                    force,
                 }),
             }
-        };
-        for t in &self.state.tool_contacts {
-            add(
-                self.bodies.get(t.body as usize).copied(),
-                self.tools
-                    .get(t.tool as usize)
-                    .copied()
-                    .map(ContactPartner::Tool),
-                t.depth,
-            );
-        }
-        for b in &self.state.body_contacts {
-            add(
-                self.bodies.get(b.a as usize).copied(),
-                self.bodies
-                    .get(b.b as usize)
-                    .copied()
-                    .map(ContactPartner::Body),
-                b.depth,
-            );
         }
     }
 

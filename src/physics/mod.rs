@@ -9,14 +9,14 @@ use bevy::ecs::schedule::{InternedScheduleLabel, ScheduleLabel, SingleThreadedEx
 use bevy::prelude::*;
 use bevy::transform::helper::TransformHelper;
 use smallvec::SmallVec;
-use soft_tissue_core::contact::{ContactConfig, Tool};
+use soft_tissue_core::contact::{ContactConfig, Obstacle, Tool, ToolShape};
 use soft_tissue_core::heat::HeatBoundary;
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::precision::{BodySettings, Level};
 use soft_tissue_core::timing::StageRecorder;
 use soft_tissue_core::world::{
-    ContactState, SimBody, StageTimes, WorldError, collide, detect_contacts, prepare, step_solvers,
-    switch_precision,
+    ContactState, SimBody, StageTimes, WorldError, detect_contacts, prepare, solve_contacts,
+    step_solvers, switch_precision,
 };
 
 use crate::assets::TetMeshAsset;
@@ -51,7 +51,8 @@ pub enum SoftTissueSystems {
     SwitchPrecision,
     /// Heat and every body's level step.
     StepSolvers,
-    /// Contact response, grips, tool reaction forces.
+    /// The contact problem of all touching bodies, tools and obstacles after the free
+    /// motion, each body's correction, grips, the forces on the tools.
     Collide,
     /// Surface positions, read-out components and messages.
     Writeback,
@@ -105,6 +106,7 @@ impl Plugin for SoftTissuePhysicsPlugin {
             .init_resource::<SoftTissueThreads>()
             .init_resource::<SoftTissueStatus>()
             .init_resource::<SoftTissueContacts>()
+            .init_resource::<SoftTissueObstacles>()
             .insert_resource(Time::<SoftPhysics>::default())
             .add_message::<LevelChanged>()
             .add_message::<BodyTouched>()
@@ -160,6 +162,7 @@ impl Plugin for SoftTissuePhysicsPlugin {
                     retry_failed_bodies,
                     build_bodies,
                     build_tools,
+                    build_obstacles,
                     prepare_stage,
                 )
                     .chain()
@@ -167,7 +170,7 @@ impl Plugin for SoftTissuePhysicsPlugin {
                 detect_stage.in_set(S::DetectContact),
                 switch_stage.in_set(S::SwitchPrecision),
                 solve_stage.in_set(S::StepSolvers),
-                collide_stage.in_set(S::Collide),
+                contact_stage.in_set(S::Collide),
                 writeback_stage.in_set(S::Writeback),
             ),
         );

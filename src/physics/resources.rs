@@ -143,3 +143,22 @@ impl SoftTissueStatus {
         self.error.is_some()
     }
 }
+
+/// The core obstacles of the [`SoftObstacle`] entities, built again when one changes.
+#[derive(Resource, Default)]
+pub struct SoftTissueObstacles {
+    pub(crate) obstacles: Vec<Obstacle>,
+    pub(crate) entities: Vec<Entity>,
+}
+
+impl SoftTissueObstacles {
+    /// The core obstacles, in the order the contact solve indexes them.
+    pub fn obstacles(&self) -> &[Obstacle] {
+        &self.obstacles
+    }
+
+    /// The entity of the core's obstacle index `index`.
+    pub fn entity(&self, index: u32) -> Option<Entity> {
+        self.entities.get(index as usize).copied()
+    }
+}

@@ -104,6 +104,12 @@ pub(super) fn prepare_stage(
                     stage_error("changing the material", Some(entity), e),
                 );
             }
+            if let Err(e) = b.set_friction(material.friction) {
+                fail(
+                    &mut status,
+                    stage_error("changing the friction", Some(entity), e),
+                );
+            }
         }
         let want_heat = heat.map(|h| h.0);
         if want_heat != b.heat().map(|h| *h.params()) {
@@ -137,13 +143,24 @@ pub(super) fn prepare_stage(
         }
     }
     for (entity, spec, mut state) in &mut tools {
-        let Some((position, axis)) = tool_pose(&poses, entity) else {
+        let Some((position, rotation)) = tool_pose(&poses, entity) else {
             continue;
         };
         let t = &mut state.tool;
-        if let Err(e) = t.set_pose(position, axis) {
+        if let Err(e) = t.set_pose_rotation(position, rotation) {
             fail(&mut status, stage_error("moving a tool", Some(entity), e));
             continue;
+        }
+        if *t.friction() != spec.friction
+            && let Err(e) = t.set_friction(spec.friction)
+        {
+            fail(&mut status, stage_error("a tool's friction", Some(entity), e));
+        }
+        if let ToolShape::Grasper { .. } = spec.shape
+            && t.target_opening() != spec.jaws.max(0.0)
+            && let Err(e) = t.set_opening(spec.jaws)
+        {
+            fail(&mut status, stage_error("a grasper's jaws", Some(entity), e));
         }
         if let Err(e) = t.set_cautery(spec.cautery_watts) {
             fail(
@@ -280,21 +297,29 @@ pub(super) fn solve_stage(
     status.times.solve_us = lap(&mut t);
 }
 
-pub(super) fn collide_stage(
+pub(super) fn contact_stage(
     mut bodies: Query<(Entity, &mut SimulatedBody)>,
     mut tools: Query<(Entity, &mut ToolState)>,
+    obstacles: Res<SoftTissueObstacles>,
     config: Res<SoftTissueConfig>,
     mut contacts: ResMut<SoftTissueContacts>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let mut t = Instant::now();
-    let dt = status.dt.unwrap_or_default();
     let r = in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, tl| {
-        collide(b, tl, &config.contact, &mut contacts.state, dt)
+        solve_contacts(
+            b,
+            tl,
+            &obstacles.obstacles,
+            &config.contact,
+            &mut contacts.state,
+        )
     });
-    contacts.gather();
-    report(&mut status, "collisions", r, bodies.iter());
-    status.times.collide_us = lap(&mut t);
+    contacts.gather(&obstacles.entities);
+    report(&mut status, "solving the contacts", r, bodies.iter());
+    let whole = lap(&mut t);
+    status.times.correct_us = contacts.state.stats().correct_us.min(whole);
+    status.times.contact_us = whole - status.times.correct_us;
 }
 
 #[allow(clippy::type_complexity)]
@@ -384,6 +409,7 @@ pub(super) fn writeback_stage(
         diag.set_if_neq(SoftBodyDiagnostics {
             step_us: d.step_us + d.switch_us,
             contacts: d.contacts,
+            max_penetration: d.max_penetration,
             max_displacement: d.max_displacement,
             shadow_error_ratio: d.shadow.map(|e| e.max_ratio),
             unconverged_solves: d.unconverged_solves,
@@ -440,6 +466,8 @@ pub(super) fn writeback_stage(
             force: to_bevy(&t.reaction_force()),
             contacts: t.contact_count(),
             grips: t.grips().len() as u32,
+            opening: t.opening(),
+            jaw_forces: t.jaw_forces(),
         };
     }
     status.times.writeback_us = lap(&mut t);

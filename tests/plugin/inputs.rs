@@ -321,6 +321,7 @@ fn contacts_name_entities() {
                     body_seen = true;
                     assert!(contacts.involving(o).any(|d| d == c));
                 }
+                ContactPartner::Obstacle(o) => panic!("no obstacle in this scene: {o:?}"),
             }
         }
         let msgs = app.world().resource::<Messages<BodyTouched>>();

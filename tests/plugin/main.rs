@@ -92,7 +92,7 @@ fn drive_tool(
     dt: f64,
 ) -> (
     bevy_soft_tissue::core::Vec3,
-    bevy_soft_tissue::core::Vec3,
+    nalgebra::UnitQuaternion<f64>,
     Vec<ScriptAction>,
 ) {
     let t = k as f64 * dt;
@@ -106,12 +106,12 @@ fn drive_tool(
             ScriptAction::Grab => spec.grab = true,
             ScriptAction::Release => spec.grab = false,
             ScriptAction::Cautery(w) => spec.cautery_watts = *w,
+            ScriptAction::Jaws(w) => spec.jaws = *w,
         }
     }
-    let axis = tf.rotation * Vec3::Y;
     (
         bevy_soft_tissue::convert::to_core(tf.translation),
-        bevy_soft_tissue::convert::to_core(axis),
+        bevy_soft_tissue::convert::to_core_rotation(tf.rotation),
         actions,
     )
 }
@@ -122,6 +122,8 @@ fn spawn_tool(app: &mut App, script: &Script) -> Entity {
         shape: script.tool,
         grab: false,
         cautery_watts: 0.0,
+        jaws: 0.0,
+        friction: Default::default(),
     };
     app.world_mut()
         .spawn((tool, tool_transform(script, 0.0)))

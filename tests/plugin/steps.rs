@@ -96,13 +96,9 @@ fn the_plugin_and_the_core_world_give_the_same_states() {
         let (p, a, actions) = drive_tool(&mut app, tool, &script, k, dt);
         app.update();
         let t = &mut world.tools_mut()[ti];
-        t.set_pose(p, a).unwrap();
+        t.set_pose_rotation(p, a).unwrap();
         for act in actions {
-            match act {
-                ScriptAction::Grab => t.grab(),
-                ScriptAction::Release => t.release(),
-                ScriptAction::Cautery(w) => t.set_cautery(w).unwrap(),
-            }
+            act.apply(t).unwrap();
         }
         world.step_fixed().unwrap();
         for (e, b) in bodies.iter().zip(world.bodies()) {

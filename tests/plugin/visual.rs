@@ -277,6 +277,8 @@ fn a_non_manifold_mesh_simulates_and_draws_in_the_plugin() {
                 shape: ToolShape::Sphere { radius: r as f64 },
                 grab: false,
                 cautery_watts: 0.0,
+                jaws: 0.0,
+                friction: Default::default(),
             },
             Transform::from_translation(start),
         ))

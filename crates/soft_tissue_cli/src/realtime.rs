@@ -71,7 +71,9 @@ pub struct RunCosts {
     /// The largest whole step over the median of `precise_step` (`None` when no body was ever
     /// precise).
     pub worst_over_precise_median: Option<f64>,
-    /// Contact (detect + collide) over the solvers, summed over the run.
+    /// Contact (the start-of-step detection and the contact problem: detection after the
+    /// motion, assembly, solve) over the solvers (the bodies' free motion and their contact
+    /// corrections), summed over the run.
     pub contact_over_solve: Option<f64>,
     /// Steps over 1 ms.
     pub steps_over_1ms: usize,
@@ -97,8 +99,8 @@ impl RunRecorder {
     pub fn record(&mut self, world: &SoftTissueWorld) {
         let times: StageTimes = world.stage_times();
         self.stages.push(&times);
-        self.contact_us += times.contact_us();
-        self.solve_us += times.solve_us;
+        self.contact_us += times.contact_total_us();
+        self.solve_us += times.solvers_us();
         let mut any_precise = false;
         for (rec, b) in self.bodies.iter_mut().zip(world.bodies()) {
             let d = b.diagnostics();

@@ -11,7 +11,7 @@ use serde_json::json;
 use soft_tissue_core::contact::Tool;
 use soft_tissue_core::precision::Level;
 use soft_tissue_core::scenario::{PreciseMethod, Scene};
-use soft_tissue_core::world::{Script, ScriptAction, SoftTissueWorld};
+use soft_tissue_core::world::{Script, SoftTissueWorld};
 
 #[derive(Args)]
 pub struct SimulateArgs {
@@ -156,15 +156,11 @@ pub(crate) fn drive_tool(
     t: f64,
     dt: f64,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    let (p, a) = script.pose_at(t);
+    let (p, r) = script.pose_rotation_at(t);
     let tl = &mut world.tools_mut()[ti];
-    tl.set_pose(p, a)?;
+    tl.set_pose_rotation(p, r)?;
     for e in script.events_in(t - dt, t) {
-        match e.action {
-            ScriptAction::Grab => tl.grab(),
-            ScriptAction::Release => tl.release(),
-            ScriptAction::Cautery(w) => tl.set_cautery(w)?,
-        }
+        e.action.apply(tl)?;
     }
     Ok(())
 }
@@ -219,6 +215,9 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     let mut worst_jump = vec![0.0f64; nb];
     let mut worst_shadow = vec![0.0f64; nb];
     let mut shadow_sum = vec![(0.0f64, 0u64); nb];
+    let mut worst_penetration = vec![0.0f64; nb];
+    let mut most_contacts = vec![0u32; nb];
+    let mut contact_rounds = (0u64, 0u32, 0u64, 0u32);
     for k in 0..args.steps {
         let t = (k + 1) as f64 * dt;
         if let (Some(s), Some(ti)) = (&script, tool) {
@@ -241,7 +240,14 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 shadow_sum[i].0 += e.mean / b.body().smallest_dimension();
                 shadow_sum[i].1 += 1;
             }
+            worst_penetration[i] = worst_penetration[i].max(d.max_penetration);
+            most_contacts[i] = most_contacts[i].max(d.contacts);
         }
+        let cs = world.contacts().stats();
+        contact_rounds.0 += u64::from(cs.rounds);
+        contact_rounds.1 = contact_rounds.1.max(cs.rounds);
+        contact_rounds.2 += u64::from(cs.sweeps);
+        contact_rounds.3 = contact_rounds.3.max(cs.rows);
         if args.json {
             let bodies: Vec<_> = world
                 .bodies()
@@ -261,6 +267,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                         "switch_jump": d.switched.map(|s| s.jump),
                         "switch_jump_ratio": d.switched.map(|s| s.jump_ratio),
                         "contacts": d.contacts,
+                        "max_penetration": d.max_penetration,
                         "max_temperature": d.max_temperature,
                         "shadow_error_ratio": d.shadow.map(|e| e.max_ratio),
                     })
@@ -272,6 +279,8 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                     "position": tl.position().as_slice(),
                     "force": tl.reaction_force().as_slice(),
                     "contacts": tl.contact_count(),
+                    "opening": tl.opening(),
+                    "jaw_forces": tl.jaw_forces(),
                 })
             });
             let line = json!({
@@ -283,8 +292,17 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                     "detect_us": st.detect_us,
                     "switch_us": st.switch_us,
                     "solve_us": st.solve_us,
-                    "collide_us": st.collide_us,
+                    "contact_us": st.contact_us,
+                    "correct_us": st.correct_us,
                     "writeback_us": st.writeback_us,
+                },
+                "contact": {
+                    "rows": cs.rows,
+                    "active": cs.active,
+                    "rounds": cs.rounds,
+                    "sweeps": cs.sweeps,
+                    "sliding": cs.sliding,
+                    "max_penetration": cs.max_penetration,
                 },
                 "bodies": bodies,
                 "tool": tool_json,
@@ -323,6 +341,9 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "mean_shadow_error_ratio": args.shadow.then(|| {
                     shadow_sum[i].0 / shadow_sum[i].1.max(1) as f64
                 }),
+                "max_penetration": worst_penetration[i],
+                "max_penetration_ratio": worst_penetration[i] / b.body().smallest_dimension(),
+                "max_contacts": most_contacts[i],
             })
         })
         .collect();
@@ -332,7 +353,8 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
         "detect_us": mean_stage("detect"),
         "switch_us": mean_stage("switch"),
         "solve_us": mean_stage("solve"),
-        "collide_us": mean_stage("collide"),
+        "contact_us": mean_stage("contact"),
+        "correct_us": mean_stage("correct"),
         "writeback_us": mean_stage("writeback"),
     });
     if args.json {
@@ -356,6 +378,10 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "precise_step": costs.precise_step,
                 "worst_over_precise_median": costs.worst_over_precise_median,
                 "contact_over_solve": costs.contact_over_solve,
+                "contact_rounds_mean": contact_rounds.0 as f64 / n,
+                "contact_rounds_max": contact_rounds.1,
+                "contact_sweeps_mean": contact_rounds.2 as f64 / n,
+                "contact_rows_max": contact_rounds.3,
                 "steps_over_1ms": costs.steps_over_1ms,
                 "steps_over_10ms": costs.steps_over_10ms,
                 "state_hash": format!("{:016x}", world.state_hash()),
@@ -397,7 +423,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 .join(", ")
         );
         println!(
-            "contact (detect + collide) / solve: {}; steps over 1 ms: {}, over 10 ms: {}",
+            "contact (detect + contact problem) / solvers (free motion + corrections): {}; steps over 1 ms: {}, over 10 ms: {}",
             costs
                 .contact_over_solve
                 .map_or("-".into(), |r| format!("{r:.3}")),
@@ -436,6 +462,22 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
         }
         if nb > 12 {
             println!("... {} more bodies", nb - 12);
+        }
+        println!(
+            "contact solve: rounds mean {:.2} max {}, sweeps mean {:.1}, rows max {}",
+            contact_rounds.0 as f64 / n,
+            contact_rounds.1,
+            contact_rounds.2 as f64 / n,
+            contact_rounds.3
+        );
+        for (i, b) in world.bodies().iter().enumerate().take(12) {
+            println!(
+                "{:<24} largest penetration {:.3e} ({:.4} % of its smallest dimension), most contacts {}",
+                b.name(),
+                worst_penetration[i],
+                100.0 * worst_penetration[i] / b.body().smallest_dimension(),
+                most_contacts[i]
+            );
         }
         for c in costs.bodies.iter().filter(|c| c.cg.not_converged > 0) {
             println!(

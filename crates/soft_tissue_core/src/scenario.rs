@@ -9,6 +9,7 @@
 //! out; a test keeps them in sync with [`Scene::paper_cylinders`] and [`Scene::paper_organs`].
 
 use crate::cage::CageDynamics;
+use crate::contact::Friction;
 use crate::fem::FemIntegrator;
 use crate::material::{FemParams, MsdParams, PAPER_CAGE_MSD};
 use crate::mesh::generate::Organ;
@@ -141,6 +142,18 @@ pub struct Placement {
     pub translation: [f64; 3],
     /// Rotation (XYZ Euler angles), degrees, applied before the translation.
     pub rotation_deg: [f64; 3],
+    /// Uniform scale applied first (a mesh in millimetres placed in a scene in metres:
+    /// 0.001). Default 1.
+    #[serde(default = "unit_scale", skip_serializing_if = "is_unit")]
+    pub scale: f64,
+}
+
+fn unit_scale() -> f64 {
+    1.0
+}
+
+fn is_unit(s: &f64) -> bool {
+    *s == 1.0
 }
 
 impl Placement {
@@ -148,6 +161,7 @@ impl Placement {
     pub const IDENTITY: Placement = Placement {
         translation: [0.0; 3],
         rotation_deg: [0.0; 3],
+        scale: 1.0,
     };
 }
 
@@ -174,6 +188,50 @@ pub struct BodySpec {
     /// damage). Absent: no heat is modelled and nothing is paid for it.
     #[serde(default)]
     pub heat: Option<crate::heat::HeatParams>,
+    /// Surface friction (absent: [`Friction::default`], wet tissue).
+    #[serde(default)]
+    pub friction: Option<Friction>,
+}
+
+/// The shape of a static obstacle, in its own frame (placed by its [`Placement`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum ObstacleShape {
+    /// The half-space below the plane y = 0 (a table top at the placement's height).
+    Plane,
+    /// A box centred on the origin.
+    Box {
+        /// Half extents along x, y, z, scene units.
+        half_extents: [f64; 3],
+    },
+    /// A ball about the origin.
+    Sphere {
+        /// Radius, scene units.
+        radius: f64,
+    },
+    /// A capsule around the segment from the origin along +y (a rib, a rod).
+    Capsule {
+        /// Radius, scene units.
+        radius: f64,
+        /// Segment length, scene units.
+        length: f64,
+    },
+    /// A closed triangle surface read from a file (OBJ, STL, PLY, glTF; relative to the
+    /// assets folder), e.g. a bone.
+    Mesh(String),
+}
+
+/// A static obstacle of a scene: a table, a bone, an instrument port.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ObstacleSpec {
+    /// Name.
+    pub name: String,
+    /// Shape.
+    pub shape: ObstacleShape,
+    /// Where it stands.
+    pub placement: Placement,
+    /// Surface friction (absent: [`Friction::default`]).
+    #[serde(default)]
+    pub friction: Option<Friction>,
 }
 
 /// A scene: bodies and global settings.
@@ -185,6 +243,9 @@ pub struct Scene {
     pub gravity: [f64; 3],
     /// Bodies.
     pub bodies: Vec<BodySpec>,
+    /// Static obstacles (absent in older files: none).
+    #[serde(default)]
+    pub obstacles: Vec<ObstacleSpec>,
 }
 
 /// Errors in scene data.
@@ -207,6 +268,16 @@ pub enum SceneError {
     /// A body's settings are inconsistent or out of range.
     #[error("body {index} ({name}): {message}")]
     Body {
+        /// Index in the scene.
+        index: usize,
+        /// Its name.
+        name: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// An obstacle's settings are out of range.
+    #[error("obstacle {index} ({name}): {message}")]
+    Obstacle {
         /// Index in the scene.
         index: usize,
         /// Its name.
@@ -281,6 +352,7 @@ impl Scene {
             placement: Placement {
                 translation: [x, 0.86, 0.0],
                 rotation_deg: [-90.0, 0.0, 0.0],
+                scale: 1.0,
             },
             precise,
             fem: Some(CYLINDER_FEM),
@@ -288,12 +360,14 @@ impl Scene {
             cage: PAPER_CAGE,
             anchor: Anchor::FixedBottom { fraction: 0.05 },
             heat: None,
+            friction: None,
         };
         Scene {
             name: "cylinders".into(),
             gravity: [0.0, -9.81, 0.0],
             // Centres 1.3 apart: a 0.06 gap between the two 1.24-wide cylinders.
             bodies: vec![body("Model A", -0.65, a), body("Model B", 0.65, b)],
+            obstacles: Vec::new(),
         }
     }
 
@@ -317,12 +391,14 @@ impl Scene {
                 // The liver is the organ the cautery script works on; the others do not pay
                 // for a temperature field.
                 heat: (*o == Organ::Liver).then(crate::heat::HeatParams::liver),
+                friction: None,
             })
             .collect();
         Scene {
             name: "organs".into(),
             gravity: [0.0; 3],
             bodies,
+            obstacles: Vec::new(),
         }
     }
 
@@ -459,10 +535,55 @@ impl Scene {
                     "placement: rotation_deg must be finite, found {v}"
                 )));
             }
+            if !(p.scale.is_finite() && p.scale > 0.0) {
+                return Err(err(format!(
+                    "placement: scale must be positive and finite, found {}",
+                    p.scale
+                )));
+            }
             if let Some(h) = &b.heat {
                 h.validate().map_err(|e| err(format!("heat: {e}")))?;
             }
             b.anchor.validate().map_err(err)?;
+            if let Some(f) = &b.friction {
+                f.validate(&b.name).map_err(|e| err(e.to_string()))?;
+            }
+        }
+        for (index, o) in self.obstacles.iter().enumerate() {
+            let err = |message: String| SceneError::Obstacle {
+                index,
+                name: o.name.clone(),
+                message,
+            };
+            let p = &o.placement;
+            if let Some(v) = p.translation.iter().chain(&p.rotation_deg).find(|v| !v.is_finite()) {
+                return Err(err(format!("placement must be finite, found {v}")));
+            }
+            let positive = |what: &str, v: f64| {
+                if v.is_finite() && v > 0.0 {
+                    Ok(())
+                } else {
+                    Err(err(format!("{what} must be positive and finite, found {v}")))
+                }
+            };
+            match &o.shape {
+                ObstacleShape::Box { half_extents } => {
+                    for h in half_extents {
+                        positive("half_extents", *h)?;
+                    }
+                }
+                ObstacleShape::Sphere { radius } => positive("radius", *radius)?,
+                ObstacleShape::Capsule { radius, length } => {
+                    positive("radius", *radius)?;
+                    if !(length.is_finite() && *length >= 0.0) {
+                        return Err(err(format!("length must be >= 0, found {length}")));
+                    }
+                }
+                ObstacleShape::Plane | ObstacleShape::Mesh(_) => {}
+            }
+            if let Some(f) = &o.friction {
+                f.validate(&o.name).map_err(|e| err(e.to_string()))?;
+            }
         }
         Ok(())
     }

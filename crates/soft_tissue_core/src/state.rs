@@ -179,6 +179,22 @@ pub trait NodalBody {
         }
     }
 
+    /// Stiffness of each node's soft anchor, force per length (0: none).
+    fn anchor_stiffnesses(&self) -> &[f64] {
+        &self.nodes().anchor_k
+    }
+
+    /// The total force the soft anchors put on the body now, `-sum k (x - target)` (the
+    /// reaction of what holds the body).
+    fn anchor_force(&self) -> Vec3 {
+        let n = self.nodes();
+        n.x.iter()
+            .zip(&n.anchor_target)
+            .zip(&n.anchor_k)
+            .map(|((x, t), k)| -(x - t) * *k)
+            .sum()
+    }
+
     /// Targets of the soft anchors (rest positions unless set).
     fn anchor_targets_mut(&mut self) -> &mut [Vec3] {
         &mut self.nodes_mut().anchor_target
@@ -250,6 +266,19 @@ impl Bdf2History {
                     nodes.v[i][k] += self.dv[i][k] / 3.0;
                 }
             }
+        }
+    }
+
+    /// Adds a change made as part of the step just recorded (a contact correction) to the
+    /// step's differences, so the next step extrapolates from the corrected step. Nothing
+    /// without a history.
+    pub(crate) fn absorb(&mut self, dx: &[Vec3], dv: &[Vec3]) {
+        if !self.valid || self.dx.len() != dx.len() {
+            return;
+        }
+        for i in 0..dx.len() {
+            self.dx[i] += dx[i];
+            self.dv[i] += dv[i];
         }
     }
 

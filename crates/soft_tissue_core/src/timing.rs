@@ -14,26 +14,31 @@ use serde::{Deserialize, Serialize};
 pub struct StageTimes {
     /// `prepare`: tool velocities, surfaces gathered.
     pub prepare_us: f64,
-    /// `detect_contacts`.
+    /// `detect_contacts`: who is touched at the start of the step.
     pub detect_us: f64,
     /// `switch_precision`.
     pub switch_us: f64,
-    /// `step_solvers`.
+    /// `step_solvers`: every body's free motion (its own step) and heat.
     pub solve_us: f64,
-    /// `collide`.
-    pub collide_us: f64,
+    /// The contact problem of `solve_contacts`: detection on the moved positions, assembly
+    /// of the bodies' compliances and the projected Gauss-Seidel solve, all rounds.
+    pub contact_us: f64,
+    /// The bodies' corrections by the contact forces in `solve_contacts` (each body's own
+    /// solve), all rounds.
+    pub correct_us: f64,
     /// `writeback`.
     pub writeback_us: f64,
 }
 
 impl StageTimes {
     /// Stage names, in the order of [`StageTimes::values`].
-    pub const NAMES: [&'static str; 6] = [
+    pub const NAMES: [&'static str; 7] = [
         "prepare",
         "detect",
         "switch",
         "solve",
-        "collide",
+        "contact",
+        "correct",
         "writeback",
     ];
 
@@ -43,20 +48,28 @@ impl StageTimes {
     }
 
     /// The stages in the order of [`StageTimes::NAMES`].
-    pub fn values(&self) -> [f64; 6] {
+    pub fn values(&self) -> [f64; 7] {
         [
             self.prepare_us,
             self.detect_us,
             self.switch_us,
             self.solve_us,
-            self.collide_us,
+            self.contact_us,
+            self.correct_us,
             self.writeback_us,
         ]
     }
 
-    /// Contact: detection plus response.
-    pub fn contact_us(&self) -> f64 {
-        self.detect_us + self.collide_us
+    /// Contact: the detection at the start of the step and the contact problem (detection
+    /// after the motion, assembly, solve).
+    pub fn contact_total_us(&self) -> f64 {
+        self.detect_us + self.contact_us
+    }
+
+    /// The solvers: the bodies' free motion and their contact corrections (both are the
+    /// bodies' own solves).
+    pub fn solvers_us(&self) -> f64 {
+        self.solve_us + self.correct_us
     }
 }
 
@@ -124,7 +137,7 @@ pub struct StageStats {
     /// The whole step.
     pub step: TimeStats,
     /// Each stage, in the order of [`StageTimes::NAMES`].
-    pub stages: [TimeStats; 6],
+    pub stages: [TimeStats; 7],
 }
 
 impl StageStats {
@@ -143,7 +156,7 @@ impl StageStats {
 #[derive(Debug, Clone, Default)]
 pub struct StageRecorder {
     whole: Vec<f64>,
-    stages: [Vec<f64>; 6],
+    stages: [Vec<f64>; 7],
     window: Option<usize>,
     next: usize,
 }

@@ -15,7 +15,7 @@ use soft_tissue_core::precision::{Level, PrecisionError};
 use soft_tissue_core::scenario::{PreciseMethod, Scene};
 use soft_tissue_core::state::NodalBody;
 use soft_tissue_core::world::{
-    ContactState, Script, SimBody, SoftTissueWorld, WorldError, collide, detect_contacts, prepare,
+    ContactState, Script, SimBody, SoftTissueWorld, WorldError, detect_contacts, prepare, solve_contacts,
     scene_bodies, step_solvers, switch_precision, writeback,
 };
 
@@ -62,8 +62,8 @@ impl Staged {
     /// Prepare, detect, switch and solve of the next step.
     fn up_to_solve(&mut self) {
         self.steps += 1;
-        let (p, a) = self.script.pose_at(self.steps as f64 * self.dt);
-        self.tools[0].set_pose(p, a).unwrap();
+        let (p, r) = self.script.pose_rotation_at(self.steps as f64 * self.dt);
+        self.tools[0].set_pose_rotation(p, r).unwrap();
         prepare(&mut self.bodies, &mut self.tools, self.dt);
         detect_contacts(
             &mut self.bodies,
@@ -76,12 +76,12 @@ impl Staged {
     }
 
     fn collide(&mut self) -> Result<(), WorldError> {
-        collide(
+        solve_contacts(
             &mut self.bodies,
             &mut self.tools,
+            &[],
             &self.contact,
             &mut self.contacts,
-            self.dt,
         )
     }
 
@@ -144,7 +144,7 @@ fn a_contact_response_that_leaves_a_non_finite_state_is_undone_for_every_body() 
         WorldError::NonFinite { body, node, stage } => {
             assert_eq!(body, "Model A");
             assert_eq!(*node, 0);
-            assert!(stage.starts_with("collide"), "{stage}");
+            assert!(stage.starts_with("contact solve"), "{stage}");
         }
         other => panic!("unexpected {other}"),
     }

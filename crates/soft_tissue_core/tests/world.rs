@@ -47,11 +47,7 @@ fn run(
         world.tools_mut()[tool].set_pose(p, a).unwrap();
         for e in script.events_in(t - dt, t) {
             let tl = &mut world.tools_mut()[tool];
-            match e.action {
-                ScriptAction::Cautery(w) => tl.set_cautery(w).unwrap(),
-                ScriptAction::Grab => tl.grab(),
-                ScriptAction::Release => tl.release(),
-            }
+            e.action.apply(tl).unwrap();
         }
         world.step_fixed().unwrap();
         for (h, b) in hist.iter_mut().zip(world.bodies()) {

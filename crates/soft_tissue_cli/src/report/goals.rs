@@ -75,8 +75,8 @@ pub(super) fn goals_section(md: &mut String, js: &Json, g: &Inputs<'_>) -> Res<(
         if let Some(r) = c.contact_over_solve {
             writeln!(
                 md,
-                "- `{scene}`: contact (detect + collide) at most a third of the solvers: {r:.3}: {}.",
-                verdict(r <= 0.33)
+                "- `{scene}`: contact (detection and the contact problem) at most half the solvers (free motion and corrections): {r:.3}: {}.",
+                verdict(r <= 0.5)
             )?;
         }
         let worst = c

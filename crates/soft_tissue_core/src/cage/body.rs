@@ -145,16 +145,18 @@ fn cage_springs(cage: &Cage, layout: CageSprings, stiffness: f64) -> Vec<Spring>
 /// (usually the body's surface vertices, or all its nodes) follow by Green coordinates.
 #[derive(Debug)]
 pub struct CageBody {
-    cage: Cage,
-    coords: Arc<GreenCoordinates>,
-    msd: MsdBody,
+    pub(super) cage: Cage,
+    pub(super) coords: Arc<GreenCoordinates>,
+    pub(super) msd: MsdBody,
     face_terms: Vec<Vec3>,
     scratch: FastScratch,
     points: Vec<Vec3>,
     stats: CageStepStats,
     /// Calibrated dynamics: when set, steps use it instead of the cage MSD's springs (the
     /// MSD then only holds the cage state).
-    reduced: Option<ReducedStepper>,
+    pub(super) reduced: Option<ReducedStepper>,
+    /// Contact workspaces.
+    pub(super) contact: super::contact::CageContact,
 }
 
 impl CageBody {
@@ -222,6 +224,7 @@ impl CageBody {
             msd,
             stats: CageStepStats::default(),
             reduced: None,
+            contact: Default::default(),
         };
         body.update_points()?;
         Ok(body)
@@ -308,6 +311,26 @@ impl CageBody {
         }
         self.update_points()?;
         Ok(self.stats)
+    }
+
+    /// Makes the current cage positions the equilibrium the cage returns to (`true`), or its
+    /// rest shape again (`false`): the calibrated dynamics hold the displacement, the cage
+    /// MSD's springs take the current lengths.
+    pub fn rebase_equilibrium(&mut self, here: bool) {
+        match self.reduced.as_mut() {
+            Some(r) => r.rebase(here.then_some(self.msd.positions())),
+            None => {
+                if !here {
+                    let rest = self.cage.vertices().to_vec();
+                    let x = self.msd.positions().to_vec();
+                    self.msd.positions_mut().copy_from_slice(&rest);
+                    self.msd.rebase_rest();
+                    self.msd.positions_mut().copy_from_slice(&x);
+                } else {
+                    self.msd.rebase_rest();
+                }
+            }
+        }
     }
 
     /// Re-evaluates the embedded points from the current cage (fast path).

@@ -18,6 +18,7 @@ pub mod green;
 pub mod reduced;
 
 mod body;
+mod contact;
 use crate::geometry;
 
 pub use body::{CageBody, CageBodyConfig, CageSprings, CageStepStats};

@@ -359,6 +359,9 @@ pub struct ReducedStepper {
     u: Vec<f64>,
     v: Vec<f64>,
     f: Vec<f64>,
+    /// The displacement (in the step's frame) the springs hold at rest: zero for the model's
+    /// rest shape, another equilibrium after [`ReducedStepper::rebase`].
+    offset: Vec<f64>,
 }
 
 impl ReducedStepper {
@@ -386,6 +389,7 @@ impl ReducedStepper {
             u: vec![0.0; d],
             v: vec![0.0; d],
             f: vec![0.0; d],
+            offset: vec![0.0; d],
             model,
         })
     }
@@ -393,6 +397,43 @@ impl ReducedStepper {
     /// The model.
     pub fn model(&self) -> &Arc<ReducedModel> {
         &self.model
+    }
+
+    /// The step size.
+    pub fn dt(&self) -> f64 {
+        self.dt
+    }
+
+    /// The frame the step is taken in for cage positions `x`: the rotation of the cage's best
+    /// rigid fit to its rest shape for a free body, the identity otherwise.
+    pub fn frame(&self, x: &[Vec3]) -> Matrix3<f64> {
+        if self.model.corotate {
+            best_rotation(&self.model.rest, x)
+        } else {
+            Matrix3::identity()
+        }
+    }
+
+    /// Makes the cage positions `x` the equilibrium the cage returns to (a body that came to
+    /// rest on its supports keeps that shape at the cage level); `None` the model's rest
+    /// shape again.
+    pub fn rebase(&mut self, x: Option<&[Vec3]>) {
+        let Some(x) = x else {
+            self.offset.fill(0.0);
+            return;
+        };
+        let rt = self.frame(x).transpose();
+        for (i, xi) in x.iter().enumerate() {
+            let u = rt * xi - self.model.rest[i];
+            self.offset[3 * i..3 * i + 3].copy_from_slice(u.as_slice());
+        }
+    }
+
+    /// `h^2 (M + h C + h^2 K)^-1 rhs` in place, reduced coordinates in the step's frame: the
+    /// cage's displacement over a step under forces `rhs` held over it.
+    pub fn compliance_solve(&self, rhs: &mut DVector<f64>) {
+        self.chol.solve_mut(rhs);
+        *rhs *= self.dt * self.dt;
     }
 
     /// One linearised implicit Euler step of the cage vertices `x`, `v` under the vertex
@@ -416,7 +457,7 @@ impl ReducedStepper {
         for i in 0..d / 3 {
             let (xi, vi, fi) = (rt * x[i], rt * v[i], rt * f[i]);
             for a in 0..3 {
-                self.u[3 * i + a] = xi[a] - m.rest[i][a];
+                self.u[3 * i + a] = xi[a] - m.rest[i][a] - self.offset[3 * i + a];
                 self.v[3 * i + a] = vi[a];
                 self.f[3 * i + a] = fi[a];
             }

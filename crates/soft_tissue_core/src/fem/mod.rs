@@ -34,6 +34,7 @@
 
 mod assembly;
 mod config;
+mod contact;
 pub mod element;
 mod packed;
 mod prefactored;
@@ -267,6 +268,8 @@ pub struct FemBody {
     assembly_deltas: Vec<[[f64; 9]; 10]>,
     /// BDF2 history (see [`crate::state::Bdf2History`]).
     bdf2: crate::state::Bdf2History,
+    /// Contact compliance columns and correction workspaces.
+    contact: contact::FemContact,
 }
 
 impl NodalBody for FemBody {
@@ -397,6 +400,7 @@ impl FemBody {
             prefactored: None,
             assembly_deltas: Vec::new(),
             bdf2: Default::default(),
+            contact: Default::default(),
         };
         if config.model == FemModel::CorotationalPrefactored {
             body.prefactored = Some(prefactored::Prefactored::new(&body)?);

@@ -106,8 +106,8 @@ pub(super) struct Prefactored {
     lap: Vec<f64>,
     /// One factor of `A` per distinct pattern of fixed components among the three axes, and
     /// which one each axis uses.
-    factors: Vec<ScalarCholesky>,
-    axis_factor: [usize; 3],
+    pub(super) factors: Vec<ScalarCholesky>,
+    pub(super) axis_factor: [usize; 3],
     /// Stored entries of the factors.
     factor_nnz: usize,
     /// Inertial target and current guess.

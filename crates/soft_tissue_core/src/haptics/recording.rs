@@ -14,6 +14,9 @@ pub const GRAB_BUTTON: u32 = 1;
 /// Button bit of the second button (cautery).
 pub const CAUTERY_BUTTON: u32 = 2;
 
+/// Button bit: a grasper's jaws closed (released: open).
+pub const JAWS_BUTTON: u32 = 4;
+
 /// Most samples [`Recording::from_script`] makes (a day at 1 kHz is fewer).
 pub const MAX_RECORDING_SAMPLES: usize = 100_000_000;
 
@@ -200,6 +203,8 @@ impl Recording {
                     ScriptAction::Release => buttons &= !GRAB_BUTTON,
                     ScriptAction::Cautery(w) if w > 0.0 => buttons |= CAUTERY_BUTTON,
                     ScriptAction::Cautery(_) => buttons &= !CAUTERY_BUTTON,
+                    ScriptAction::Jaws(w) if w <= 0.0 => buttons |= JAWS_BUTTON,
+                    ScriptAction::Jaws(_) => buttons &= !JAWS_BUTTON,
                 }
                 next_event += 1;
             }
@@ -235,6 +240,7 @@ impl Recording {
                     t: s.t,
                     position: s.position,
                     axis,
+                    roll_deg: 0.0,
                 });
             }
             let changed = s.buttons ^ last_buttons;
@@ -257,6 +263,18 @@ impl Recording {
                 events.push(ScriptEvent {
                     t: s.t,
                     action: ScriptAction::Cautery(w),
+                });
+            }
+            if let (true, ToolShape::Grasper { max_opening, .. }) =
+                (changed & JAWS_BUTTON != 0, tool)
+            {
+                events.push(ScriptEvent {
+                    t: s.t,
+                    action: ScriptAction::Jaws(if s.buttons & JAWS_BUTTON != 0 {
+                        0.0
+                    } else {
+                        max_opening
+                    }),
                 });
             }
             last_buttons = s.buttons;

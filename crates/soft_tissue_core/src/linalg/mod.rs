@@ -3,11 +3,13 @@
 
 mod bsr;
 mod cholesky;
+pub mod compliance;
 mod pcg;
 mod supernodal;
 
 pub use bsr::BlockSparse;
 pub use cholesky::{ScalarCholesky, SparseCholesky};
+pub use compliance::ColumnCache;
 pub use pcg::{CgStats, ImplicitSystem, NotConverged};
 
 /// `a * b + c`, fused where the calling kernel is compiled for FMA (the vector kernels of the

@@ -26,6 +26,7 @@ use crate::material::MsdParams;
 use crate::mesh::TetMesh;
 use crate::state::{self, NodalBody, Nodes};
 
+mod contact;
 mod explicit;
 mod implicit;
 mod material;
@@ -320,6 +321,8 @@ pub struct MsdBody {
     stats: MsdStepStats,
     /// BDF2 history (see [`crate::state::Bdf2History`]).
     bdf2: crate::state::Bdf2History,
+    /// Contact compliance columns and correction workspaces.
+    contact: contact::MsdContact,
 }
 
 #[derive(Debug)]
@@ -525,6 +528,7 @@ impl MsdBody {
             limit_row: Vec::with_capacity(n),
             stats: MsdStepStats::default(),
             bdf2: Default::default(),
+            contact: Default::default(),
         };
         body.estimate_limits();
         if config.integrator.is_implicit() {

@@ -54,6 +54,7 @@ use crate::scenario::CageKind;
 use crate::state::NodalBody;
 
 mod build;
+mod contact;
 mod fit;
 mod method;
 mod shadow;
@@ -261,6 +262,9 @@ pub struct LeveledBody {
     fit_cage: Vec<Vec3>,
     fit_velocity: Vec<Vec3>,
     last_fit: FitReport,
+    /// Where the cage comes to rest: its rest shape, or for a free body under gravity the
+    /// shape it last came to rest in on its supports.
+    equilibrium: Vec<Vec3>,
     /// Rotation of the cage (best rigid fit to its rest shape) at the last down-switch: the
     /// precise solver's element rotations are from then, so an up-switch starts them turned
     /// by how far the cage turned since.
@@ -327,6 +331,7 @@ impl LeveledBody {
             fit_cage: cage.cage_positions().to_vec(),
             fit_velocity: vec![Vec3::zeros(); nv],
             last_fit: FitReport::default(),
+            equilibrium: cage.cage().vertices().to_vec(),
             lowered_rotation: UnitQuaternion::identity(),
             level: Level::Cage,
             pin: None,
@@ -359,6 +364,7 @@ impl LeveledBody {
         let nf = cage.cage().triangles().len();
         self.fit = SurfaceFit::new(cage.coordinates(), &self.surface)?;
         self.fit_cage = cage.cage_positions().to_vec();
+        self.equilibrium = cage.cage().vertices().to_vec();
         self.fit_velocity = vec![Vec3::zeros(); nv];
         self.cage = cage;
         self.cage_work = vec![Vec3::zeros(); nv];
@@ -381,11 +387,11 @@ impl LeveledBody {
         let near = msd
             .positions()
             .iter()
-            .zip(self.cage.cage().vertices())
+            .zip(&self.equilibrium)
             .all(|(x, r)| (x - r).norm() < eps);
         let pending = msd.external_forces().iter().any(|f| *f != Vec3::zeros());
         if near && !pending && msd.max_speed() < eps {
-            self.cage_work.copy_from_slice(self.cage.cage().vertices());
+            self.cage_work.copy_from_slice(&self.equilibrium);
             let msd = self.cage.msd_mut();
             msd.positions_mut().copy_from_slice(&self.cage_work);
             msd.velocities_mut().fill(Vec3::zeros());
@@ -393,6 +399,20 @@ impl LeveledBody {
             self.asleep = true;
         }
         Ok(())
+    }
+
+    /// Whether the body is free (no fixed components, no anchors): under gravity it finds its
+    /// rest on what supports it in the world (obstacles, other bodies), not alone.
+    pub fn is_free(&self) -> bool {
+        let n = self.precise.body().nodes();
+        n.fixed.iter().all(|f| !f.iter().any(|&a| a)) && n.anchor_k.iter().all(|&k| k == 0.0)
+    }
+
+    /// A free body under gravity: it starts, and starts again after a reset, at its precise
+    /// level (its cage level has no gravity: it holds the shape the body last came to rest
+    /// in).
+    pub fn falls(&self) -> bool {
+        self.is_free() && self.settings.gravity.norm() > 0.0
     }
 
     /// Whether the body is at the precise level and has not been slow (by the policy's rest
@@ -738,7 +758,9 @@ impl LeveledBody {
         mesh: &TetMesh,
         max_steps: u32,
     ) -> Result<(u32, bool), PrecisionError> {
-        if self.settings.gravity.norm() == 0.0 {
+        if self.settings.gravity.norm() == 0.0 || self.is_free() {
+            // Nothing to settle against alone (a free body comes to rest on its supports in
+            // the world).
             return Ok((0, true));
         }
         let pin = self.pin.take();
@@ -784,6 +806,8 @@ impl LeveledBody {
         msd.positions_mut().copy_from_slice(&rest_cage);
         msd.velocities_mut().fill(Vec3::zeros());
         msd.rebase_rest();
+        self.cage.rebase_equilibrium(false);
+        self.equilibrium.copy_from_slice(&rest_cage);
         self.cage.update_points()?;
         self.level = Level::Cage;
         self.steps = 0;
@@ -799,6 +823,8 @@ impl LeveledBody {
             self.pin = None;
             self.raise()?;
             self.pin = Some(Level::Precise);
+        } else if self.falls() && self.pin.is_none() {
+            self.raise()?;
         }
         if let Some(shadow) = self.shadow.as_mut() {
             match shadow.as_mut() {

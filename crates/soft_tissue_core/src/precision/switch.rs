@@ -124,12 +124,21 @@ impl LeveledBody {
         }
         self.snapshot_surface();
         self.residual = residual;
+        // Loads waiting for the precise level's next step (a contact's, say) are not the
+        // cage's: the cage holds the shape they held.
+        self.precise.body_mut().external_forces_mut().fill(Vec3::zeros());
         self.lowered_rotation = self.cage_rotation(&self.fit_cage);
         let msd = self.cage.msd_mut();
         msd.positions_mut().copy_from_slice(&self.fit_cage);
         msd.velocities_mut().copy_from_slice(&self.fit_velocity);
         // The cage keeps its rest shape (the body's equilibrium, see `settle`): whatever
         // motion is left carries on at the cage level and its springs bring it back to rest.
+        // A free body under gravity rests on its supports in a shape of its own, which its
+        // cage (without gravity) keeps.
+        if self.falls() {
+            self.cage.rebase_equilibrium(true);
+            self.equilibrium.copy_from_slice(&self.fit_cage);
+        }
         self.cage.update_points()?;
         // The shadow carries on from the precise state the cage now stands for.
         self.restart_shadow()?;

@@ -4,7 +4,7 @@
 //! of bodies so the Bevy plugin calls the same code on its components:
 //!
 //! ```text
-//! prepare -> detect_contacts -> switch_precision -> step_solvers -> collide -> writeback
+//! prepare -> detect_contacts -> switch_precision -> step_solvers -> solve_contacts -> writeback
 //! ```
 //!
 //! - [`prepare`]: tool velocities from their poses, body surfaces and bounds gathered.
@@ -14,14 +14,14 @@
 //! - [`switch_precision`]: touched bodies rise to their precise method (same step, before
 //!   the contact is resolved).
 //! - [`step_solvers`]: cautery power into the heat fields, heat steps, every body's level
-//!   steps (a resting precise body may drop back to its cage there).
-//! - [`collide`]: contact response on the new positions (see [`crate::contact`]), grips
-//!   follow their tools, reaction forces on the tools.
+//!   steps: its free motion (a resting precise body may drop back to its cage there).
+//! - [`solve_contacts`]: the contact problem of all touching bodies, tools and obstacles
+//!   on the moved positions, and each body's correction (see [`crate::contact`]); grips
+//!   hold, forces on the tools.
 //! - [`writeback`]: surface positions in `f32` for rendering, diagnostics.
 //!
 //! Everything runs on one thread in index order, so a run is bit-for-bit repeatable.
 
-mod contact_stages;
 mod scene;
 mod script;
 mod soft_world;
@@ -29,10 +29,11 @@ mod soft_world;
 pub use soft_world::SoftTissueWorld;
 
 pub use crate::timing::StageTimes;
-pub use contact_stages::{ContactState, collide, detect_contacts};
+pub use crate::contact::{ContactState, ContactStats, detect_contacts, solve_contacts};
 pub use scene::{
     SceneBody, SceneOptions, body_settings, check_mesh_path, load_mesh, load_mesh_with,
-    placed_mesh, scene_bodies, scene_bodies_with,
+    obstacle_shape, placed_mesh, placement_pose, scene_bodies, scene_bodies_with,
+    scene_obstacles,
 };
 pub use script::{Script, ScriptAction, ScriptError, ScriptEvent, Waypoint};
 
@@ -43,7 +44,9 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use crate::Vec3;
-use crate::contact::{ContactConfig, ContactError, SurfaceCollider, Tool, ToolContact};
+use crate::contact::{
+    ContactConfig, ContactError, Friction, Obstacle, SurfaceCollider, Tool, ToolContact,
+};
 use crate::heat::{HeatBoundary, HeatError, HeatField, HeatParams};
 use crate::linalg::CgStats;
 use crate::mesh::TetMesh;
@@ -152,8 +155,12 @@ pub struct BodyDiagnostics {
     /// iteration cap above its tolerance (each went on with its last iterate; see
     /// [`LeveledBody::set_precise_cg_must_converge`] to make that an error).
     pub unconverged_solves: u64,
-    /// Contacts (tool triangles and vertex-triangle pairs) found this step.
+    /// Contacts of this step's contact solve with a force on this body (points against
+    /// tools, obstacles and other bodies, grips).
     pub contacts: u32,
+    /// Deepest penetration of this body's contacts after the step's contact solve (below
+    /// the thickness against bodies and obstacles, into a tool), scene units.
+    pub max_penetration: f64,
     /// Whether the body counted as touched this step.
     pub touched: bool,
     /// Switches so far.
@@ -202,22 +209,30 @@ pub const SETTLE_STEPS: u32 = 5000;
 /// One simulated body: its levels, contact surface, optional heat field and outputs.
 #[derive(Debug)]
 pub struct SimBody {
-    name: String,
+    pub(crate) name: String,
     mesh: Arc<TetMesh>,
-    body: LeveledBody,
-    collider: SurfaceCollider,
+    pub(crate) body: LeveledBody,
+    pub(crate) collider: SurfaceCollider,
     heat: Option<HeatField>,
     rest_surface: Vec<Vec3>,
     surface_out: Vec<[f32; 3]>,
     diagnostics: BodyDiagnostics,
-    // Per-step contact bookkeeping and response workspaces.
-    touched: bool,
-    contacts: u32,
-    active: bool,
-    correction: Vec<Vec3>,
-    weight: Vec<f64>,
-    /// Nodes with a correction pending (weight above zero).
-    corrected: Vec<u32>,
+    /// Surface friction.
+    pub(crate) friction: Friction,
+    // Per-step contact bookkeeping and workspaces.
+    pub(crate) touched: bool,
+    pub(crate) contacts: u32,
+    pub(crate) active: bool,
+    /// Surface positions at the start of the step (friction reads the motion since).
+    pub(crate) start: Vec<Vec3>,
+    /// Deepest penetration and contacts with a force in this step's contact solve.
+    pub(crate) penetration: f64,
+    pub(crate) solve_contacts: u32,
+    /// The contact forces of the last step on surface vertices (collider indices): loads of
+    /// this step's free motion (see [`solve_contacts`]).
+    pub(crate) contact_load: Vec<(u32, Vec3)>,
+    node_scratch: Vec<u32>,
+    force_scratch: Vec<(u32, Vec3)>,
     /// The surface was last written while the body slept (nothing to write again).
     written_asleep: bool,
     /// The last writeback wrote the surface (it changed, or may have).
@@ -225,9 +240,9 @@ pub struct SimBody {
     /// This step's solver failure, when the bodies stepped in parallel (reported in body
     /// order after all of them ran).
     step_error: Option<WorldError>,
-    /// This body's state before the contact response first changed it this step (put back
+    /// This body's state before the contact solve first changed it this step (put back
     /// when the stage fails).
-    undo: LevelSnapshot,
+    pub(crate) undo: LevelSnapshot,
 }
 
 impl SimBody {
@@ -247,8 +262,12 @@ impl SimBody {
         };
         let settings_method = settings.precise;
         let mut body = LeveledBody::new(&mesh, settings).map_err(precision)?;
-        // Under gravity the cage level starts from the equilibrium the precise method finds.
+        // Under gravity the cage level starts from the equilibrium the precise method finds
+        // (a free body finds it on its supports in the world: it starts precise).
         let (_, settled) = body.settle(&mesh, SETTLE_STEPS).map_err(precision)?;
+        if body.falls() {
+            body.raise().map_err(precision)?;
+        }
         if !settled {
             log::warn!(
                 "body `{name}` did not come to rest under its loads within {SETTLE_STEPS} steps; its cage holds the last shape"
@@ -271,7 +290,7 @@ impl SimBody {
             None => None,
         };
         let rest_surface = collider.positions().to_vec();
-        let n = mesh.node_count();
+        let start = rest_surface.clone();
         let mut b = SimBody {
             surface_out: vec![[0.0; 3]; rest_surface.len()],
             rest_surface,
@@ -283,6 +302,7 @@ impl SimBody {
                 cg: None,
                 unconverged_solves: 0,
                 contacts: 0,
+                max_penetration: 0.0,
                 touched: false,
                 switch_count: 0,
                 switched: None,
@@ -296,12 +316,16 @@ impl SimBody {
             body,
             collider,
             heat,
+            friction: Friction::default(),
             touched: false,
             contacts: 0,
             active: false,
-            correction: vec![Vec3::zeros(); n],
-            weight: vec![0.0; n],
-            corrected: Vec::with_capacity(n),
+            start,
+            penetration: 0.0,
+            solve_contacts: 0,
+            contact_load: Vec::new(),
+            node_scratch: Vec::new(),
+            force_scratch: Vec::new(),
             written_asleep: false,
             surface_written: false,
             step_error: None,
@@ -344,6 +368,23 @@ impl SimBody {
     /// Heat field, to heat or cool.
     pub fn heat_mut(&mut self) -> Option<&mut HeatField> {
         self.heat.as_mut()
+    }
+
+    /// Surface friction (default [`Friction::default`]).
+    pub fn friction(&self) -> &Friction {
+        &self.friction
+    }
+
+    /// Sets the surface friction; refused, naming the body and field, when invalid.
+    pub fn set_friction(&mut self, friction: Friction) -> Result<(), WorldError> {
+        friction
+            .validate(&self.name)
+            .map_err(|source| WorldError::Contact {
+                name: self.name.clone(),
+                source,
+            })?;
+        self.friction = friction;
+        Ok(())
     }
 
     /// Surface positions written by [`writeback`] (order of the collider's vertices, the
@@ -475,7 +516,7 @@ impl SimBody {
     }
 
     /// At the precise level and not yet slow for the policy's rest steps.
-    fn moving(&self) -> bool {
+    pub(crate) fn moving(&self) -> bool {
         self.body.is_moving()
     }
 
@@ -495,14 +536,57 @@ impl SimBody {
         self.collider.reset_motion(self.body.node_positions());
         self.touched = false;
         self.contacts = 0;
+        self.penetration = 0.0;
+        self.solve_contacts = 0;
+        self.contact_load.clear();
+        self.start.copy_from_slice(self.collider.positions());
         self.diagnostics.switched = None;
         self.diagnostics.step_us = 0.0;
         self.diagnostics.switch_us = 0.0;
         self.diagnostics.contacts = 0;
+        self.diagnostics.max_penetration = 0.0;
         self.diagnostics.touched = false;
         self.diagnostics.unconverged_solves = 0;
         self.written_asleep = false;
         self.write_surface()
+    }
+}
+
+impl SimBody {
+    /// Saves this body's level state before the contact solve first changes it this step
+    /// (see [`solve_contacts`]).
+    pub(crate) fn before_change(&mut self) {
+        if !self.undo.is_saved() {
+            self.body.save_level_state(&mut self.undo);
+        }
+    }
+
+    /// The compliance blocks between surface vertices `vertices` (collider indices) of the
+    /// step just taken (see [`LeveledBody::contact_compliance`]).
+    pub(crate) fn contact_compliance(
+        &mut self,
+        vertices: &[u32],
+        out: &mut [nalgebra::Matrix3<f64>],
+    ) -> Result<(), WorldError> {
+        self.node_scratch.clear();
+        let nodes = self.collider.nodes();
+        self.node_scratch
+            .extend(vertices.iter().map(|&v| nodes[v as usize]));
+        self.body
+            .contact_compliance(&self.node_scratch, out)
+            .map_err(|e| self.precision_err(e))
+    }
+
+    /// Corrects the step by contact forces on surface vertices (collider indices; see
+    /// [`LeveledBody::apply_contact_forces`]).
+    pub(crate) fn apply_contact_forces(&mut self, forces: &[(u32, Vec3)]) -> Result<(), WorldError> {
+        self.force_scratch.clear();
+        let nodes = self.collider.nodes();
+        self.force_scratch
+            .extend(forces.iter().map(|&(v, f)| (nodes[v as usize], f)));
+        let r = self.body.apply_contact_forces(&self.force_scratch);
+        self.written_asleep = false;
+        r.map_err(|e| self.precision_err(e))
     }
 }
 
@@ -526,6 +610,7 @@ pub fn prepare<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
         // A sleeping body has not moved since it was last gathered.
         if !(b.body.is_asleep() && b.written_asleep) {
             b.collider.gather(b.body.node_positions());
+            b.start.copy_from_slice(b.collider.positions());
         }
         b.touched = false;
         b.contacts = 0;
@@ -610,6 +695,16 @@ impl SimBody {
     /// This body's heat and level step, timed into its diagnostics.
     fn step_solver(&mut self) -> Result<(), WorldError> {
         let start = Instant::now();
+        // The last step's contact forces load this free step (its own solve answers them
+        // exactly; the contact stage then corrects only their change).
+        for k in 0..self.contact_load.len() {
+            let (v, f) = self.contact_load[k];
+            let node = self.collider.nodes()[v as usize] as usize;
+            self.body
+                .add_force(node, f)
+                .map_err(|e| self.precision_err(e))?;
+        }
+        self.contact_load.clear();
         // The heat field and the mechanics do not read each other within a step: in a pool
         // they run side by side.
         // The heat field's new temperatures are taken only when the mechanics stepped too,
@@ -666,7 +761,8 @@ impl SimBody {
     /// The writeback of this body alone (the stage does it for every body; the bodies are
     /// independent, in any order).
     pub fn writeback(&mut self) -> Result<(), WorldError> {
-        self.diagnostics.contacts = self.contacts;
+        self.diagnostics.contacts = self.solve_contacts;
+        self.diagnostics.max_penetration = self.penetration;
         self.diagnostics.touched = self.touched;
         self.write_surface()
     }

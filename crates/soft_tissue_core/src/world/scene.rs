@@ -7,13 +7,16 @@ use nalgebra::Rotation3;
 
 use super::{SimBody, SoftTissueWorld, WorldConfig, WorldError};
 use crate::Vec3;
-use crate::contact::ContactConfig;
+use crate::contact::{ContactConfig, Friction, MeshShape, Obstacle, RigidShape};
 use crate::heat::HeatBoundary;
 use crate::material::{FemParams, MsdParams};
 use crate::mesh::TetMesh;
 use crate::mesh::io::read_tet_mesh;
 use crate::precision::BodySettings;
-use crate::scenario::{BodySpec, CYLINDER_FEM, CYLINDER_MSD, MeshSource, Placement, Scene};
+use crate::scenario::{
+    BodySpec, CYLINDER_FEM, CYLINDER_MSD, MeshSource, ObstacleShape, ObstacleSpec, Placement,
+    Scene,
+};
 
 /// `mesh` rotated (XYZ Euler angles in degrees: about x, then y, then z) and translated.
 pub fn placed_mesh(mesh: &TetMesh, placement: &Placement) -> Result<TetMesh, String> {
@@ -27,7 +30,18 @@ pub fn placed_mesh(mesh: &TetMesh, placement: &Placement) -> Result<TetMesh, Str
     {
         return Err("placement is not finite".into());
     }
-    let positions = mesh.positions().iter().map(|p| r * p + t).collect();
+    if !(placement.scale.is_finite() && placement.scale > 0.0) {
+        return Err(format!(
+            "placement scale {} must be positive and finite",
+            placement.scale
+        ));
+    }
+    let scale = placement.scale;
+    let positions = mesh
+        .positions()
+        .iter()
+        .map(|p| r * (p * scale) + t)
+        .collect();
     let tets = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
     TetMesh::new(positions, tets).map_err(|e| e.to_string())
 }
@@ -152,6 +166,8 @@ pub struct SceneBody {
     pub settings: BodySettings,
     /// Heat parameters and boundary (`None`: no temperature field).
     pub heat: Option<(crate::heat::HeatParams, HeatBoundary)>,
+    /// Surface friction.
+    pub friction: Friction,
 }
 
 /// Reads or generates every body of the scene (mesh files relative to `assets`) and the world
@@ -180,6 +196,7 @@ pub fn scene_bodies_with(
         built.push(SceneBody {
             name: spec.name.clone(),
             heat: spec.heat.map(|p| (p, HeatBoundary::insulated())),
+            friction: spec.friction.unwrap_or_default(),
             mesh,
             settings,
         });
@@ -212,11 +229,96 @@ impl SoftTissueWorld {
         options: SceneOptions,
     ) -> Result<Self, WorldError> {
         let (config, bodies) = scene_bodies_with(scene, assets, options)?;
+        let obstacles = scene_obstacles(scene, assets, options)?;
         let mut world = SoftTissueWorld::new(config)?;
         for b in bodies {
-            let body = SimBody::new(b.name, Arc::new(b.mesh), b.settings, b.heat)?;
+            let mut body = SimBody::new(b.name, Arc::new(b.mesh), b.settings, b.heat)?;
+            body.set_friction(b.friction)?;
             world.add_body(body)?;
+        }
+        for o in obstacles {
+            world.add_obstacle(o)?;
         }
         Ok(world)
     }
+}
+
+/// The pose of a placement (XYZ Euler angles in degrees, then the translation).
+pub fn placement_pose(placement: &Placement) -> crate::contact::Pose {
+    let [rx, ry, rz] = placement.rotation_deg.map(f64::to_radians);
+    crate::contact::Pose::from_parts(
+        nalgebra::Translation3::from(Vec3::from(placement.translation)),
+        nalgebra::UnitQuaternion::from_euler_angles(rx, ry, rz),
+    )
+}
+
+/// The rigid shape of an obstacle spec (a mesh read relative to `assets`, inside it unless
+/// `options` allow otherwise).
+pub fn obstacle_shape(
+    spec: &ObstacleSpec,
+    assets: &Path,
+    options: SceneOptions,
+) -> Result<RigidShape, WorldError> {
+    let err = |message: String| WorldError::Mesh {
+        body: spec.name.clone(),
+        message,
+    };
+    Ok(match &spec.shape {
+        ObstacleShape::Plane => RigidShape::Plane,
+        ObstacleShape::Box { half_extents } => RigidShape::Box {
+            half_extents: Vec3::from(*half_extents),
+        },
+        ObstacleShape::Sphere { radius } => RigidShape::Sphere { radius: *radius },
+        ObstacleShape::Capsule { radius, length } => RigidShape::Capsule {
+            radius: *radius,
+            length: *length,
+        },
+        ObstacleShape::Mesh(file) => {
+            let leaves = Path::new(file).components().any(|c| {
+                matches!(
+                    c,
+                    std::path::Component::ParentDir
+                        | std::path::Component::RootDir
+                        | std::path::Component::Prefix(_)
+                )
+            });
+            if leaves && !options.allow_outside_assets {
+                return Err(err(format!(
+                    "mesh path `{file}` leaves the assets folder (absolute, or `..`)"
+                )));
+            }
+            let path = assets.join(file);
+            let surface = crate::mesh::io::read_surface(&path)
+                .map_err(|e| err(format!("{}: {e}", path.display())))?;
+            let shape = MeshShape::new(surface.positions, surface.triangles).map_err(|e| {
+                err(format!("{}: {e}", path.display()))
+            })?;
+            RigidShape::Mesh(Arc::new(shape))
+        }
+    })
+}
+
+/// Every obstacle of the scene, built (shapes read, placed, friction checked).
+pub fn scene_obstacles(
+    scene: &Scene,
+    assets: &Path,
+    options: SceneOptions,
+) -> Result<Vec<Obstacle>, WorldError> {
+    scene
+        .obstacles
+        .iter()
+        .map(|o| {
+            let shape = obstacle_shape(o, assets, options)?;
+            Obstacle::new(
+                o.name.clone(),
+                shape,
+                placement_pose(&o.placement),
+                o.friction.unwrap_or_default(),
+            )
+            .map_err(|source| WorldError::Contact {
+                name: o.name.clone(),
+                source,
+            })
+        })
+        .collect()
 }

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use super::SoftTissueWorld;
 use crate::Vec3;
-use crate::contact::ToolShape;
+use crate::contact::{ContactError, JawShape, Tool, ToolShape};
 
 /// A tool pose at a time.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -18,6 +18,10 @@ pub struct Waypoint {
     pub position: [f64; 3],
     /// Shaft axis (from the tip backward).
     pub axis: [f64; 3],
+    /// Turn about the shaft axis, degrees (a grasper's jaws close along the tool frame's x:
+    /// with no turn, the x the shortest turn from +y to the axis leaves).
+    #[serde(default)]
+    pub roll_deg: f64,
 }
 
 /// Something the tool does.
@@ -29,6 +33,22 @@ pub enum ScriptAction {
     Release,
     /// Set the electrocautery power, W (0 turns it off).
     Cautery(f64),
+    /// Move a grasper's jaws toward this opening, scene units (0 closes them; beyond the
+    /// widest opens them fully).
+    Jaws(f64),
+}
+
+impl ScriptAction {
+    /// Does it to `tool`.
+    pub fn apply(&self, tool: &mut Tool) -> Result<(), ContactError> {
+        match *self {
+            ScriptAction::Grab => tool.grab(),
+            ScriptAction::Release => tool.release(),
+            ScriptAction::Cautery(w) => tool.set_cautery(w)?,
+            ScriptAction::Jaws(w) => tool.set_opening(w)?,
+        }
+        Ok(())
+    }
 }
 
 /// An action at a time.
@@ -74,7 +94,7 @@ pub enum ScriptError {
     },
     /// No built-in script by that name.
     #[error(
-        "no built-in script `{0}` (poke-a, push-a-into-b, poke-liver, cauterize-liver, poke, poke:BODY)"
+        "no built-in script `{0}` (poke-a, push-a-into-b, poke-liver, cauterize-liver, poke, poke:BODY, grasp-spleen, grasp:BODY)"
     )]
     Unknown(String),
     /// The scene lacks a body the built-in script needs.
@@ -126,6 +146,9 @@ impl Script {
             if w.t < last {
                 return Err(bad(format!("waypoint {i} (t = {}) goes back in time", w.t)));
             }
+            if !w.roll_deg.is_finite() {
+                return Err(bad(format!("waypoint {i}: roll_deg is not finite")));
+            }
             last = w.t;
         }
         let mut last = f64::NEG_INFINITY;
@@ -137,6 +160,14 @@ impl Script {
                 && !(w.is_finite() && w >= 0.0)
             {
                 return Err(bad(format!("event {i}: cautery power {w} must be >= 0")));
+            }
+            if let ScriptAction::Jaws(w) = e.action {
+                if !matches!(self.tool, ToolShape::Grasper { .. }) {
+                    return Err(bad(format!("event {i}: `Jaws` needs a grasper tool")));
+                }
+                if !(w.is_finite() && w >= 0.0) {
+                    return Err(bad(format!("event {i}: jaw opening {w} must be >= 0")));
+                }
             }
             last = e.t;
         }
@@ -168,6 +199,34 @@ impl Script {
         pose(&w[w.len() - 1])
     }
 
+    /// Tool tip position and frame orientation at time `t`: the shortest turn from +y to the
+    /// axis of [`Script::pose_at`], then the roll (linear between waypoints) about it.
+    pub fn pose_rotation_at(&self, t: f64) -> (Vec3, nalgebra::UnitQuaternion<f64>) {
+        let (p, axis) = self.pose_at(t);
+        let w = &self.waypoints;
+        let roll = if t <= w[0].t {
+            w[0].roll_deg
+        } else {
+            w.windows(2)
+                .find(|p| t <= p[1].t)
+                .map(|p| {
+                    let s = if p[1].t > p[0].t {
+                        (t - p[0].t) / (p[1].t - p[0].t)
+                    } else {
+                        1.0
+                    };
+                    p[0].roll_deg * (1.0 - s) + p[1].roll_deg * s
+                })
+                .unwrap_or(w[w.len() - 1].roll_deg)
+        };
+        let base = crate::contact::pose_along(Vec3::zeros(), axis.normalize()).rotation;
+        let turn = nalgebra::UnitQuaternion::from_axis_angle(
+            &nalgebra::Unit::new_normalize(axis),
+            roll.to_radians(),
+        );
+        (p, turn * base)
+    }
+
     /// Events with `t0 < t <= t1`.
     pub fn events_in(&self, t0: f64, t1: f64) -> impl Iterator<Item = &ScriptEvent> {
         self.events.iter().filter(move |e| e.t > t0 && e.t <= t1)
@@ -191,6 +250,11 @@ impl Script {
     /// - `poke` (any scene) and `poke:BODY`: a ball a tenth of the body's smallest dimension
     ///   across presses down on the top of the first body (or the one named) near the middle
     ///   of its footprint, 30 % of that dimension deep, holds, withdraws at 3 s.
+    /// - `grasp-spleen` and `grasp:BODY` (any scene): an open grasper (box jaws) comes down
+    ///   over the body (the spleen, or the one named) with its jaws across its narrower
+    ///   horizontal extent, closes to 70 % of it from 1 s to 1.5 s, lifts by a third of the
+    ///   body's height (`grasp-spleen`: 0.05 scene units, 5 cm in a scene in metres) from 2 s
+    ///   to 3 s, holds until 4.5 s, and opens.
     pub fn builtin(name: &str, world: &SoftTissueWorld) -> Result<Script, ScriptError> {
         match name {
             "poke-a" => {
@@ -326,6 +390,10 @@ impl Script {
                 ];
                 Ok(s)
             }
+            "grasp-spleen" => grasp_script(world, name, "Spleen", Some(0.05)),
+            grasp if grasp.starts_with("grasp:") => {
+                grasp_script(world, name, &grasp["grasp:".len()..], None)
+            }
             poke if poke == "poke" || poke.starts_with("poke:") => {
                 // Any scene: press down (-y) on the top of a body (the first, or the one
                 // named after `poke:`) near the middle of its footprint, 30 % of its smallest
@@ -416,6 +484,7 @@ fn push_script(
         t,
         position: p.into(),
         axis: axis.into(),
+        roll_deg: 0.0,
     };
     Script {
         name: name.into(),
@@ -429,4 +498,60 @@ fn push_script(
         ],
         events: Vec::new(),
     }
+}
+
+/// The grasp of [`Script::builtin`]'s `grasp:BODY` (`lift`: how high, default a third of the
+/// body's height).
+fn grasp_script(
+    world: &SoftTissueWorld,
+    script: &str,
+    body: &str,
+    lift: Option<f64>,
+) -> Result<Script, ScriptError> {
+    let b = body_box(world, script, body)?;
+    // Jaws across the narrower horizontal extent: x (no roll) or z (a quarter turn).
+    let (across, roll) = if b.extent.x <= b.extent.z {
+        (b.extent.x, 0.0)
+    } else {
+        (b.extent.z, 90.0)
+    };
+    let along = b.extent.x.max(b.extent.z);
+    let lift = lift.unwrap_or(b.extent.y / 3.0);
+    let tip = Vec3::new(b.center.x, b.lo.y + 0.2 * b.extent.y, b.center.z);
+    let above = tip + Vec3::y() * 1.2 * b.extent.y;
+    let lifted = tip + Vec3::y() * lift;
+    let w = |t: f64, p: Vec3| Waypoint {
+        t,
+        position: p.into(),
+        axis: [0.0, 1.0, 0.0],
+        roll_deg: roll,
+    };
+    Ok(Script {
+        name: script.into(),
+        tool: ToolShape::Grasper {
+            jaw: JawShape::Box {
+                thickness: 0.1 * across,
+                width: 0.4 * along,
+                length: 0.7 * b.extent.y,
+            },
+            max_opening: 1.3 * across,
+        },
+        waypoints: vec![
+            w(0.0, above),
+            w(1.0, tip),
+            w(2.0, tip),
+            w(3.0, lifted),
+            w(4.5, lifted),
+        ],
+        events: vec![
+            ScriptEvent {
+                t: 1.0,
+                action: ScriptAction::Jaws(0.7 * across),
+            },
+            ScriptEvent {
+                t: 4.5,
+                action: ScriptAction::Jaws(1.3 * across),
+            },
+        ],
+    })
 }

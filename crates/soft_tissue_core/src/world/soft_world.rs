@@ -8,6 +8,7 @@ pub struct SoftTissueWorld {
     config: WorldConfig,
     bodies: Vec<SimBody>,
     tools: Vec<Tool>,
+    obstacles: Vec<Obstacle>,
     contacts: ContactState,
     steps: u64,
     accumulator: f64,
@@ -37,6 +38,7 @@ impl SoftTissueWorld {
             config,
             bodies: Vec::new(),
             tools: Vec::new(),
+            obstacles: Vec::new(),
             contacts: ContactState::default(),
             steps: 0,
             accumulator: 0.0,
@@ -71,6 +73,25 @@ impl SoftTissueWorld {
     pub fn add_tool(&mut self, tool: Tool) -> usize {
         self.tools.push(tool);
         self.tools.len() - 1
+    }
+
+    /// Adds a static obstacle; its name must be new among the obstacles.
+    pub fn add_obstacle(&mut self, obstacle: Obstacle) -> Result<usize, WorldError> {
+        if self.obstacles.iter().any(|o| o.name() == obstacle.name()) {
+            return Err(WorldError::DuplicateName(obstacle.name().to_string()));
+        }
+        self.obstacles.push(obstacle);
+        Ok(self.obstacles.len() - 1)
+    }
+
+    /// Static obstacles.
+    pub fn obstacles(&self) -> &[Obstacle] {
+        &self.obstacles
+    }
+
+    /// Static obstacles, to move or change between steps.
+    pub fn obstacles_mut(&mut self) -> &mut [Obstacle] {
+        &mut self.obstacles
     }
 
     /// Bodies.
@@ -122,7 +143,8 @@ impl SoftTissueWorld {
         &mut self.tools
     }
 
-    /// Contacts of the last step (start-of-step detection).
+    /// Contacts of the last step: the start-of-step detection, and the rows of the contact
+    /// solve with their forces.
     pub fn contacts(&self) -> &ContactState {
         &self.contacts
     }
@@ -222,14 +244,18 @@ impl SoftTissueWorld {
         self.times.switch_us = lap(&mut t);
         step_solvers(&mut self.bodies, &self.tools, &self.contacts)?;
         self.times.solve_us = lap(&mut t);
-        collide(
+        let solved = solve_contacts(
             &mut self.bodies,
             &mut self.tools,
+            &self.obstacles,
             &c,
             &mut self.contacts,
-            dt,
-        )?;
-        self.times.collide_us = lap(&mut t);
+        );
+        let whole = lap(&mut t);
+        let s = self.contacts.stats();
+        self.times.correct_us = s.correct_us.min(whole);
+        self.times.contact_us = whole - self.times.correct_us;
+        solved?;
         writeback(&mut self.bodies)?;
         self.times.writeback_us = lap(&mut t);
         self.steps += 1;

@@ -1,0 +1,864 @@
+//! The contact stages of a step: [`detect_contacts`] on the positions at the start of the
+//! step (who is touched, so it rises before the contact is resolved; grabs; cautery), and
+//! [`solve_contacts`] after every body's free motion: detection on the moved positions, the
+//! contact problem ([`super::problem`]) over all touching bodies, tools and obstacles, each
+//! body's correction, in rounds until nothing penetrates beyond the tolerance.
+//!
+//! The forces of a step load the next step's free motion: each body's own solve answers them
+//! exactly, and the contact problem then solves for the whole force with the loads already
+//! applied, so the correction covers only their change. A body at rest in contact is then
+//! in the equilibrium its own solver finds (its forces balance as exactly as its solve), and
+//! the approximation of a compliance (the corotational model's warped rest compliance)
+//! costs only while the contact changes. A row of the last step that is not found again
+//! (the surfaces parted) stays in the problem with its gap measured along its old normal, so
+//! its force is taken back.
+//!
+//! Body pairs whose grown bounds overlap are looked at on the candidate vertices of
+//! [`PairCandidates`] (kept from step to step while the bodies move less than the slack), so
+//! a step pays for the contact zone, not for the surfaces. No stage allocates once its
+//! workspaces have grown to the scene's needs; a new overlapping pair of bodies or the first
+//! contact of a body (events, like a switch) may.
+
+use std::borrow::BorrowMut;
+use std::time::Instant;
+
+use nalgebra::Matrix3;
+use rayon::prelude::*;
+
+use super::detect::{ShapeContact, detect_shape};
+use super::problem::{
+    BodyPoint, ContactRow, ContactSolver, Counterpart, KEY_BODY, KEY_GRIP, KEY_OBSTACLE,
+    KEY_TOOL, RowKey, SolverSettings,
+};
+use super::rigid::Friction;
+use super::{
+    BodyContact, ContactConfig, Obstacle, PairCandidates, SurfaceCollider, Tool, ToolContact,
+    broad_phase, detect_candidates, detect_tool, grab_vertices, pair_reach, tool_distance,
+};
+use crate::Vec3;
+use crate::precision::Level;
+use crate::world::{SimBody, WorldError};
+
+/// What the last contact solve did (whole scene).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ContactStats {
+    /// Rows of the last round solved (contacts within the margins, grips).
+    pub rows: u32,
+    /// Rows with a force.
+    pub active: u32,
+    /// Rounds solved.
+    pub rounds: u32,
+    /// Gauss-Seidel sweeps over all rounds.
+    pub sweeps: u32,
+    /// Rows sliding at the end.
+    pub sliding: u32,
+    /// Largest penetration after the last round (below the thickness between bodies and
+    /// against obstacles, into a tool), scene units.
+    pub max_penetration: f64,
+    /// Detection on the moved positions, microseconds.
+    pub detect_us: f64,
+    /// Assembly of the contact problem and its solve, microseconds.
+    pub solve_us: f64,
+    /// The bodies' corrections (their own solves), microseconds.
+    pub correct_us: f64,
+}
+
+/// Contacts and pairs of the current step (kept between stages, reused between steps).
+#[derive(Debug, Default)]
+pub struct ContactState {
+    /// Body pairs whose grown bounds overlap (at the start of the step).
+    pub pairs: Vec<(u32, u32)>,
+    /// Tool contacts at the start of the step.
+    pub tool_contacts: Vec<ToolContact>,
+    /// Body contacts at the start of the step.
+    pub body_contacts: Vec<BodyContact>,
+    /// Candidate vertices of every pair that ever overlapped, sorted by pair, with the
+    /// pair's contacts found by the last query (see [`query_pairs`]).
+    candidates: Vec<((u32, u32), PairCandidates, Vec<BodyContact>)>,
+    /// The pairs queried this stage, sorted.
+    queried: Vec<(u32, u32)>,
+    /// Pairs of the solve (bounds after the free motion).
+    solve_pairs: Vec<(u32, u32)>,
+    bounds: Vec<(Vec3, Vec3)>,
+    order: Vec<u32>,
+    triangles: Vec<u32>,
+    shapes: Vec<ShapeContact>,
+    /// Rows of the round being built, and of the last round solved.
+    rows: Vec<ContactRow>,
+    solved: Vec<ContactRow>,
+    /// The last step's rows with their forces, sorted by key: those forces loaded this
+    /// step's free motion (see [`solve_contacts`]).
+    previous: Vec<ContactRow>,
+    /// The bodies' surface identities the previous rows were made for.
+    previous_ids: Vec<u64>,
+    solver: ContactSolver,
+    stats: ContactStats,
+}
+
+/// Makes sure pair `key` has its entry in `list` (created empty, so stale, the first time).
+fn ensure_entry(list: &mut Vec<((u32, u32), PairCandidates, Vec<BodyContact>)>, key: (u32, u32)) {
+    if let Err(k) = list.binary_search_by_key(&key, |c| c.0) {
+        list.insert(k, (key, PairCandidates::default(), Vec::new()));
+    }
+}
+
+/// The contacts found for pair `key` by the last [`query_pairs`].
+fn found_of(
+    candidates: &[((u32, u32), PairCandidates, Vec<BodyContact>)],
+    key: (u32, u32),
+) -> &[BodyContact] {
+    candidates
+        .binary_search_by_key(&key, |c| c.0)
+        .map_or(&[], |k| &candidates[k].2)
+}
+
+/// Contacts of every body pair in `state.queried` (their candidates refreshed first), both
+/// ways, each pair's into its own list; in a pool the pairs side by side. A pair's query
+/// only reads the two surfaces, so the lists do not depend on the thread count; the callers
+/// use them in pair order.
+fn query_pairs<B: BorrowMut<SimBody> + Sync>(
+    bodies: &[B],
+    state: &mut ContactState,
+    config: &ContactConfig,
+    margin: f64,
+) {
+    let (reach, slack) = reach_and_slack(config);
+    state.queried.sort_unstable();
+    for &key in &state.queried {
+        ensure_entry(&mut state.candidates, key);
+    }
+    let queried = &state.queried;
+    let query = |entry: &mut ((u32, u32), PairCandidates, Vec<BodyContact>)| {
+        let ((i, j), candidates, out) = entry;
+        out.clear();
+        if queried.binary_search(&(*i, *j)).is_err() {
+            return;
+        }
+        let a = &bodies[*i as usize].borrow().collider;
+        let b = &bodies[*j as usize].borrow().collider;
+        candidates.update(a, b, reach, slack);
+        both_ways(candidates, (*i, a), (*j, b), config, margin, out);
+    };
+    if crate::parallel::in_pool() && queried.len() > 1 {
+        state
+            .candidates
+            .par_iter_mut()
+            .with_max_len(1)
+            .for_each(query);
+    } else {
+        state.candidates.iter_mut().for_each(query);
+    }
+}
+
+impl ContactState {
+    /// Forgets the contacts and pairs of the last step and every pair's candidates, keeping
+    /// the room of every list.
+    pub fn clear(&mut self) {
+        self.pairs.clear();
+        self.tool_contacts.clear();
+        self.body_contacts.clear();
+        for (_, c, found) in &mut self.candidates {
+            c.invalidate();
+            found.clear();
+        }
+        self.rows.clear();
+        self.solved.clear();
+        self.previous.clear();
+        self.previous_ids.clear();
+        self.stats = ContactStats::default();
+    }
+
+    /// The candidate lists of pair `(i, j)`, if the pair was ever looked at.
+    pub fn candidates(&self, i: u32, j: u32) -> Option<&PairCandidates> {
+        self.candidates
+            .binary_search_by_key(&(i, j), |c| c.0)
+            .ok()
+            .map(|k| &self.candidates[k].1)
+    }
+
+    /// The rows of the last contact solve with their forces (the haptic loop and the
+    /// diagnostics read them).
+    pub fn rows(&self) -> &[ContactRow] {
+        &self.solved
+    }
+
+    /// What the last contact solve did.
+    pub fn stats(&self) -> ContactStats {
+        self.stats
+    }
+
+    /// The assembled contact problem of the last round solved (its Delassus blocks), for a
+    /// caller that solves it again (the haptic loop with a newer tool pose).
+    pub fn solver(&self) -> &ContactSolver {
+        &self.solver
+    }
+}
+
+/// The reach of detection and how far a pair may move before its candidates are rebuilt.
+fn reach_and_slack(config: &ContactConfig) -> (f64, f64) {
+    let reach = pair_reach(config, config.body_margin);
+    (reach, reach)
+}
+
+/// Detect contacts on the positions at the start of the step (margins included) and resolve
+/// pending grabs; marks touched bodies.
+pub fn detect_contacts<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
+    bodies: &mut [B],
+    tools: &mut [T],
+    config: &ContactConfig,
+    state: &mut ContactState,
+) {
+    state.bounds.clear();
+    state
+        .bounds
+        .extend(bodies.iter().map(|b| b.borrow().collider.bounds()));
+    let grow = 0.5
+        * config
+            .search_radius
+            .max(config.thickness + config.body_margin);
+    broad_phase(&state.bounds, grow, &mut state.order, &mut state.pairs);
+    state.tool_contacts.clear();
+    state.body_contacts.clear();
+    // Tools.
+    for (it, tool) in tools.iter_mut().enumerate() {
+        let tool = tool.borrow_mut();
+        let (lo, hi) = tool.bounds(config.tool_margin);
+        for (ib, b) in bodies.iter_mut().enumerate() {
+            let b = b.borrow_mut();
+            let (blo, bhi) = b.collider.bounds();
+            if (0..3).any(|k| lo[k] > bhi[k] || blo[k] > hi[k]) {
+                continue;
+            }
+            b.active = true;
+            let before = state.tool_contacts.len();
+            detect_tool(
+                it as u32,
+                tool,
+                ib as u32,
+                &b.collider,
+                config.tool_margin,
+                &mut state.triangles,
+                &mut state.shapes,
+                &mut state.tool_contacts,
+            );
+            let found = (state.tool_contacts.len() - before) as u32;
+            if found > 0 {
+                b.touched = true;
+                b.contacts += found;
+            }
+        }
+        if tool.grab_requested() {
+            // The nearest body under the tip.
+            let mut best: Option<(f64, usize)> = None;
+            for (ib, b) in bodies.iter().enumerate() {
+                let b = b.borrow();
+                for p in b.collider.positions() {
+                    let d = tool_distance(tool, p).0;
+                    if d <= config.tool_margin && best.is_none_or(|(bd, _)| d < bd) {
+                        best = Some((d, ib));
+                    }
+                }
+            }
+            let grips = match best {
+                Some((_, ib)) => grab_vertices(
+                    tool,
+                    ib as u32,
+                    &bodies[ib].borrow().collider,
+                    config.tool_margin,
+                ),
+                None => Vec::new(),
+            };
+            tool.take_grips(grips);
+        }
+        for g in tool.grips() {
+            let b = bodies[g.body as usize].borrow_mut();
+            b.touched = true;
+            b.active = true;
+        }
+    }
+    // Body pairs: the pairs with a side above the cage level are queried (side by side in
+    // a pool), then their contacts are taken in pair order.
+    state.queried.clear();
+    for &(i, j) in &state.pairs {
+        let (bi, bj) = (bodies[i as usize].borrow(), bodies[j as usize].borrow());
+        // Resting cages do not touch each other: nothing to find, so a resting scene pays
+        // nothing here.
+        if !(bi.body.level() == Level::Cage && bj.body.level() == Level::Cage) {
+            state.queried.push((i, j));
+        }
+    }
+    query_pairs(bodies, state, config, config.body_margin);
+    for p in 0..state.pairs.len() {
+        let (i, j) = state.pairs[p];
+        let (bi, bj) = pair_mut(bodies, i as usize, j as usize);
+        if bi.body.level() == Level::Cage && bj.body.level() == Level::Cage {
+            continue;
+        }
+        bi.active = true;
+        bj.active = true;
+        let found = found_of(&state.candidates, (i, j));
+        state.body_contacts.extend_from_slice(found);
+        if !found.is_empty() {
+            // Bodies resting against each other (organs do, in the paper's scene) do not
+            // count as touching: a pair counts while one side is precise and still moving.
+            if bi.moving() || bj.moving() {
+                bi.touched = true;
+                bj.touched = true;
+            }
+            bi.contacts += found.len() as u32;
+            bj.contacts += found.len() as u32;
+        }
+    }
+}
+
+/// The candidates of a pair against each other's surface, both ways.
+fn both_ways(
+    candidates: &PairCandidates,
+    (i, a): (u32, &SurfaceCollider),
+    (j, b): (u32, &SurfaceCollider),
+    config: &ContactConfig,
+    margin: f64,
+    out: &mut Vec<BodyContact>,
+) {
+    detect_candidates(i, a, candidates.near(0), j, b, config, margin, out);
+    detect_candidates(j, b, candidates.near(1), i, a, config, margin, out);
+}
+
+pub(crate) fn pair_mut<B: BorrowMut<SimBody>>(
+    bodies: &mut [B],
+    i: usize,
+    j: usize,
+) -> (&mut SimBody, &mut SimBody) {
+    debug_assert!(i < j);
+    let (lo, hi) = bodies.split_at_mut(j);
+    (lo[i].borrow_mut(), hi[0].borrow_mut())
+}
+
+/// Whether a body takes part in the contact solve: at its precise level, or a cage that is
+/// awake (a sleeping cage joins only through a contact with a precise body or a tool).
+fn takes_part(b: &SimBody) -> bool {
+    b.body.level() == Level::Precise || !b.body.is_asleep()
+}
+
+/// The contact solve after the free motion, the bodies' corrections, the forces on the tools
+/// (see the module docs).
+///
+/// All or nothing: the stage refuses bodies whose surface is not finite, and when it fails
+/// (a compliance or correction that fails, a state it leaves that is not finite) every body
+/// it changed is put back as it was before the stage, and the error names the body and node.
+/// Tools' forces of the failed stage are not kept either (they are cleared).
+pub fn solve_contacts<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
+    bodies: &mut [B],
+    tools: &mut [T],
+    obstacles: &[Obstacle],
+    config: &ContactConfig,
+    state: &mut ContactState,
+) -> Result<(), WorldError> {
+    let mut result = solve_all(bodies, tools, obstacles, config, state);
+    // What the stage changed must be finite.
+    for b in bodies.iter_mut() {
+        let b = b.borrow();
+        if result.is_ok()
+            && b.undo.is_saved()
+            && let Some((what, node)) = b.body.first_non_finite_level_state()
+        {
+            result = Err(WorldError::NonFinite {
+                body: b.name.clone(),
+                node,
+                stage: if what == "position" {
+                    "contact solve"
+                } else {
+                    "contact solve (velocity or force)"
+                },
+            });
+        }
+    }
+    for b in bodies.iter_mut() {
+        let b = b.borrow_mut();
+        if result.is_err() && b.undo.is_saved() && b.body.restore_level_state(&b.undo) {
+            b.collider.gather(b.body.node_positions());
+        }
+        b.undo.clear();
+    }
+    for t in tools.iter_mut() {
+        let t = t.borrow_mut();
+        if result.is_err() {
+            t.clear_reaction();
+        }
+        t.keep_last_pose();
+    }
+    result
+}
+
+fn lap(t: &mut Instant) -> f64 {
+    let e = t.elapsed().as_secs_f64() * 1e6;
+    *t = Instant::now();
+    e
+}
+
+fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
+    bodies: &mut [B],
+    tools: &mut [T],
+    obstacles: &[Obstacle],
+    config: &ContactConfig,
+    state: &mut ContactState,
+) -> Result<(), WorldError> {
+    let mut stats = ContactStats::default();
+    let mut t = Instant::now();
+    for b in bodies.iter_mut() {
+        let b = b.borrow_mut();
+        b.penetration = 0.0;
+        b.solve_contacts = 0;
+        if takes_part(b) || b.active {
+            b.collider.gather(b.body.node_positions());
+            if let Some(v) = b
+                .collider
+                .positions()
+                .iter()
+                .position(|p| !p.iter().all(|c| c.is_finite()))
+            {
+                return Err(WorldError::NonFinite {
+                    body: b.name.clone(),
+                    node: b.collider.nodes()[v] as usize,
+                    stage: "contact solve (its input)",
+                });
+            }
+        }
+    }
+    // Pairs on the moved bounds.
+    state.bounds.clear();
+    state
+        .bounds
+        .extend(bodies.iter().map(|b| b.borrow().collider.bounds()));
+    let grow = 0.5
+        * config
+            .search_radius
+            .max(config.thickness + config.body_margin);
+    broad_phase(&state.bounds, grow, &mut state.order, &mut state.solve_pairs);
+    state.solved.clear();
+    let settings = SolverSettings {
+        max_sweeps: config.max_sweeps,
+        ..SolverSettings::default()
+    };
+    let mut failure: Option<WorldError> = None;
+    // The last step's rows belong to these bodies only while every body is the one it was.
+    let same_bodies = state.previous_ids.len() == bodies.len()
+        && bodies
+            .iter()
+            .zip(&state.previous_ids)
+            .all(|(b, id)| b.borrow().collider.id() == *id);
+    if !same_bodies {
+        state.previous.clear();
+    }
+    for round in 0..=config.max_rounds {
+        build_rows(bodies, tools, obstacles, config, state);
+        // Forces carried: from the last round, or in the first from the last step (they
+        // loaded the free motion: applied either way).
+        let from = if round > 0 {
+            &state.solved
+        } else {
+            &state.previous
+        };
+        for row in state.rows.iter_mut() {
+            if let Ok(k) = from.binary_search_by_key(&row.key, |r| r.key) {
+                let old = &from[k];
+                let to_new = row.frame.transpose() * old.frame;
+                row.force = to_new * old.force;
+                row.applied = to_new * old.applied;
+                if round == 0 {
+                    row.applied = row.force;
+                }
+                row.sliding = old.sliding;
+            }
+        }
+        if round == 0 {
+            // A row of the last step with a force is looked for again however far its sides
+            // parted (its force loaded the free motion: the solve must take it back, or keep
+            // what the surface springing back into the other side still needs).
+            for k in 0..state.previous.len() {
+                let old = state.previous[k];
+                if old.force == Vec3::zeros()
+                    || state
+                        .rows
+                        .binary_search_by_key(&old.key, |r| r.key)
+                        .is_ok()
+                {
+                    continue;
+                }
+                let mut row = find_again(bodies, tools, obstacles, config, &old);
+                let to_new = row.frame.transpose() * old.frame;
+                row.force = to_new * old.force;
+                row.applied = row.force;
+                if let Err(at) = state.rows.binary_search_by_key(&row.key, |r| r.key) {
+                    state.rows.insert(at, row);
+                }
+            }
+        }
+        let penetration = state
+            .rows
+            .iter()
+            .map(|r| {
+                if r.is_contact() {
+                    (-r.gap).max(0.0)
+                } else {
+                    Vec3::new(r.gap, r.slip[0], r.slip[1]).norm()
+                }
+            })
+            .fold(0.0, f64::max);
+        stats.max_penetration = penetration;
+        stats.detect_us += lap(&mut t);
+        let settled = round > 0 && penetration <= config.tolerance;
+        if state.rows.is_empty() || round == config.max_rounds || settled {
+            // The final measurement: per body, its deepest contact.
+            for r in &state.rows {
+                if r.is_contact() && r.gap < 0.0 {
+                    for body in [Some(r.a.body), other_body(r)].into_iter().flatten() {
+                        let b = bodies[body as usize].borrow_mut();
+                        b.penetration = b.penetration.max(-r.gap);
+                    }
+                }
+            }
+            break;
+        }
+        // The problem, its solve, the corrections.
+        {
+            let mut compliance = |body: u32, vertices: &[u32], out: &mut [Matrix3<f64>]| {
+                let b = bodies[body as usize].borrow_mut();
+                if let Err(e) = b.contact_compliance(vertices, out)
+                    && failure.is_none()
+                {
+                    failure = Some(e);
+                }
+            };
+            state.solver.assemble(&state.rows, &mut compliance);
+        }
+        if let Some(e) = failure.take() {
+            return Err(e);
+        }
+        let s = state.solver.solve(&mut state.rows, &settings);
+        stats.sweeps += s.sweeps;
+        stats.rounds += 1;
+        stats.solve_us += lap(&mut t);
+        {
+            let mut apply = |body: u32, forces: &[(u32, Vec3)]| {
+                let b = bodies[body as usize].borrow_mut();
+                b.before_change();
+                if let Err(e) = b.apply_contact_forces(forces)
+                    && failure.is_none()
+                {
+                    failure = Some(e);
+                }
+                b.collider.gather(b.body.node_positions());
+            };
+            state.solver.apply(&mut state.rows, &mut apply);
+        }
+        if let Some(e) = failure.take() {
+            return Err(e);
+        }
+        stats.correct_us += lap(&mut t);
+        std::mem::swap(&mut state.rows, &mut state.solved);
+        state.solved.sort_unstable_by_key(|r| r.key);
+    }
+    // Forces on the tools and the bodies' counts, from the last round solved.
+    for r in &state.solved {
+        let active = r.force != Vec3::zeros();
+        if active {
+            stats.active += 1;
+        }
+        if r.sliding {
+            stats.sliding += 1;
+        }
+        if let Counterpart::Tool { tool, part } = r.other {
+            let t = tools[tool as usize].borrow_mut();
+            let normal = if r.is_contact() { r.force.x } else { 0.0 };
+            t.add_reaction(-r.world_force(), part as usize, normal);
+            if active {
+                t.add_contacts(1);
+            }
+        }
+        if active {
+            for body in [Some(r.a.body), other_body(r)].into_iter().flatten() {
+                bodies[body as usize].borrow_mut().solve_contacts += 1;
+            }
+        }
+    }
+    stats.rows = state.solved.len() as u32;
+    // The forces found load the next step's free motion.
+    for b in bodies.iter_mut() {
+        b.borrow_mut().contact_load.clear();
+    }
+    for r in &state.solved {
+        if r.force == Vec3::zeros() {
+            continue;
+        }
+        let f = r.world_force();
+        let b = bodies[r.a.body as usize].borrow_mut();
+        b.contact_load.extend(r.a.terms().map(|(v, w)| (v, f * w)));
+        if let Counterpart::Body(p) = &r.other {
+            let b = bodies[p.body as usize].borrow_mut();
+            b.contact_load.extend(p.terms().map(|(v, w)| (v, -f * w)));
+        }
+    }
+    state.previous.clear();
+    state.previous.extend_from_slice(&state.solved);
+    state.previous_ids.clear();
+    state
+        .previous_ids
+        .extend(bodies.iter().map(|b| b.borrow().collider.id()));
+    stats.detect_us += lap(&mut t);
+    state.stats = stats;
+    Ok(())
+}
+
+/// Row `old` (of the last step) measured again on the current positions, whatever the
+/// distance: its point against its tool part, obstacle or body (a vertex against the other
+/// body's nearest triangle within four times the pair reach; farther, its old frame with that
+/// distance as its gap).
+fn find_again<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
+    bodies: &[B],
+    tools: &[T],
+    obstacles: &[Obstacle],
+    config: &ContactConfig,
+    old: &ContactRow,
+) -> ContactRow {
+    let a = bodies[old.a.body as usize].borrow();
+    let p = old.a.position(a.collider.positions());
+    let moved = motion(a, &old.a);
+    // A grip let go comes back as a contact: what its force held is then only pushed.
+    let redo = |normal: Vec3, gap: f64, relative: Vec3, other: Counterpart, f: (f64, f64)| {
+        ContactRow::contact(old.key, old.a, other, normal, gap, relative, f.0, f.1)
+    };
+    match old.other {
+        Counterpart::Tool { tool, part } => {
+            let t = tools[tool as usize].borrow();
+            let k = part as usize;
+            let pose = t.part_pose(k);
+            let local = pose
+                .inverse_transform_point(&nalgebra::Point3::from(p))
+                .coords;
+            let friction = Friction::combine(&a.friction, t.friction());
+            match t.part_shape(k).query(&local, f64::INFINITY) {
+                Some(h) => redo(
+                    pose.rotation * h.normal,
+                    h.distance,
+                    moved - t.point_motion(k, &p),
+                    old.other,
+                    friction,
+                ),
+                None => *old,
+            }
+        }
+        Counterpart::Obstacle(o) => {
+            let ob = &obstacles[o as usize];
+            let friction = Friction::combine(&a.friction, ob.friction());
+            match ob.query(&p, f64::INFINITY) {
+                Some(h) => redo(
+                    h.normal,
+                    h.distance - config.thickness,
+                    moved,
+                    old.other,
+                    friction,
+                ),
+                None => *old,
+            }
+        }
+        Counterpart::Body(q) => {
+            let b = bodies[q.body as usize].borrow();
+            let friction = Friction::combine(&a.friction, &b.friction);
+            let reach = 4.0 * pair_reach(config, config.body_margin);
+            match b.collider.closest(&p, reach) {
+                Some(h) => {
+                    let other = BodyPoint::triangle(
+                        q.body,
+                        b.collider.triangles()[h.triangle as usize],
+                        h.weights,
+                    );
+                    redo(
+                        h.normal,
+                        h.distance - config.thickness,
+                        moved - motion(b, &other),
+                        Counterpart::Body(other),
+                        friction,
+                    )
+                }
+                None => {
+                    let mut r = *old;
+                    r.gap = reach;
+                    r
+                }
+            }
+        }
+    }
+}
+
+fn other_body(r: &ContactRow) -> Option<u32> {
+    match r.other {
+        Counterpart::Body(p) => Some(p.body),
+        _ => None,
+    }
+}
+
+/// A row's key: body `a`, the vertices of its point with a weight (sorted, `u32::MAX` after
+/// them), the counterpart's kind and index.
+fn key_of(a: u32, vertices: [u32; 3], weights: [f64; 3], kind: u32, index: u32) -> RowKey {
+    let mut f = [u32::MAX; 3];
+    let mut n = 0;
+    for k in 0..3 {
+        if weights[k] != 0.0 {
+            f[n] = vertices[k];
+            n += 1;
+        }
+    }
+    f[..n].sort_unstable();
+    [a, f[0], f[1], f[2], kind, index]
+}
+
+/// How far a body point moved since the start of the step.
+fn motion(b: &SimBody, p: &BodyPoint) -> Vec3 {
+    let x = b.collider.positions();
+    p.terms()
+        .map(|(v, w)| (x[v as usize] - b.start[v as usize]) * w)
+        .sum()
+}
+
+/// The rows of the current positions: body pairs, tools, grips, obstacles.
+fn build_rows<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
+    bodies: &mut [B],
+    tools: &mut [T],
+    obstacles: &[Obstacle],
+    config: &ContactConfig,
+    state: &mut ContactState,
+) {
+    state.rows.clear();
+    // Body pairs (one side precise, or an awake cage against anything awake).
+    state.queried.clear();
+    for &(i, j) in &state.solve_pairs {
+        let (bi, bj) = (bodies[i as usize].borrow(), bodies[j as usize].borrow());
+        let both_cages = bi.body.level() == Level::Cage && bj.body.level() == Level::Cage;
+        if !both_cages {
+            state.queried.push((i, j));
+        }
+    }
+    query_pairs(bodies, state, config, config.body_margin);
+    for &(i, j) in &state.queried {
+        for c in found_of(&state.candidates, (i, j)) {
+            let (ba, bb) = (bodies[c.a as usize].borrow(), bodies[c.b as usize].borrow());
+            let a = BodyPoint::vertex(c.a, c.vertex);
+            let b = BodyPoint::triangle(c.b, c.vertices, c.weights);
+            let (mu_s, mu_k) = Friction::combine(&ba.friction, &bb.friction);
+            state.rows.push(ContactRow::contact(
+                [c.a, c.vertex, u32::MAX, u32::MAX, KEY_BODY, c.b],
+                a,
+                Counterpart::Body(b),
+                c.normal,
+                -c.depth,
+                motion(ba, &a) - motion(bb, &b),
+                mu_s,
+                mu_k,
+            ));
+        }
+    }
+    // Tools.
+    for (it, tool) in tools.iter().enumerate() {
+        let tool = tool.borrow();
+        let (lo, hi) = tool.bounds(config.tool_margin);
+        for (ib, b) in bodies.iter().enumerate() {
+            let b = b.borrow();
+            let (blo, bhi) = b.collider.bounds();
+            if (0..3).any(|k| lo[k] > bhi[k] || blo[k] > hi[k]) {
+                continue;
+            }
+            for k in 0..tool.shape().parts() {
+                state.shapes.clear();
+                detect_shape(
+                    &tool.part_shape(k),
+                    &tool.part_pose(k),
+                    &b.collider,
+                    config.tool_margin,
+                    &mut state.triangles,
+                    &mut state.shapes,
+                );
+                let (mu_s, mu_k) = Friction::combine(&b.friction, tool.friction());
+                for s in &state.shapes {
+                    let a = BodyPoint::triangle(ib as u32, s.vertices, s.weights);
+                    let p = a.position(b.collider.positions());
+                    state.rows.push(ContactRow::contact(
+                        key_of(
+                            ib as u32,
+                            s.vertices,
+                            s.weights,
+                            KEY_TOOL,
+                            ((it as u32) << 8) | k as u32,
+                        ),
+                        a,
+                        Counterpart::Tool {
+                            tool: it as u32,
+                            part: k as u8,
+                        },
+                        s.normal,
+                        s.distance,
+                        motion(b, &a) - tool.point_motion(k, &p),
+                        mu_s,
+                        mu_k,
+                    ));
+                }
+            }
+        }
+        // Grips: each held vertex stays at its place on the tool.
+        for g in tool.grips() {
+            let b = bodies[g.body as usize].borrow();
+            let target = tool.position() + tool.rotation() * g.offset;
+            let x = b.collider.positions()[g.vertex as usize];
+            state.rows.push(ContactRow::attachment(
+                [g.body, g.vertex, u32::MAX, u32::MAX, KEY_GRIP, it as u32],
+                BodyPoint::vertex(g.body, g.vertex),
+                Counterpart::Tool {
+                    tool: it as u32,
+                    part: 0,
+                },
+                x - target,
+            ));
+        }
+    }
+    // Obstacles, against the bodies that take part.
+    for (io, o) in obstacles.iter().enumerate() {
+        let (olo, ohi) = o.bounds();
+        for (ib, b) in bodies.iter().enumerate() {
+            let b = b.borrow();
+            if !takes_part(b) {
+                continue;
+            }
+            let (blo, bhi) = b.collider.bounds();
+            let m = config.thickness + config.body_margin;
+            if (0..3).any(|k| olo[k] - m > bhi[k] || blo[k] - m > ohi[k]) {
+                continue;
+            }
+            state.shapes.clear();
+            detect_shape(
+                o.shape(),
+                o.pose(),
+                &b.collider,
+                config.thickness + config.body_margin,
+                &mut state.triangles,
+                &mut state.shapes,
+            );
+            let (mu_s, mu_k) = Friction::combine(&b.friction, o.friction());
+            for s in &state.shapes {
+                let a = BodyPoint::triangle(ib as u32, s.vertices, s.weights);
+                state.rows.push(ContactRow::contact(
+                    key_of(ib as u32, s.vertices, s.weights, KEY_OBSTACLE, io as u32),
+                    a,
+                    Counterpart::Obstacle(io as u32),
+                    s.normal,
+                    s.distance - config.thickness,
+                    motion(b, &a),
+                    mu_s,
+                    mu_k,
+                ));
+            }
+        }
+    }
+    state.rows.sort_unstable_by_key(|r| r.key);
+    // One point found twice (an edge point from both of its triangles) keeps its first row.
+    state.rows.dedup_by_key(|r| r.key);
+}
