@@ -127,7 +127,11 @@ fn draw_tools(
                     match jaw {
                         crate::core::contact::JawShape::Capsule { radius, length } => {
                             let q = centre + rotation * Vec3::Y * length as f32;
-                            gizmos.sphere(Isometry3d::from_translation(centre), radius as f32, colour);
+                            gizmos.sphere(
+                                Isometry3d::from_translation(centre),
+                                radius as f32,
+                                colour,
+                            );
                             gizmos.sphere(Isometry3d::from_translation(q), radius as f32, colour);
                             gizmos.line(centre, q, colour);
                         }

@@ -243,7 +243,10 @@ pub(super) fn tool_pose(
     // Computed now, not the one propagated at the end of the last frame.
     let pose = poses.compute_global_transform(entity).ok()?;
     let (_, rotation, translation) = pose.to_scale_rotation_translation();
-    Some((to_core(translation), crate::convert::to_core_rotation(rotation)))
+    Some((
+        to_core(translation),
+        crate::convert::to_core_rotation(rotation),
+    ))
 }
 
 /// Builds the core obstacles of every [`SoftObstacle`] again when one was added, changed,

@@ -77,7 +77,11 @@ impl SoftTissueContacts {
     pub(super) fn gather(&mut self, obstacles: &[Entity]) {
         self.pairs.clear();
         for r in self.state.rows() {
-            let penetration = if r.is_contact() { (-r.gap).max(0.0) } else { 0.0 };
+            let penetration = if r.is_contact() {
+                (-r.gap).max(0.0)
+            } else {
+                0.0
+            };
             if r.force == soft_tissue_core::Vec3::zeros() && penetration == 0.0 {
                 continue;
             }
@@ -93,9 +97,10 @@ impl SoftTissueContacts {
                     .get(p.body as usize)
                     .copied()
                     .map(ContactPartner::Body),
-                Counterpart::Obstacle(i) => {
-                    obstacles.get(i as usize).copied().map(ContactPartner::Obstacle)
-                }
+                Counterpart::Obstacle(i) => obstacles
+                    .get(i as usize)
+                    .copied()
+                    .map(ContactPartner::Obstacle),
             };
             let (Some(body), Some(partner)) = (body, partner) else {
                 continue;

@@ -154,13 +154,19 @@ pub(super) fn prepare_stage(
         if *t.friction() != spec.friction
             && let Err(e) = t.set_friction(spec.friction)
         {
-            fail(&mut status, stage_error("a tool's friction", Some(entity), e));
+            fail(
+                &mut status,
+                stage_error("a tool's friction", Some(entity), e),
+            );
         }
         if let ToolShape::Grasper { .. } = spec.shape
             && t.target_opening() != spec.jaws.max(0.0)
             && let Err(e) = t.set_opening(spec.jaws)
         {
-            fail(&mut status, stage_error("a grasper's jaws", Some(entity), e));
+            fail(
+                &mut status,
+                stage_error("a grasper's jaws", Some(entity), e),
+            );
         }
         if let Err(e) = t.set_cautery(spec.cautery_watts) {
             fail(

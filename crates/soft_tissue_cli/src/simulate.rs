@@ -98,6 +98,8 @@ pub(crate) fn load_scene(name: &str, assets: &Path) -> Result<Scene, String> {
             Some(Scene::paper_organs()),
         ),
         "organs-fine" => (PathBuf::new(), Some(Scene::fine_organs())),
+        "grasp" => (PathBuf::new(), Some(Scene::grasp())),
+        "stack" => (PathBuf::new(), Some(Scene::organ_stack())),
         "organs-large" => (
             assets.join("scenes/organs-large.scene.ron"),
             Some(Scene::large_organs()),

@@ -442,6 +442,117 @@ impl Scene {
         scene
     }
 
+    /// A grasp on a table, in metres: the paper's spleen (a tenth of its organ-scene size,
+    /// about 14 x 7 x 4 cm, 0.15 kg, Young's modulus 10 kPa) lying free on a table under
+    /// gravity, both surfaces with friction 0.4. The built-in `grasp-spleen` script lifts it
+    /// 5 cm with a grasper.
+    pub fn grasp() -> Scene {
+        // The spleen file spans x -1.986..-1.312, y -0.153..1.278, z -0.270..0.170; turned a
+        // quarter about x (z up) and scaled to metres, it is centred on the origin with its
+        // lowest point 0.2 mm above the table.
+        let spleen = BodySpec {
+            name: "Spleen".into(),
+            mesh: MeshSource::File("meshes/spleen.vtk".into()),
+            placement: Placement {
+                translation: [0.16487, 0.016_964 + 0.0002, -0.056_26],
+                rotation_deg: [90.0, 0.0, 0.0],
+                scale: 0.1,
+            },
+            precise: PreciseMethod::CorotationalFem,
+            fem: Some(FemLevel {
+                params: FemParams {
+                    young_modulus: 1e4,
+                    poisson_ratio: 0.4,
+                    mass: 0.15,
+                    damping: 2.0,
+                },
+                dt: 0.01,
+                integrator: FemIntegrator::BackwardEuler,
+            }),
+            msd: None,
+            cage: PAPER_CAGE,
+            anchor: Anchor::None,
+            heat: None,
+            friction: Some(Friction::new(0.4)),
+        };
+        Scene {
+            name: "grasp".into(),
+            gravity: [0.0, -9.81, 0.0],
+            bodies: vec![spleen],
+            obstacles: vec![ObstacleSpec {
+                name: "Table".into(),
+                shape: ObstacleShape::Plane,
+                placement: Placement::IDENTITY,
+                friction: Some(Friction::new(0.4)),
+            }],
+        }
+    }
+
+    /// Three organs stacked on a table under gravity, in metres (the organ meshes at a tenth
+    /// of their organ-scene size): the liver on the table, the stomach dropped onto it, the
+    /// spleen (lying flat) onto that, each free, Young's modulus 20 kPa, realistic masses
+    /// (1.5, 0.4, 0.15 kg), wet-tissue friction. They fall, settle and come to rest, and
+    /// must then return to their cages and stay there.
+    pub fn organ_stack() -> Scene {
+        let organ = |name: &str, file: &str, placement: Placement, mass: f64| BodySpec {
+            name: name.into(),
+            mesh: MeshSource::File(file.into()),
+            placement,
+            precise: PreciseMethod::CorotationalFem,
+            fem: Some(FemLevel {
+                params: FemParams {
+                    young_modulus: 2e4,
+                    poisson_ratio: 0.4,
+                    mass,
+                    damping: 2.0,
+                },
+                dt: 0.01,
+                integrator: FemIntegrator::BackwardEuler,
+            }),
+            msd: None,
+            cage: PAPER_CAGE,
+            anchor: Anchor::None,
+            heat: None,
+            friction: None,
+        };
+        // Files (organ-scene units): liver x -0.567..2.234, y 0.136..1.665, z -0.420..0.420;
+        // stomach x -1.389..0.121, y -0.392..1.217, z -0.316..0.516; spleen (turned a quarter
+        // about x) x -1.986..-1.312, y -0.170..0.270, z -0.153..1.278. Each is centred over
+        // the liver's middle (x 0.083, z 0 in metres), 2 mm above what is below it.
+        let liver = Placement {
+            translation: [0.0, -0.013_585 + 0.0002, 0.0],
+            rotation_deg: [0.0; 3],
+            scale: 0.1,
+        };
+        let stomach_bottom = 0.1665 - 0.013_585 + 0.0022;
+        let stomach = Placement {
+            translation: [0.0833 + 0.0634, stomach_bottom + 0.039_168, -0.0100],
+            rotation_deg: [0.0; 3],
+            scale: 0.1,
+        };
+        let spleen_bottom = stomach_bottom + 0.1609 + 0.002;
+        let spleen = Placement {
+            translation: [0.0833 + 0.164_87, spleen_bottom + 0.016_964, -0.056_26],
+            rotation_deg: [90.0, 0.0, 0.0],
+            scale: 0.1,
+        };
+        Scene {
+            name: "stack".into(),
+            gravity: [0.0, -9.81, 0.0],
+            bodies: vec![
+                organ("Liver", "meshes/liver.vtk", liver, 1.5),
+                organ("Stomach", "meshes/stomach.vtk", stomach, 0.4),
+                organ("Spleen", "meshes/spleen.vtk", spleen, 0.15),
+            ],
+            obstacles: vec![ObstacleSpec {
+                name: "Table".into(),
+                shape: ObstacleShape::Plane,
+                placement: Placement::IDENTITY,
+                friction: None,
+            }],
+        }
+    }
+
     /// Parses a scene from RON text and validates it. `file` names it in messages.
     pub fn from_ron(text: &str, file: &str) -> Result<Scene, SceneError> {
         let scene: Scene = ron::from_str(text).map_err(|source| SceneError::Ron {
@@ -556,14 +667,21 @@ impl Scene {
                 message,
             };
             let p = &o.placement;
-            if let Some(v) = p.translation.iter().chain(&p.rotation_deg).find(|v| !v.is_finite()) {
+            if let Some(v) = p
+                .translation
+                .iter()
+                .chain(&p.rotation_deg)
+                .find(|v| !v.is_finite())
+            {
                 return Err(err(format!("placement must be finite, found {v}")));
             }
             let positive = |what: &str, v: f64| {
                 if v.is_finite() && v > 0.0 {
                     Ok(())
                 } else {
-                    Err(err(format!("{what} must be positive and finite, found {v}")))
+                    Err(err(format!(
+                        "{what} must be positive and finite, found {v}"
+                    )))
                 }
             };
             match &o.shape {

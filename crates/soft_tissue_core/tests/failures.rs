@@ -15,8 +15,8 @@ use soft_tissue_core::precision::{Level, PrecisionError};
 use soft_tissue_core::scenario::{PreciseMethod, Scene};
 use soft_tissue_core::state::NodalBody;
 use soft_tissue_core::world::{
-    ContactState, Script, SimBody, SoftTissueWorld, WorldError, detect_contacts, prepare, solve_contacts,
-    scene_bodies, step_solvers, switch_precision, writeback,
+    ContactState, Script, SimBody, SoftTissueWorld, WorldError, detect_contacts, prepare,
+    scene_bodies, solve_contacts, step_solvers, switch_precision, writeback,
 };
 
 fn assets() -> &'static Path {

@@ -6,6 +6,7 @@
 //! nothing is copied. Goals are checked and a missed goal is reported as missed.
 
 mod budget;
+mod contact;
 mod fig5;
 mod goals;
 mod mesh_size;
@@ -84,6 +85,9 @@ pub struct ReportArgs {
     /// dynamics), for quick comparisons of cage settings.
     #[arg(long)]
     fig5_only: bool,
+    /// Only the contact section (the contact cases against their closed forms).
+    #[arg(long)]
+    contact_only: bool,
 }
 
 fn median(v: &[f64]) -> Option<f64> {
@@ -295,6 +299,26 @@ pub fn report(args: &ReportArgs) -> Res<()> {
             ("fitted 128".into(), CageKind::Fitted { vertices: 128 }),
         ]
     };
+    if args.contact_only {
+        let mut progress = Progress {
+            done: 0,
+            total: if quick { 5 } else { 13 },
+            start: Instant::now(),
+        };
+        let mut md = String::from("# Contact only\n\n");
+        let mut js = Json::new();
+        let mut step = |what: &str| progress.step(what);
+        contact::contact_section(&mut md, &mut js, &args.out, assets, quick, &mut step)?;
+        progress.finish();
+        print!("{md}");
+        write_file(&args.out, "report.md", &md)?;
+        write_file(
+            &args.out,
+            "report.json",
+            &serde_json::to_string_pretty(&serde_json::Value::Object(js))?,
+        )?;
+        return Ok(());
+    }
     if args.fig5_only {
         let mut progress = Progress {
             done: 0,
@@ -438,6 +462,7 @@ pub fn report(args: &ReportArgs) -> Res<()> {
     stability_section(
         &mut md, &mut js, &args.out, assets, &cases, quick, &mut step,
     )?;
+    contact::contact_section(&mut md, &mut js, &args.out, assets, quick, &mut step)?;
     let peer_rows = peer_section(
         &mut md, &mut js, &args.out, assets, &peers, quick, &mut step,
     )?;

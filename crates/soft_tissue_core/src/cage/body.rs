@@ -157,6 +157,8 @@ pub struct CageBody {
     pub(super) reduced: Option<ReducedStepper>,
     /// Contact workspaces.
     pub(super) contact: super::contact::CageContact,
+    /// A displacement added to each embedded point (see [`CageBody::set_detail`]).
+    detail: Option<Vec<Vec3>>,
 }
 
 impl CageBody {
@@ -225,6 +227,7 @@ impl CageBody {
             stats: CageStepStats::default(),
             reduced: None,
             contact: Default::default(),
+            detail: None,
         };
         body.update_points()?;
         Ok(body)
@@ -339,6 +342,11 @@ impl CageBody {
         self.coords.face_terms(x, &mut self.face_terms);
         self.coords
             .evaluate_fast(x, &self.face_terms, &mut self.scratch, &mut self.points)?;
+        if let Some(d) = &self.detail {
+            for (p, d) in self.points.iter_mut().zip(d) {
+                *p += d;
+            }
+        }
         if let Some(index) = self
             .points
             .iter()
@@ -357,7 +365,36 @@ impl CageBody {
         let x = self.msd.positions();
         let mut terms = vec![Vec3::zeros(); self.cage.triangles().len()];
         self.coords.face_terms(x, &mut terms);
-        self.coords.evaluate(x, &terms, out)
+        self.coords.evaluate(x, &terms, out)?;
+        self.add_detail(out);
+        Ok(())
+    }
+
+    /// Keeps a displacement of each embedded point on top of what the cage gives (`None`:
+    /// none, the default): the shape a free body came to rest in on its supports, less what
+    /// its cage reproduces, so the cage level holds that shape exactly. The length must be
+    /// the number of points.
+    pub fn set_detail(&mut self, detail: Option<Vec<Vec3>>) -> Result<(), CageError> {
+        if let Some(d) = &detail
+            && d.len() != self.points.len()
+        {
+            return Err(CageError::LengthMismatch {
+                what: "detail (one displacement per point)",
+                expected: self.points.len(),
+                found: d.len(),
+            });
+        }
+        self.detail = detail;
+        self.update_points()
+    }
+
+    /// Adds the detail displacement (if any) to points evaluated from the cage.
+    pub fn add_detail(&self, points: &mut [Vec3]) {
+        if let Some(d) = &self.detail {
+            for (p, d) in points.iter_mut().zip(d) {
+                *p += d;
+            }
+        }
     }
 
     /// Applies a force at embedded point `point` for the next step: cage vertex `i` receives

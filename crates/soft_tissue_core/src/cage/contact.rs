@@ -106,7 +106,8 @@ impl CageBody {
             None => {
                 for c in 0..3 * m {
                     for i in 0..d {
-                        work.y[c * d + i] = work.q[c * d + i] * self.explicit_compliance(i / 3, i % 3);
+                        work.y[c * d + i] =
+                            work.q[c * d + i] * self.explicit_compliance(i / 3, i % 3);
                     }
                 }
             }
@@ -176,7 +177,11 @@ impl CageBody {
                 }
             }
         }
-        if let Some(i) = work.forces.iter().position(|f| !f.iter().all(|c| c.is_finite())) {
+        if let Some(i) = work
+            .forces
+            .iter()
+            .position(|f| !f.iter().all(|c| c.is_finite()))
+        {
             self.contact = work;
             return Err(CageError::NonFinite {
                 what: "cage vertex",

@@ -162,7 +162,9 @@ impl PairCandidates {
 }
 
 /// Candidate vertices `candidates` of `a` against the surface of `b`: appends contacts
-/// closer than `thickness + margin` (depth > -margin) found within `reach` ([`pair_reach`]).
+/// closer than `thickness + margin` (depth > -margin) found within `reach` (at least
+/// [`pair_reach`]; more when the bodies moved far in the step, so a fast vertex deep inside
+/// is still found).
 #[allow(clippy::too_many_arguments)]
 pub fn detect_candidates(
     ia: u32,
@@ -172,9 +174,9 @@ pub fn detect_candidates(
     b: &SurfaceCollider,
     config: &ContactConfig,
     margin: f64,
+    reach: f64,
     out: &mut Vec<BodyContact>,
 ) {
-    let reach = pair_reach(config, margin);
     for &v in candidates {
         let p = a.positions()[v as usize];
         out.extend(vertex_contact(ia, v, &p, ib, b, config, reach, margin));
@@ -268,10 +270,12 @@ pub struct ShapeContact {
 }
 
 /// The surface of `body` against a rigid `shape` at `pose`: every surface vertex within
-/// `margin` of it (or inside), and for a round shape (sphere, capsule) every triangle whose
-/// closest point to the shape's core is within the margin and lies on an edge or inside the
-/// triangle (a vertex's point is the vertex's own contact): a round tool pressed between
-/// vertices, or into the faces around a vertex it holds, meets the faces.
+/// `margin` of it (or inside), and for a round shape (sphere, capsule) narrower than a
+/// triangle's longest edge, that triangle when its closest point to the shape's core is
+/// within the margin and lies on an edge or inside the triangle (a vertex's point is the
+/// vertex's own contact): a thin tool pressed between vertices, or into the faces around a
+/// vertex it holds, meets the faces. A shape wider than the triangles meets the vertices only
+/// (node to rigid surface: the faces between them are the mesh's chords of the surface).
 /// `triangles` is a workspace. Appends to `out`.
 pub fn detect_shape(
     shape: &RigidShape,
@@ -319,6 +323,16 @@ pub fn detect_shape(
     for &t in triangles.iter() {
         let tri_idx = body.triangles()[t as usize];
         let tri = tri_idx.map(|i| positions[i as usize]);
+        // A shape wider than the triangle cannot pass between its vertices: the vertices
+        // meet it (node to rigid surface, whose chord between vertices is the mesh's own
+        // approximation of the surface). Meeting the faces too would tent them over it.
+        let longest = (0..3)
+            .map(|k| (tri[(k + 1) % 3] - tri[k]).norm_squared())
+            .fold(0.0, f64::max)
+            .sqrt();
+        if radius >= longest {
+            continue;
+        }
         let (w, q, s) = triangle_segment_closest(&tri, &s0, &s1);
         // A point at a vertex is the vertex's (found above if it is near).
         if w.iter().any(|&x| x > 1.0 - 1e-9) {

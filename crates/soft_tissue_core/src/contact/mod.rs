@@ -28,6 +28,7 @@
 //!   raise it before the contact is resolved; cautery) and [`solve_contacts`] after the free
 //!   motion.
 
+pub mod cases;
 pub mod detect;
 pub mod problem;
 pub mod rigid;
@@ -83,7 +84,7 @@ fn default_tolerance() -> f64 {
 }
 
 fn default_rounds() -> u32 {
-    3
+    5
 }
 
 fn default_sweeps() -> u32 {
@@ -92,7 +93,7 @@ fn default_sweeps() -> u32 {
 
 impl ContactConfig {
     /// Defaults for a scene whose bodies are about `scale` across: thickness 0.2 %, search
-    /// radius 5 %, tool and body margins 0.5 %, tolerance 0.01 %, three rounds, 200 sweeps.
+    /// radius 5 %, tool and body margins 0.5 %, tolerance 0.01 %, five rounds, 200 sweeps.
     pub fn for_scale(scale: f64) -> Self {
         ContactConfig {
             thickness: 0.002 * scale,
@@ -127,12 +128,12 @@ impl ContactConfig {
                 return Err(ContactError::BadParameter { field, value });
             }
         }
-        for (field, value) in [("max_rounds", self.max_rounds), ("max_sweeps", self.max_sweeps)] {
+        for (field, value) in [
+            ("max_rounds", self.max_rounds),
+            ("max_sweeps", self.max_sweeps),
+        ] {
             if value == 0 {
-                return Err(ContactError::BadParameter {
-                    field,
-                    value: 0.0,
-                });
+                return Err(ContactError::BadParameter { field, value: 0.0 });
             }
         }
         Ok(())
@@ -211,4 +212,3 @@ pub fn to_parry_aabb(min: &Vec3, max: &Vec3) -> ParryAabb {
 pub(crate) fn overlaps(a: &(Vec3, Vec3), b: &(Vec3, Vec3), grow: f64) -> bool {
     (0..3).all(|k| a.0[k] - grow <= b.1[k] && b.0[k] - grow <= a.1[k])
 }
-

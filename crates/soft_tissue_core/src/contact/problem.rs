@@ -107,8 +107,8 @@ pub enum RowKind {
 
 /// A key that follows a row from step to step (warm start, stick or slide): side `a`'s body,
 /// its feature (the vertices of the point with a weight, sorted, `u32::MAX` after them), the
-/// counterpart's kind and index.
-pub type RowKey = [u32; 6];
+/// counterpart's kind and index, and for another body the triangle's vertices (sorted).
+pub type RowKey = [u32; 9];
 
 /// Counterpart kinds in a [`RowKey`].
 pub(crate) const KEY_BODY: u32 = 0;
@@ -451,9 +451,10 @@ impl ContactSolver {
                 let d = self.cols[j] as usize;
                 self.blocks[j] = fc * self.blocks[j] * rows[d].frame;
             }
-            let dj = lo + self.cols[lo..hi]
-                .binary_search(&(c as u32))
-                .expect("a row couples with itself");
+            let dj = lo
+                + self.cols[lo..hi]
+                    .binary_search(&(c as u32))
+                    .expect("a row couples with itself");
             self.diag.push(dj as u32);
             let w = self.blocks[dj];
             let wt = Matrix2::new(w[(1, 1)], w[(1, 2)], w[(2, 1)], w[(2, 2)]);
@@ -643,7 +644,7 @@ mod tests {
     }
 
     fn row(a: BodyPoint, other: Counterpart, n: Vec3, gap: f64, slip: Vec3, mu: f64) -> ContactRow {
-        ContactRow::contact([0; 6], a, other, n, gap, slip, mu, mu)
+        ContactRow::contact([0; 9], a, other, n, gap, slip, mu, mu)
     }
 
     /// One vertex 0.1 inside a rigid plane with compliance 0.01: the force that closes the
@@ -652,8 +653,22 @@ mod tests {
     fn a_single_contact_closes_its_gap_and_never_pulls() {
         let mut s = ContactSolver::default();
         let mut rows = vec![
-            row(BodyPoint::vertex(0, 0), Counterpart::Obstacle(0), Vec3::y(), -0.1, Vec3::zeros(), 0.0),
-            row(BodyPoint::vertex(0, 1), Counterpart::Obstacle(0), Vec3::y(), 0.05, Vec3::zeros(), 0.0),
+            row(
+                BodyPoint::vertex(0, 0),
+                Counterpart::Obstacle(0),
+                Vec3::y(),
+                -0.1,
+                Vec3::zeros(),
+                0.0,
+            ),
+            row(
+                BodyPoint::vertex(0, 1),
+                Counterpart::Obstacle(0),
+                Vec3::y(),
+                0.05,
+                Vec3::zeros(),
+                0.0,
+            ),
         ];
         s.assemble(&rows, &mut diagonal(&[0.01]));
         s.solve(&mut rows, &SolverSettings::default());
@@ -735,8 +750,22 @@ mod tests {
             }
         };
         let mut rows = vec![
-            row(BodyPoint::vertex(0, 0), Counterpart::Obstacle(0), Vec3::y(), -1.0, Vec3::zeros(), 0.0),
-            row(BodyPoint::vertex(0, 1), Counterpart::Obstacle(0), Vec3::y(), 0.2, Vec3::zeros(), 0.0),
+            row(
+                BodyPoint::vertex(0, 0),
+                Counterpart::Obstacle(0),
+                Vec3::y(),
+                -1.0,
+                Vec3::zeros(),
+                0.0,
+            ),
+            row(
+                BodyPoint::vertex(0, 1),
+                Counterpart::Obstacle(0),
+                Vec3::y(),
+                0.2,
+                Vec3::zeros(),
+                0.0,
+            ),
         ];
         let mut s = ContactSolver::default();
         s.assemble(&rows, &mut { coupled });
@@ -756,7 +785,12 @@ mod tests {
     /// A frame is orthonormal, right-handed, with the normal first.
     #[test]
     fn frames_are_orthonormal() {
-        for n in [Vec3::x(), Vec3::y(), Vec3::z(), Vec3::new(1.0, 2.0, -3.0).normalize()] {
+        for n in [
+            Vec3::x(),
+            Vec3::y(),
+            Vec3::z(),
+            Vec3::new(1.0, 2.0, -3.0).normalize(),
+        ] {
             let f = frame_of(&n);
             assert!((f.transpose() * f - Matrix3::identity()).amax() < 1e-12);
             assert!((f.determinant() - 1.0).abs() < 1e-12);

@@ -10,7 +10,7 @@ use std::sync::Arc;
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
 use parry3d::math::Vector as ParryVector;
-use parry3d::query::PointQueryWithLocation;
+use parry3d::query::{PointQuery, PointQueryWithLocation};
 use parry3d::shape::{TriMesh, TriMeshFlags};
 use serde::{Deserialize, Serialize};
 
@@ -174,7 +174,10 @@ impl MeshShape {
         if triangles.is_empty() {
             return Err(bad("no triangles".into()));
         }
-        if let Some(v) = vertices.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        if let Some(v) = vertices
+            .iter()
+            .position(|p| !p.iter().all(|c| c.is_finite()))
+        {
             return Err(bad(format!("vertex {v} is not finite")));
         }
         if let Some(t) = triangles
@@ -276,13 +279,12 @@ impl RigidShape {
                     Ok(())
                 }
             }
-            RigidShape::Box { half_extents } => match half_extents
-                .iter()
-                .find(|h| !(h.is_finite() && **h > 0.0))
-            {
-                Some(h) => Err(bad("box half extent (must be > 0)", *h)),
-                None => Ok(()),
-            },
+            RigidShape::Box { half_extents } => {
+                match half_extents.iter().find(|h| !(h.is_finite() && **h > 0.0)) {
+                    Some(h) => Err(bad("box half extent (must be > 0)", *h)),
+                    None => Ok(()),
+                }
+            }
             _ => Ok(()),
         }
     }
@@ -336,11 +338,15 @@ impl RigidShape {
             RigidShape::Box { half_extents } => box_query(half_extents, p),
             RigidShape::Mesh(m) => {
                 let q = ParryVector::new(p.x as f32, p.y as f32, p.z as f32);
-                let (proj, (tri, _)) = m.mesh.project_local_point_and_get_location_with_max_dist(
-                    q,
-                    false,
-                    (reach.max(0.0) as f32).max(f32::MIN_POSITIVE),
-                )?;
+                // Inside at any depth counts (a vertex that went deep in one step).
+                let limit = if m.mesh.contains_local_point(q) {
+                    f32::MAX
+                } else {
+                    (reach.max(0.0) as f32).max(f32::MIN_POSITIVE)
+                };
+                let (proj, (tri, _)) = m
+                    .mesh
+                    .project_local_point_and_get_location_with_max_dist(q, false, limit)?;
                 let point = Vec3::new(
                     proj.point.x as f64,
                     proj.point.y as f64,
@@ -500,10 +506,7 @@ impl Obstacle {
 /// World bounds of a shape at a pose (infinite for a plane).
 pub fn world_bounds(shape: &RigidShape, pose: &Pose) -> (Vec3, Vec3) {
     let Some((lo, hi)) = shape.local_bounds() else {
-        return (
-            Vec3::repeat(f64::NEG_INFINITY),
-            Vec3::repeat(f64::INFINITY),
-        );
+        return (Vec3::repeat(f64::NEG_INFINITY), Vec3::repeat(f64::INFINITY));
     };
     let mut out = (Vec3::repeat(f64::INFINITY), Vec3::repeat(f64::NEG_INFINITY));
     for k in 0..8 {
@@ -533,7 +536,9 @@ mod tests {
         let h = b.query(&Vec3::new(2.0, 0.0, 0.0), 2.0).unwrap();
         assert!((h.distance - 1.0).abs() < 1e-12 && h.normal == Vec3::x());
         assert!(b.query(&Vec3::new(5.0, 0.0, 0.0), 1.0).is_none());
-        let h = RigidShape::Plane.query(&Vec3::new(3.0, -0.25, 1.0), 0.1).unwrap();
+        let h = RigidShape::Plane
+            .query(&Vec3::new(3.0, -0.25, 1.0), 0.1)
+            .unwrap();
         assert_eq!((h.distance, h.normal), (-0.25, Vec3::y()));
         let c = RigidShape::Capsule {
             radius: 0.5,

@@ -27,8 +27,8 @@ use rayon::prelude::*;
 
 use super::detect::{ShapeContact, detect_shape};
 use super::problem::{
-    BodyPoint, ContactRow, ContactSolver, Counterpart, KEY_BODY, KEY_GRIP, KEY_OBSTACLE,
-    KEY_TOOL, RowKey, SolverSettings,
+    BodyPoint, ContactRow, ContactSolver, Counterpart, KEY_BODY, KEY_GRIP, KEY_OBSTACLE, KEY_TOOL,
+    RowKey, SolverSettings,
 };
 use super::rigid::Friction;
 use super::{
@@ -122,7 +122,7 @@ fn query_pairs<B: BorrowMut<SimBody> + Sync>(
     config: &ContactConfig,
     margin: f64,
 ) {
-    let (reach, slack) = reach_and_slack(config);
+    let (base, slack) = reach_and_slack(config);
     state.queried.sort_unstable();
     for &key in &state.queried {
         ensure_entry(&mut state.candidates, key);
@@ -134,10 +134,12 @@ fn query_pairs<B: BorrowMut<SimBody> + Sync>(
         if queried.binary_search(&(*i, *j)).is_err() {
             return;
         }
-        let a = &bodies[*i as usize].borrow().collider;
-        let b = &bodies[*j as usize].borrow().collider;
+        let (bi, bj) = (bodies[*i as usize].borrow(), bodies[*j as usize].borrow());
+        // A vertex may have gone as deep as the two moved in the step.
+        let reach = base + bi.moved + bj.moved;
+        let (a, b) = (&bi.collider, &bj.collider);
         candidates.update(a, b, reach, slack);
-        both_ways(candidates, (*i, a), (*j, b), config, margin, out);
+        both_ways(candidates, (*i, a), (*j, b), config, margin, reach, out);
     };
     if crate::parallel::in_pool() && queried.len() > 1 {
         state
@@ -318,10 +320,11 @@ fn both_ways(
     (j, b): (u32, &SurfaceCollider),
     config: &ContactConfig,
     margin: f64,
+    reach: f64,
     out: &mut Vec<BodyContact>,
 ) {
-    detect_candidates(i, a, candidates.near(0), j, b, config, margin, out);
-    detect_candidates(j, b, candidates.near(1), i, a, config, margin, out);
+    detect_candidates(i, a, candidates.near(0), j, b, config, margin, reach, out);
+    detect_candidates(j, b, candidates.near(1), i, a, config, margin, reach, out);
 }
 
 pub(crate) fn pair_mut<B: BorrowMut<SimBody>>(
@@ -411,6 +414,14 @@ fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
         b.solve_contacts = 0;
         if takes_part(b) || b.active {
             b.collider.gather(b.body.node_positions());
+            b.moved = b
+                .collider
+                .positions()
+                .iter()
+                .zip(&b.start)
+                .map(|(x, s)| (x - s).norm_squared())
+                .fold(0.0, f64::max)
+                .sqrt();
             if let Some(v) = b
                 .collider
                 .positions()
@@ -434,7 +445,12 @@ fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
         * config
             .search_radius
             .max(config.thickness + config.body_margin);
-    broad_phase(&state.bounds, grow, &mut state.order, &mut state.solve_pairs);
+    broad_phase(
+        &state.bounds,
+        grow,
+        &mut state.order,
+        &mut state.solve_pairs,
+    );
     state.solved.clear();
     let settings = SolverSettings {
         max_sweeps: config.max_sweeps,
@@ -455,9 +471,9 @@ fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
         // Forces carried: from the last round, or in the first from the last step (they
         // loaded the free motion: applied either way).
         let from = if round > 0 {
-            &state.solved
+            std::mem::take(&mut state.solved)
         } else {
-            &state.previous
+            std::mem::take(&mut state.previous)
         };
         for row in state.rows.iter_mut() {
             if let Ok(k) = from.binary_search_by_key(&row.key, |r| r.key) {
@@ -471,28 +487,42 @@ fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
                 row.sliding = old.sliding;
             }
         }
-        if round == 0 {
-            // A row of the last step with a force is looked for again however far its sides
-            // parted (its force loaded the free motion: the solve must take it back, or keep
-            // what the surface springing back into the other side still needs).
-            for k in 0..state.previous.len() {
-                let old = state.previous[k];
-                if old.force == Vec3::zeros()
-                    || state
-                        .rows
-                        .binary_search_by_key(&old.key, |r| r.key)
-                        .is_ok()
-                {
-                    continue;
-                }
+        // A row of the last step or round with a force that is not found again keeps its
+        // force until the solve takes it back (it loaded the free motion, or a correction
+        // applied it). Within a step, a vertex against another body keeps the plane of the
+        // triangle it was against (a vertex in a crease then stays out of both faces, where
+        // the nearest face alone would flip from one to the other every round); otherwise
+        // the row is measured again however far its sides parted, and joins the row of the
+        // same point found now, if any.
+        for k in 0..from.len() {
+            let old = from[k];
+            let gone = old.force == Vec3::zeros() && (round == 0 || old.gap >= 0.0);
+            if gone || state.rows.binary_search_by_key(&old.key, |r| r.key).is_ok() {
+                continue;
+            }
+            let row = if round > 0 && matches!(old.other, Counterpart::Body(_)) {
+                old_plane(bodies, config, &old)
+            } else {
                 let mut row = find_again(bodies, tools, obstacles, config, &old);
                 let to_new = row.frame.transpose() * old.frame;
                 row.force = to_new * old.force;
-                row.applied = row.force;
-                if let Err(at) = state.rows.binary_search_by_key(&row.key, |r| r.key) {
-                    state.rows.insert(at, row);
+                row.applied = to_new * if round == 0 { old.force } else { old.applied };
+                row
+            };
+            match state.rows.binary_search_by_key(&row.key, |r| r.key) {
+                Ok(at) => {
+                    let r = &mut state.rows[at];
+                    let to_r = r.frame.transpose() * row.frame;
+                    r.force += to_r * row.force;
+                    r.applied += to_r * row.applied;
                 }
+                Err(at) => state.rows.insert(at, row),
             }
+        }
+        if round > 0 {
+            state.solved = from;
+        } else {
+            state.previous = from;
         }
         let penetration = state
             .rows
@@ -610,6 +640,30 @@ fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
     Ok(())
 }
 
+/// Body row `old` of the last round measured again against the same triangle's plane: its
+/// points (same vertices and weights) on the current positions, along its normal.
+fn old_plane<B: BorrowMut<SimBody>>(
+    bodies: &[B],
+    config: &ContactConfig,
+    old: &ContactRow,
+) -> ContactRow {
+    let a = bodies[old.a.body as usize].borrow();
+    let Counterpart::Body(q) = old.other else {
+        return *old;
+    };
+    let b = bodies[q.body as usize].borrow();
+    let pa = old.a.position(a.collider.positions());
+    let pb = q.position(b.collider.positions());
+    let mut row = *old;
+    row.gap = old.normal().dot(&(pa - pb)) - config.thickness;
+    let relative = motion(a, &old.a) - motion(b, &q);
+    row.slip = [
+        old.frame.column(1).dot(&relative),
+        old.frame.column(2).dot(&relative),
+    ];
+    row
+}
+
 /// Row `old` (of the last step) measured again on the current positions, whatever the
 /// distance: its point against its tool part, obstacle or body (a vertex against the other
 /// body's nearest triangle within four times the pair reach; farther, its old frame with that
@@ -668,18 +722,17 @@ fn find_again<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
             let reach = 4.0 * pair_reach(config, config.body_margin);
             match b.collider.closest(&p, reach) {
                 Some(h) => {
-                    let other = BodyPoint::triangle(
-                        q.body,
-                        b.collider.triangles()[h.triangle as usize],
-                        h.weights,
-                    );
-                    redo(
+                    let triangle = b.collider.triangles()[h.triangle as usize];
+                    let other = BodyPoint::triangle(q.body, triangle, h.weights);
+                    let mut r = redo(
                         h.normal,
                         h.distance - config.thickness,
                         moved - motion(b, &other),
                         Counterpart::Body(other),
                         friction,
-                    )
+                    );
+                    r.key = body_key(old.a.body, old.a.vertices[0], q.body, triangle);
+                    r
                 }
                 None => {
                     let mut r = *old;
@@ -710,7 +763,23 @@ fn key_of(a: u32, vertices: [u32; 3], weights: [f64; 3], kind: u32, index: u32) 
         }
     }
     f[..n].sort_unstable();
-    [a, f[0], f[1], f[2], kind, index]
+    [
+        a,
+        f[0],
+        f[1],
+        f[2],
+        kind,
+        index,
+        u32::MAX,
+        u32::MAX,
+        u32::MAX,
+    ]
+}
+
+/// The key of vertex `v` of body `a` against triangle `t` of body `b`.
+fn body_key(a: u32, v: u32, b: u32, mut t: [u32; 3]) -> RowKey {
+    t.sort_unstable();
+    [a, v, u32::MAX, u32::MAX, KEY_BODY, b, t[0], t[1], t[2]]
 }
 
 /// How far a body point moved since the start of the step.
@@ -747,7 +816,7 @@ fn build_rows<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
             let b = BodyPoint::triangle(c.b, c.vertices, c.weights);
             let (mu_s, mu_k) = Friction::combine(&ba.friction, &bb.friction);
             state.rows.push(ContactRow::contact(
-                [c.a, c.vertex, u32::MAX, u32::MAX, KEY_BODY, c.b],
+                body_key(c.a, c.vertex, c.b, c.vertices),
                 a,
                 Counterpart::Body(b),
                 c.normal,
@@ -810,7 +879,17 @@ fn build_rows<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
             let target = tool.position() + tool.rotation() * g.offset;
             let x = b.collider.positions()[g.vertex as usize];
             state.rows.push(ContactRow::attachment(
-                [g.body, g.vertex, u32::MAX, u32::MAX, KEY_GRIP, it as u32],
+                [
+                    g.body,
+                    g.vertex,
+                    u32::MAX,
+                    u32::MAX,
+                    KEY_GRIP,
+                    it as u32,
+                    u32::MAX,
+                    u32::MAX,
+                    u32::MAX,
+                ],
                 BodyPoint::vertex(g.body, g.vertex),
                 Counterpart::Tool {
                     tool: it as u32,

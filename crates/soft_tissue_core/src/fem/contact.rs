@@ -147,7 +147,11 @@ impl FemBody {
                     continue;
                 }
                 let FemContact {
-                    cache, slots, rhs, axis, ..
+                    cache,
+                    slots,
+                    rhs,
+                    axis,
+                    ..
                 } = contact;
                 let s = cache.slot(k as usize, slots, &mut |a, column: &mut [Vec3]| {
                     let r = if prefactored {

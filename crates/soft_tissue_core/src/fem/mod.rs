@@ -270,6 +270,8 @@ pub struct FemBody {
     bdf2: crate::state::Bdf2History,
     /// Contact compliance columns and correction workspaces.
     contact: contact::FemContact,
+    /// The body's best rigid rotation (warm start of [`FemBody::body_frame`]).
+    frame: UnitQuaternion<f64>,
 }
 
 impl NodalBody for FemBody {
@@ -401,6 +403,7 @@ impl FemBody {
             assembly_deltas: Vec::new(),
             bdf2: Default::default(),
             contact: Default::default(),
+            frame: UnitQuaternion::identity(),
         };
         if config.model == FemModel::CorotationalPrefactored {
             body.prefactored = Some(prefactored::Prefactored::new(&body)?);

@@ -120,6 +120,10 @@ impl FemBody {
                     let krv = (self.tmp[i] - diag * self.nodes.v[i]) / h;
                     self.rhs[i] = h * (self.rhs[i] - krv);
                 }
+                // A body free to turn as a whole preconditions with its rest factor turned
+                // the way it turned (its best rigid fit).
+                let frame = self.body_frame();
+                self.system.set_preconditioner_frame(frame);
                 stats.cg = self.system.solve_cg(
                     &self.rhs,
                     &mut self.dv,
@@ -155,6 +159,31 @@ impl FemBody {
             return Err(FemError::NonFinite { what, node });
         }
         Ok(stats)
+    }
+
+    /// The rotation of the body's best rigid fit to its rest shape (mass-weighted, warm
+    /// started from the last), for a body with no fixed components; `None` otherwise.
+    pub(super) fn body_frame(&mut self) -> Option<Matrix3<f64>> {
+        if self.nodes.fixed.iter().any(|f| f.iter().any(|&a| a)) {
+            return None;
+        }
+        let n = &self.nodes;
+        let total: f64 = n.mass.iter().sum();
+        let c: Vec3 = n.x.iter().zip(&n.mass).map(|(x, m)| x * *m).sum::<Vec3>() / total;
+        let c0: Vec3 = n
+            .rest
+            .iter()
+            .zip(&n.mass)
+            .map(|(x, m)| x * *m)
+            .sum::<Vec3>()
+            / total;
+        let mut h = Matrix3::zeros();
+        for ((x, x0), m) in n.x.iter().zip(&n.rest).zip(&n.mass) {
+            h += (x - c) * (x0 - c0).transpose() * *m;
+        }
+        let mut r = Matrix3::identity();
+        rotation::extract_rotation(&h, &mut self.frame, &mut r, 50, 1e-12);
+        Some(r)
     }
 
     /// Forces that do not depend on the model: external, gravity, mass damping, anchors

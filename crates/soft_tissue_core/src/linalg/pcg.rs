@@ -62,6 +62,10 @@ pub struct ImplicitSystem {
     z: Vec<Vec3>,
     p: Vec<Vec3>,
     q: Vec<Vec3>,
+    /// The preconditioner's frame (see [`ImplicitSystem::set_preconditioner_frame`]).
+    frame: Option<nalgebra::Matrix3<f64>>,
+    turned: Vec<Vec3>,
+    any_fixed: bool,
 }
 
 impl ImplicitSystem {
@@ -72,6 +76,7 @@ impl ImplicitSystem {
         let flags: Vec<bool> = fixed.iter().flatten().copied().collect();
         let mut factor = SparseCholesky::new(&matrix, &flags)?;
         factor.factorize(&matrix)?;
+        let any_fixed = fixed.iter().any(|f| f.iter().any(|&a| a));
         Ok(ImplicitSystem {
             matrix,
             fixed,
@@ -80,6 +85,9 @@ impl ImplicitSystem {
             z: vec![Vec3::zeros(); n],
             p: vec![Vec3::zeros(); n],
             q: vec![Vec3::zeros(); n],
+            frame: None,
+            turned: vec![Vec3::zeros(); n],
+            any_fixed,
         })
     }
 
@@ -120,8 +128,30 @@ impl ImplicitSystem {
         self.project(y);
     }
 
+    /// Turns the preconditioner of [`ImplicitSystem::solve_cg`] by `frame` (`R A R^T` in
+    /// place of the factored `A`): for a body whose matrix is its rest matrix turned as a
+    /// whole (a free body that tumbled), the turned factor is the exact inverse again, where
+    /// the rest factor alone would leave the iteration crawling. Ignored for a system with
+    /// fixed unknowns (their axes are the world's). `None`: the factor as it is.
+    pub fn set_preconditioner_frame(&mut self, frame: Option<nalgebra::Matrix3<f64>>) {
+        self.frame = frame;
+    }
+
     fn precondition(&mut self, r: &[Vec3], z: &mut [Vec3]) -> Result<(), LinalgError> {
-        self.factor.solve_nodes(r, z)
+        match self.frame {
+            Some(rot) if !self.any_fixed => {
+                let rt = rot.transpose();
+                for (t, ri) in self.turned.iter_mut().zip(r) {
+                    *t = rt * ri;
+                }
+                self.factor.solve_nodes(&self.turned, z)?;
+                for zi in z.iter_mut() {
+                    *zi = rot * *zi;
+                }
+                Ok(())
+            }
+            _ => self.factor.solve_nodes(r, z),
+        }
     }
 
     /// Solves with the held factorization only: exact when it was made from the current

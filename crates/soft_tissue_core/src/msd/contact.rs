@@ -62,7 +62,10 @@ impl MsdBody {
             c.rhs = vec![Vec3::zeros(); n];
             c.dv = vec![Vec3::zeros(); n];
         }
-        c.cache.prepare(n, h.to_bits() ^ self.config.damping.to_bits().rotate_left(7));
+        c.cache.prepare(
+            n,
+            h.to_bits() ^ self.config.damping.to_bits().rotate_left(7),
+        );
         c.slots.clear();
         let mut failure = None;
         let capacity = c.cache.capacity();

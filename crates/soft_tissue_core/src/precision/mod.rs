@@ -719,7 +719,9 @@ impl LeveledBody {
                 {
                     let residual = self.fit_cage(MAX_FIT_ITERATIONS)?;
                     self.residual = residual;
-                    if residual <= p.rest_residual * self.smallest {
+                    // A free body at rest on its supports keeps what its cage misses as a
+                    // detail (see `lower_fitted`): it may drop whatever the residual.
+                    if residual <= p.rest_residual * self.smallest || self.falls() {
                         switched = Some(self.lower_fitted(residual)?);
                     } else {
                         self.rest_count = 0;
@@ -807,6 +809,7 @@ impl LeveledBody {
         msd.velocities_mut().fill(Vec3::zeros());
         msd.rebase_rest();
         self.cage.rebase_equilibrium(false);
+        self.cage.set_detail(None)?;
         self.equilibrium.copy_from_slice(&rest_cage);
         self.cage.update_points()?;
         self.level = Level::Cage;

@@ -86,6 +86,7 @@ impl LeveledBody {
         let u = self.cage.msd().velocities();
         coords.face_terms(x, &mut self.terms_work);
         coords.evaluate(x, &self.terms_work, &mut self.nodes_work)?;
+        self.cage.add_detail(&mut self.nodes_work);
         // The map is linear in (vertices, face terms): the velocity is the map of the vertex
         // velocities and the face terms' rate (central difference along them), one evaluation.
         let h = 1e-3 * self.settings.dt;
@@ -126,7 +127,10 @@ impl LeveledBody {
         self.residual = residual;
         // Loads waiting for the precise level's next step (a contact's, say) are not the
         // cage's: the cage holds the shape they held.
-        self.precise.body_mut().external_forces_mut().fill(Vec3::zeros());
+        self.precise
+            .body_mut()
+            .external_forces_mut()
+            .fill(Vec3::zeros());
         self.lowered_rotation = self.cage_rotation(&self.fit_cage);
         let msd = self.cage.msd_mut();
         msd.positions_mut().copy_from_slice(&self.fit_cage);
@@ -138,6 +142,21 @@ impl LeveledBody {
         if self.falls() {
             self.cage.rebase_equilibrium(true);
             self.equilibrium.copy_from_slice(&self.fit_cage);
+            // What the cage does not reproduce of that shape stays as a detail on top of it:
+            // the cage level holds the shape exactly (no jump).
+            self.cage.set_detail(None)?;
+            self.cage.exact_points(&mut self.nodes_work)?;
+            let detail = self
+                .precise
+                .body()
+                .positions()
+                .iter()
+                .zip(&self.nodes_work)
+                .map(|(x, c)| x - c)
+                .collect();
+            self.cage.set_detail(Some(detail))?;
+        } else {
+            self.cage.set_detail(None)?;
         }
         self.cage.update_points()?;
         // The shadow carries on from the precise state the cage now stands for.

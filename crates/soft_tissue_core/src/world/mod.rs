@@ -28,12 +28,11 @@ mod soft_world;
 
 pub use soft_world::SoftTissueWorld;
 
-pub use crate::timing::StageTimes;
 pub use crate::contact::{ContactState, ContactStats, detect_contacts, solve_contacts};
+pub use crate::timing::StageTimes;
 pub use scene::{
     SceneBody, SceneOptions, body_settings, check_mesh_path, load_mesh, load_mesh_with,
-    obstacle_shape, placed_mesh, placement_pose, scene_bodies, scene_bodies_with,
-    scene_obstacles,
+    obstacle_shape, placed_mesh, placement_pose, scene_bodies, scene_bodies_with, scene_obstacles,
 };
 pub use script::{Script, ScriptAction, ScriptError, ScriptEvent, Waypoint};
 
@@ -225,6 +224,9 @@ pub struct SimBody {
     pub(crate) active: bool,
     /// Surface positions at the start of the step (friction reads the motion since).
     pub(crate) start: Vec<Vec3>,
+    /// Largest distance a surface vertex moved in the step (detection reaches that much
+    /// deeper).
+    pub(crate) moved: f64,
     /// Deepest penetration and contacts with a force in this step's contact solve.
     pub(crate) penetration: f64,
     pub(crate) solve_contacts: u32,
@@ -321,6 +323,7 @@ impl SimBody {
             contacts: 0,
             active: false,
             start,
+            moved: 0.0,
             penetration: 0.0,
             solve_contacts: 0,
             contact_load: Vec::new(),
@@ -579,7 +582,10 @@ impl SimBody {
 
     /// Corrects the step by contact forces on surface vertices (collider indices; see
     /// [`LeveledBody::apply_contact_forces`]).
-    pub(crate) fn apply_contact_forces(&mut self, forces: &[(u32, Vec3)]) -> Result<(), WorldError> {
+    pub(crate) fn apply_contact_forces(
+        &mut self,
+        forces: &[(u32, Vec3)],
+    ) -> Result<(), WorldError> {
         self.force_scratch.clear();
         let nodes = self.collider.nodes();
         self.force_scratch
@@ -615,6 +621,7 @@ pub fn prepare<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
         b.touched = false;
         b.contacts = 0;
         b.active = false;
+        b.moved = 0.0;
     }
 }
 

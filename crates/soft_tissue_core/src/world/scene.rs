@@ -14,8 +14,7 @@ use crate::mesh::TetMesh;
 use crate::mesh::io::read_tet_mesh;
 use crate::precision::BodySettings;
 use crate::scenario::{
-    BodySpec, CYLINDER_FEM, CYLINDER_MSD, MeshSource, ObstacleShape, ObstacleSpec, Placement,
-    Scene,
+    BodySpec, CYLINDER_FEM, CYLINDER_MSD, MeshSource, ObstacleShape, ObstacleSpec, Placement, Scene,
 };
 
 /// `mesh` rotated (XYZ Euler angles in degrees: about x, then y, then z) and translated.
@@ -290,9 +289,8 @@ pub fn obstacle_shape(
             let path = assets.join(file);
             let surface = crate::mesh::io::read_surface(&path)
                 .map_err(|e| err(format!("{}: {e}", path.display())))?;
-            let shape = MeshShape::new(surface.positions, surface.triangles).map_err(|e| {
-                err(format!("{}: {e}", path.display()))
-            })?;
+            let shape = MeshShape::new(surface.positions, surface.triangles)
+                .map_err(|e| err(format!("{}: {e}", path.display())))?;
             RigidShape::Mesh(Arc::new(shape))
         }
     })

@@ -252,7 +252,7 @@ impl Script {
     ///   of its footprint, 30 % of that dimension deep, holds, withdraws at 3 s.
     /// - `grasp-spleen` and `grasp:BODY` (any scene): an open grasper (box jaws) comes down
     ///   over the body (the spleen, or the one named) with its jaws across its narrower
-    ///   horizontal extent, closes to 70 % of it from 1 s to 1.5 s, lifts by a third of the
+    ///   horizontal extent, closes to half of it from 1 s, lifts by a third of the
     ///   body's height (`grasp-spleen`: 0.05 scene units, 5 cm in a scene in metres) from 2 s
     ///   to 3 s, holds until 4.5 s, and opens.
     pub fn builtin(name: &str, world: &SoftTissueWorld) -> Result<Script, ScriptError> {
@@ -546,7 +546,7 @@ fn grasp_script(
         events: vec![
             ScriptEvent {
                 t: 1.0,
-                action: ScriptAction::Jaws(0.7 * across),
+                action: ScriptAction::Jaws(0.5 * across),
             },
             ScriptEvent {
                 t: 4.5,
