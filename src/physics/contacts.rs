@@ -76,7 +76,7 @@ impl SoftTissueContacts {
     /// in the core's order).
     pub(super) fn gather(&mut self, obstacles: &[Entity]) {
         self.pairs.clear();
-        for r in self.state.rows() {
+        for r in self.state.solved_rows() {
             let penetration = if r.is_contact() {
                 (-r.gap).max(0.0)
             } else {

@@ -279,6 +279,7 @@ fn runs_are_bit_identical_and_reset_restores_the_start() {
 
 #[test]
 fn cautery_delivers_its_power_and_damages_the_tissue() {
+    use soft_tissue_core::contact::Counterpart;
     let mut w = organs();
     let s = Script::builtin("cauterize-liver", &w).unwrap();
     let liver = w.body_index("Liver").unwrap();
@@ -295,13 +296,15 @@ fn cautery_delivers_its_power_and_damages_the_tissue() {
                 w.tools_mut()[tool].set_cautery(x).unwrap();
             }
         }
+        // The step delivers the power over the points the tool pressed in the last step's
+        // contact solve (a normal force on a row of this tool).
         let touching = w.tools()[tool].cautery_watts() > 0.0;
+        let delivering = w.contacts().solved_rows().iter().any(|r| {
+            matches!(r.other, Counterpart::Tool { tool: t, .. } if t == tool as u32)
+                && r.is_contact()
+                && r.force.x > 0.0
+        });
         w.step_fixed().unwrap();
-        let delivering = w
-            .contacts()
-            .tool_contacts
-            .iter()
-            .any(|c| c.tool == tool as u32 && c.depth > 0.0);
         if touching && delivering {
             on_steps += 1;
         }

@@ -417,7 +417,7 @@ pub fn grasp(mu: f64, assets: &Path) -> Result<GraspRun, WorldError> {
             // What the jaws hold as the lift begins.
             held = world
                 .contacts()
-                .rows()
+                .solved_rows()
                 .iter()
                 .filter(|r| matches!(r.other, super::Counterpart::Tool { .. }) && r.force.x > 0.0)
                 .flat_map(|r| r.a.terms().map(|(v, _)| v).collect::<Vec<_>>())

@@ -179,7 +179,7 @@ pub fn detect_candidates(
 ) {
     for &v in candidates {
         let p = a.positions()[v as usize];
-        out.extend(vertex_contact(ia, v, &p, ib, b, config, reach, margin));
+        out.extend(vertex_contact(ia, a, v, &p, ib, b, config, reach, margin));
     }
 }
 
@@ -188,6 +188,7 @@ pub fn detect_candidates(
 #[allow(clippy::too_many_arguments)]
 fn vertex_contact(
     ia: u32,
+    a: &SurfaceCollider,
     v: u32,
     p: &Vec3,
     ib: u32,
@@ -198,6 +199,14 @@ fn vertex_contact(
 ) -> Option<BodyContact> {
     let hit = b.closest(p, reach)?;
     let depth = config.thickness - hit.distance;
+    // Two surfaces that face the same way do not press on each other: a vertex on the edge of
+    // a face lying in the plane of the other body's side (two blocks side by side, their
+    // sides flush) is at distance zero from that side, and its row would ask each body to
+    // stay `thickness` beyond the other's side, which no forces can meet (the forces grow
+    // without bound). The other rows of the pair (facing surfaces) hold the contact.
+    if a.vertex_normal(v as usize).dot(&hit.normal) > SAME_FACING {
+        return None;
+    }
     (depth > -margin).then(|| BodyContact {
         a: ia,
         vertex: v,
@@ -208,6 +217,10 @@ fn vertex_contact(
         depth,
     })
 }
+
+/// A vertex whose normal is within 60 degrees of the normal of the surface it is found
+/// against faces the same way as that surface (see [`vertex_contact`]).
+const SAME_FACING: f64 = 0.5;
 
 /// Every vertex of `a` against the surface of `b` (call both ways for a pair). Appends
 /// contacts closer than `thickness + margin` (depth > -margin). The reference the cached
@@ -230,7 +243,7 @@ pub fn detect_pair(
             continue;
         }
         out.extend(vertex_contact(
-            ia, v as u32, p, ib, b, config, reach, margin,
+            ia, a, v as u32, p, ib, b, config, reach, margin,
         ));
     }
 }
@@ -427,13 +440,12 @@ pub fn grab_vertices(tool: &Tool, ib: u32, body: &SurfaceCollider, margin: f64) 
     body.positions()
         .iter()
         .enumerate()
-        .filter_map(|(v, p)| {
-            (tool_distance(tool, p).0 <= margin).then(|| Grip {
-                body: ib,
-                node: body.nodes()[v],
-                vertex: v as u32,
-                offset: inverse * (p - tool.position()),
-            })
+        .filter(|(_, p)| tool_distance(tool, p).0 <= margin)
+        .map(|(v, p)| Grip {
+            body: ib,
+            node: body.nodes()[v],
+            vertex: v as u32,
+            offset: inverse * (p - tool.position()),
         })
         .collect()
 }

@@ -269,6 +269,13 @@ struct Incidence {
     coef: f64,
 }
 
+/// `compliance(body, vertices, out)`: the body's compliance blocks between the given surface
+/// vertices (see [`ContactSolver::assemble`]).
+pub type Compliance<'a> = dyn FnMut(u32, &[u32], &mut [Matrix3<f64>]) + 'a;
+
+/// `each(body, forces)`: forces on a body's surface vertices (see [`ContactSolver::apply`]).
+pub type ForcesOn<'a> = dyn FnMut(u32, &[(u32, Vec3)]) + 'a;
+
 /// Assembly and solve workspaces (reused from step to step: no allocation once grown).
 #[derive(Debug, Default, Clone)]
 pub struct ContactSolver {
@@ -304,11 +311,7 @@ impl ContactSolver {
     /// body's compliance blocks between the given surface vertices into `out` (row-major,
     /// `vertices.len()^2` blocks, world frame: block `(i, j)` is the displacement of vertex
     /// `i` per unit force on vertex `j` over the step).
-    pub fn assemble(
-        &mut self,
-        rows: &[ContactRow],
-        compliance: &mut dyn FnMut(u32, &[u32], &mut [Matrix3<f64>]),
-    ) {
+    pub fn assemble(&mut self, rows: &[ContactRow], compliance: &mut Compliance<'_>) {
         self.incidences.clear();
         for (r, row) in rows.iter().enumerate() {
             let mut push = |p: &BodyPoint, sign: f64| {
@@ -387,12 +390,11 @@ impl ContactSolver {
         let n = rows.len();
         self.start.clear();
         self.cols.clear();
-        for c in 0..n {
+        for row in rows {
             self.start.push(self.cols.len() as u32);
             self.scratch.clear();
             for (bi, (body, ..)) in self.bodies.iter().enumerate() {
                 let on = |p: &BodyPoint| p.body == *body;
-                let row = &rows[c];
                 let touches = on(&row.a) || matches!(&row.other, Counterpart::Body(p) if on(p));
                 if touches {
                     self.scratch
@@ -601,7 +603,7 @@ impl ContactSolver {
     /// The forces still to apply (`force - applied` of every row, world frame) on each body's
     /// surface vertices: `each(body, forces)` with `(vertex, force)` pairs (a vertex may
     /// repeat; the caller sums). Marks the forces applied.
-    pub fn apply(&mut self, rows: &mut [ContactRow], each: &mut dyn FnMut(u32, &[(u32, Vec3)])) {
+    pub fn apply(&mut self, rows: &mut [ContactRow], each: &mut ForcesOn<'_>) {
         for (_, ir, _, _) in &self.bodies {
             let body = self.incidences[ir.start].body;
             self.forces.clear();

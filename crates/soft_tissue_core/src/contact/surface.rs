@@ -465,6 +465,32 @@ impl SurfaceCollider {
         if len > 0.0 { n / len } else { Vec3::zeros() }
     }
 
+    /// Unit angle-weighted normal of vertex `v` over all its triangles (every sheet of a
+    /// non-manifold vertex together; zero when they cancel or `v` has none).
+    pub fn vertex_normal(&self, v: usize) -> Vec3 {
+        let Some(range) = self
+            .vertex_start
+            .get(v)
+            .zip(self.vertex_start.get(v + 1))
+            .map(|(&a, &b)| a as usize..b as usize)
+        else {
+            return Vec3::zeros();
+        };
+        let mut n = Vec3::zeros();
+        for &t in &self.vertex_triangles[range] {
+            let tri = self.triangles[t as usize];
+            let Some(k) = tri.iter().position(|&x| x as usize == v) else {
+                continue;
+            };
+            let p = self.positions[v];
+            let e1 = self.positions[tri[(k + 1) % 3] as usize] - p;
+            let e2 = self.positions[tri[(k + 2) % 3] as usize] - p;
+            let angle = e1.cross(&e2).norm().atan2(e1.dot(&e2));
+            n += self.face_normal(t as usize) * angle;
+        }
+        n.try_normalize(0.0).unwrap_or_else(Vec3::zeros)
+    }
+
     /// Angle-weighted normal of the sheet of corner `k` of triangle `t`.
     fn sheet_normal(&self, t: usize, k: usize) -> Vec3 {
         let s = self.corner_sheet[t][k] as usize;

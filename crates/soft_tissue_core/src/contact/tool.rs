@@ -392,7 +392,7 @@ impl Tool {
     /// force reached it in the last step, the opening holds (default: no limit, the jaws go
     /// where they are told).
     pub fn set_grip_limit(&mut self, force: f64) -> Result<(), ContactError> {
-        if !(force > 0.0) {
+        if force.is_nan() || force <= 0.0 {
             return Err(ContactError::BadTool {
                 tool: self.name.clone(),
                 what: "grip force limit (must be > 0)",

@@ -25,12 +25,8 @@ use std::time::Instant;
 use nalgebra::Matrix3;
 use rayon::prelude::*;
 
-use super::detect::{ShapeContact, detect_shape};
-use super::problem::{
-    BodyPoint, ContactRow, ContactSolver, Counterpart, KEY_BODY, KEY_GRIP, KEY_OBSTACLE, KEY_TOOL,
-    RowKey, SolverSettings,
-};
-use super::rigid::Friction;
+use super::detect::ShapeContact;
+use super::problem::{ContactRow, ContactSolver, Counterpart, SolverSettings};
 use super::{
     BodyContact, ContactConfig, Obstacle, PairCandidates, SurfaceCollider, Tool, ToolContact,
     broad_phase, detect_candidates, detect_tool, grab_vertices, pair_reach, tool_distance,
@@ -38,6 +34,9 @@ use super::{
 use crate::Vec3;
 use crate::precision::Level;
 use crate::world::{SimBody, WorldError};
+
+mod rows;
+use rows::{build_rows, drop_mirrored, find_again, old_plane, other_body};
 
 /// What the last contact solve did (whole scene).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -180,7 +179,7 @@ impl ContactState {
 
     /// The rows of the last contact solve with their forces (the haptic loop and the
     /// diagnostics read them).
-    pub fn rows(&self) -> &[ContactRow] {
+    pub fn solved_rows(&self) -> &[ContactRow] {
         &self.solved
     }
 
@@ -494,8 +493,7 @@ fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
         // the nearest face alone would flip from one to the other every round); otherwise
         // the row is measured again however far its sides parted, and joins the row of the
         // same point found now, if any.
-        for k in 0..from.len() {
-            let old = from[k];
+        for &old in &from {
             let gone = old.force == Vec3::zeros() && (round == 0 || old.gap >= 0.0);
             if gone || state.rows.binary_search_by_key(&old.key, |r| r.key).is_ok() {
                 continue;
@@ -519,6 +517,7 @@ fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
                 Err(at) => state.rows.insert(at, row),
             }
         }
+        drop_mirrored(&mut state.rows);
         if round > 0 {
             state.solved = from;
         } else {
@@ -638,306 +637,4 @@ fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
     stats.detect_us += lap(&mut t);
     state.stats = stats;
     Ok(())
-}
-
-/// Body row `old` of the last round measured again against the same triangle's plane: its
-/// points (same vertices and weights) on the current positions, along its normal.
-fn old_plane<B: BorrowMut<SimBody>>(
-    bodies: &[B],
-    config: &ContactConfig,
-    old: &ContactRow,
-) -> ContactRow {
-    let a = bodies[old.a.body as usize].borrow();
-    let Counterpart::Body(q) = old.other else {
-        return *old;
-    };
-    let b = bodies[q.body as usize].borrow();
-    let pa = old.a.position(a.collider.positions());
-    let pb = q.position(b.collider.positions());
-    let mut row = *old;
-    row.gap = old.normal().dot(&(pa - pb)) - config.thickness;
-    let relative = motion(a, &old.a) - motion(b, &q);
-    row.slip = [
-        old.frame.column(1).dot(&relative),
-        old.frame.column(2).dot(&relative),
-    ];
-    row
-}
-
-/// Row `old` (of the last step) measured again on the current positions, whatever the
-/// distance: its point against its tool part, obstacle or body (a vertex against the other
-/// body's nearest triangle within four times the pair reach; farther, its old frame with that
-/// distance as its gap).
-fn find_again<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
-    bodies: &[B],
-    tools: &[T],
-    obstacles: &[Obstacle],
-    config: &ContactConfig,
-    old: &ContactRow,
-) -> ContactRow {
-    let a = bodies[old.a.body as usize].borrow();
-    let p = old.a.position(a.collider.positions());
-    let moved = motion(a, &old.a);
-    // A grip let go comes back as a contact: what its force held is then only pushed.
-    let redo = |normal: Vec3, gap: f64, relative: Vec3, other: Counterpart, f: (f64, f64)| {
-        ContactRow::contact(old.key, old.a, other, normal, gap, relative, f.0, f.1)
-    };
-    match old.other {
-        Counterpart::Tool { tool, part } => {
-            let t = tools[tool as usize].borrow();
-            let k = part as usize;
-            let pose = t.part_pose(k);
-            let local = pose
-                .inverse_transform_point(&nalgebra::Point3::from(p))
-                .coords;
-            let friction = Friction::combine(&a.friction, t.friction());
-            match t.part_shape(k).query(&local, f64::INFINITY) {
-                Some(h) => redo(
-                    pose.rotation * h.normal,
-                    h.distance,
-                    moved - t.point_motion(k, &p),
-                    old.other,
-                    friction,
-                ),
-                None => *old,
-            }
-        }
-        Counterpart::Obstacle(o) => {
-            let ob = &obstacles[o as usize];
-            let friction = Friction::combine(&a.friction, ob.friction());
-            match ob.query(&p, f64::INFINITY) {
-                Some(h) => redo(
-                    h.normal,
-                    h.distance - config.thickness,
-                    moved,
-                    old.other,
-                    friction,
-                ),
-                None => *old,
-            }
-        }
-        Counterpart::Body(q) => {
-            let b = bodies[q.body as usize].borrow();
-            let friction = Friction::combine(&a.friction, &b.friction);
-            let reach = 4.0 * pair_reach(config, config.body_margin);
-            match b.collider.closest(&p, reach) {
-                Some(h) => {
-                    let triangle = b.collider.triangles()[h.triangle as usize];
-                    let other = BodyPoint::triangle(q.body, triangle, h.weights);
-                    let mut r = redo(
-                        h.normal,
-                        h.distance - config.thickness,
-                        moved - motion(b, &other),
-                        Counterpart::Body(other),
-                        friction,
-                    );
-                    r.key = body_key(old.a.body, old.a.vertices[0], q.body, triangle);
-                    r
-                }
-                None => {
-                    let mut r = *old;
-                    r.gap = reach;
-                    r
-                }
-            }
-        }
-    }
-}
-
-fn other_body(r: &ContactRow) -> Option<u32> {
-    match r.other {
-        Counterpart::Body(p) => Some(p.body),
-        _ => None,
-    }
-}
-
-/// A row's key: body `a`, the vertices of its point with a weight (sorted, `u32::MAX` after
-/// them), the counterpart's kind and index.
-fn key_of(a: u32, vertices: [u32; 3], weights: [f64; 3], kind: u32, index: u32) -> RowKey {
-    let mut f = [u32::MAX; 3];
-    let mut n = 0;
-    for k in 0..3 {
-        if weights[k] != 0.0 {
-            f[n] = vertices[k];
-            n += 1;
-        }
-    }
-    f[..n].sort_unstable();
-    [
-        a,
-        f[0],
-        f[1],
-        f[2],
-        kind,
-        index,
-        u32::MAX,
-        u32::MAX,
-        u32::MAX,
-    ]
-}
-
-/// The key of vertex `v` of body `a` against triangle `t` of body `b`.
-fn body_key(a: u32, v: u32, b: u32, mut t: [u32; 3]) -> RowKey {
-    t.sort_unstable();
-    [a, v, u32::MAX, u32::MAX, KEY_BODY, b, t[0], t[1], t[2]]
-}
-
-/// How far a body point moved since the start of the step.
-fn motion(b: &SimBody, p: &BodyPoint) -> Vec3 {
-    let x = b.collider.positions();
-    p.terms()
-        .map(|(v, w)| (x[v as usize] - b.start[v as usize]) * w)
-        .sum()
-}
-
-/// The rows of the current positions: body pairs, tools, grips, obstacles.
-fn build_rows<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
-    bodies: &mut [B],
-    tools: &mut [T],
-    obstacles: &[Obstacle],
-    config: &ContactConfig,
-    state: &mut ContactState,
-) {
-    state.rows.clear();
-    // Body pairs (one side precise, or an awake cage against anything awake).
-    state.queried.clear();
-    for &(i, j) in &state.solve_pairs {
-        let (bi, bj) = (bodies[i as usize].borrow(), bodies[j as usize].borrow());
-        let both_cages = bi.body.level() == Level::Cage && bj.body.level() == Level::Cage;
-        if !both_cages {
-            state.queried.push((i, j));
-        }
-    }
-    query_pairs(bodies, state, config, config.body_margin);
-    for &(i, j) in &state.queried {
-        for c in found_of(&state.candidates, (i, j)) {
-            let (ba, bb) = (bodies[c.a as usize].borrow(), bodies[c.b as usize].borrow());
-            let a = BodyPoint::vertex(c.a, c.vertex);
-            let b = BodyPoint::triangle(c.b, c.vertices, c.weights);
-            let (mu_s, mu_k) = Friction::combine(&ba.friction, &bb.friction);
-            state.rows.push(ContactRow::contact(
-                body_key(c.a, c.vertex, c.b, c.vertices),
-                a,
-                Counterpart::Body(b),
-                c.normal,
-                -c.depth,
-                motion(ba, &a) - motion(bb, &b),
-                mu_s,
-                mu_k,
-            ));
-        }
-    }
-    // Tools.
-    for (it, tool) in tools.iter().enumerate() {
-        let tool = tool.borrow();
-        let (lo, hi) = tool.bounds(config.tool_margin);
-        for (ib, b) in bodies.iter().enumerate() {
-            let b = b.borrow();
-            let (blo, bhi) = b.collider.bounds();
-            if (0..3).any(|k| lo[k] > bhi[k] || blo[k] > hi[k]) {
-                continue;
-            }
-            for k in 0..tool.shape().parts() {
-                state.shapes.clear();
-                detect_shape(
-                    &tool.part_shape(k),
-                    &tool.part_pose(k),
-                    &b.collider,
-                    config.tool_margin,
-                    &mut state.triangles,
-                    &mut state.shapes,
-                );
-                let (mu_s, mu_k) = Friction::combine(&b.friction, tool.friction());
-                for s in &state.shapes {
-                    let a = BodyPoint::triangle(ib as u32, s.vertices, s.weights);
-                    let p = a.position(b.collider.positions());
-                    state.rows.push(ContactRow::contact(
-                        key_of(
-                            ib as u32,
-                            s.vertices,
-                            s.weights,
-                            KEY_TOOL,
-                            ((it as u32) << 8) | k as u32,
-                        ),
-                        a,
-                        Counterpart::Tool {
-                            tool: it as u32,
-                            part: k as u8,
-                        },
-                        s.normal,
-                        s.distance,
-                        motion(b, &a) - tool.point_motion(k, &p),
-                        mu_s,
-                        mu_k,
-                    ));
-                }
-            }
-        }
-        // Grips: each held vertex stays at its place on the tool.
-        for g in tool.grips() {
-            let b = bodies[g.body as usize].borrow();
-            let target = tool.position() + tool.rotation() * g.offset;
-            let x = b.collider.positions()[g.vertex as usize];
-            state.rows.push(ContactRow::attachment(
-                [
-                    g.body,
-                    g.vertex,
-                    u32::MAX,
-                    u32::MAX,
-                    KEY_GRIP,
-                    it as u32,
-                    u32::MAX,
-                    u32::MAX,
-                    u32::MAX,
-                ],
-                BodyPoint::vertex(g.body, g.vertex),
-                Counterpart::Tool {
-                    tool: it as u32,
-                    part: 0,
-                },
-                x - target,
-            ));
-        }
-    }
-    // Obstacles, against the bodies that take part.
-    for (io, o) in obstacles.iter().enumerate() {
-        let (olo, ohi) = o.bounds();
-        for (ib, b) in bodies.iter().enumerate() {
-            let b = b.borrow();
-            if !takes_part(b) {
-                continue;
-            }
-            let (blo, bhi) = b.collider.bounds();
-            let m = config.thickness + config.body_margin;
-            if (0..3).any(|k| olo[k] - m > bhi[k] || blo[k] - m > ohi[k]) {
-                continue;
-            }
-            state.shapes.clear();
-            detect_shape(
-                o.shape(),
-                o.pose(),
-                &b.collider,
-                config.thickness + config.body_margin,
-                &mut state.triangles,
-                &mut state.shapes,
-            );
-            let (mu_s, mu_k) = Friction::combine(&b.friction, o.friction());
-            for s in &state.shapes {
-                let a = BodyPoint::triangle(ib as u32, s.vertices, s.weights);
-                state.rows.push(ContactRow::contact(
-                    key_of(ib as u32, s.vertices, s.weights, KEY_OBSTACLE, io as u32),
-                    a,
-                    Counterpart::Obstacle(io as u32),
-                    s.normal,
-                    s.distance - config.thickness,
-                    motion(b, &a),
-                    mu_s,
-                    mu_k,
-                ));
-            }
-        }
-    }
-    state.rows.sort_unstable_by_key(|r| r.key);
-    // One point found twice (an edge point from both of its triangles) keeps its first row.
-    state.rows.dedup_by_key(|r| r.key);
 }
