@@ -159,6 +159,9 @@ pub struct CageBody {
     pub(super) contact: super::contact::CageContact,
     /// A displacement added to each embedded point (see [`CageBody::set_detail`]).
     detail: Option<Vec<Vec3>>,
+    /// The buffer of a detail cleared, reused by the next one (a switch down sets one; the
+    /// steps do not allocate once warm).
+    detail_spare: Vec<Vec3>,
 }
 
 impl CageBody {
@@ -228,6 +231,7 @@ impl CageBody {
             reduced: None,
             contact: Default::default(),
             detail: None,
+            detail_spare: Vec::new(),
         };
         body.update_points()?;
         Ok(body)
@@ -361,11 +365,10 @@ impl CageBody {
     }
 
     /// The embedded points evaluated in `f64` (for state transfer and checks).
-    pub fn exact_points(&self, out: &mut [Vec3]) -> Result<(), CageError> {
+    pub fn exact_points(&mut self, out: &mut [Vec3]) -> Result<(), CageError> {
         let x = self.msd.positions();
-        let mut terms = vec![Vec3::zeros(); self.cage.triangles().len()];
-        self.coords.face_terms(x, &mut terms);
-        self.coords.evaluate(x, &terms, out)?;
+        self.coords.face_terms(x, &mut self.face_terms);
+        self.coords.evaluate(x, &self.face_terms, out)?;
         self.add_detail(out);
         Ok(())
     }
@@ -384,7 +387,31 @@ impl CageBody {
                 found: d.len(),
             });
         }
-        self.detail = detail;
+        if let Some(old) = std::mem::replace(&mut self.detail, detail) {
+            self.detail_spare = old;
+        }
+        self.update_points()
+    }
+
+    /// Sets the detail to `exact - cage` point by point (the shape `exact` the cage's own
+    /// points `cage` miss), reusing the last detail's buffer.
+    pub fn set_detail_between(&mut self, exact: &[Vec3], cage: &[Vec3]) -> Result<(), CageError> {
+        for (what, found) in [("exact points", exact.len()), ("cage points", cage.len())] {
+            if found != self.points.len() {
+                return Err(CageError::LengthMismatch {
+                    what,
+                    expected: self.points.len(),
+                    found,
+                });
+            }
+        }
+        let mut d = self
+            .detail
+            .take()
+            .unwrap_or_else(|| std::mem::take(&mut self.detail_spare));
+        d.clear();
+        d.extend(exact.iter().zip(cage).map(|(x, c)| x - c));
+        self.detail = Some(d);
         self.update_points()
     }
 

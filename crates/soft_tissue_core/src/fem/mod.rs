@@ -651,6 +651,10 @@ impl FemBody {
         self.quats_assembled.fill(UnitQuaternion::identity());
         self.matrix_current = true;
         self.assembly_cursor = 0;
+        // The body frame's warm start and the preconditioner turned by it: a run after a
+        // reset starts from the identity as the first did (bit for bit).
+        self.frame = UnitQuaternion::identity();
+        self.system.set_preconditioner_frame(None);
     }
 
     /// Elastic plus anchor forces at positions `x` for `model` (rotations extracted to

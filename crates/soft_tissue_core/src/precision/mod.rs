@@ -275,6 +275,10 @@ pub struct LeveledBody {
     steps_at_level: u64,
     rest_count: u32,
     slow_steps: u32,
+    /// Pressed by contacts in the last step (see [`LeveledBody::set_held`]).
+    held: bool,
+    /// The cage's equilibrium is a resting shape, not its rest shape.
+    rebased: bool,
     asleep: bool,
     switches: u64,
     last_switch: Option<SwitchRecord>,
@@ -339,6 +343,8 @@ impl LeveledBody {
             steps_at_level: 0,
             rest_count: 0,
             slow_steps: 0,
+            held: false,
+            rebased: false,
             asleep: true,
             switches: 0,
             last_switch: None,
@@ -413,6 +419,16 @@ impl LeveledBody {
     /// in).
     pub fn falls(&self) -> bool {
         self.is_free() && self.settings.gravity.norm() > 0.0
+    }
+
+    /// Tells the body whether contacts pressed it in the last step (its supports, or
+    /// neighbours resting against it): at rest it then drops to its cage whatever the cage's
+    /// fit, the cage keeping the pressed shape as its equilibrium and what it misses of it as
+    /// a detail (no jump), as a free body on its supports does. Two organs whose meshes
+    /// overlap at rest push each other into shapes a box cage cannot reproduce, and would
+    /// otherwise stay precise for ever. The world sets it each step.
+    pub fn set_held(&mut self, held: bool) {
+        self.held = held;
     }
 
     /// Whether the body is at the precise level and has not been slow (by the policy's rest
@@ -721,7 +737,7 @@ impl LeveledBody {
                     self.residual = residual;
                     // A free body at rest on its supports keeps what its cage misses as a
                     // detail (see `lower_fitted`): it may drop whatever the residual.
-                    if residual <= p.rest_residual * self.smallest || self.falls() {
+                    if residual <= p.rest_residual * self.smallest || self.falls() || self.held {
                         switched = Some(self.lower_fitted(residual)?);
                     } else {
                         self.rest_count = 0;
@@ -817,6 +833,8 @@ impl LeveledBody {
         self.steps_at_level = 0;
         self.rest_count = 0;
         self.slow_steps = 0;
+        self.held = false;
+        self.rebased = false;
         self.asleep = true;
         self.switches = 0;
         self.last_switch = None;

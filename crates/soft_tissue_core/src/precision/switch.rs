@@ -139,25 +139,25 @@ impl LeveledBody {
         // motion is left carries on at the cage level and its springs bring it back to rest.
         // A free body under gravity rests on its supports in a shape of its own, which its
         // cage (without gravity) keeps.
-        if self.falls() {
+        // So does a body held in a pressed shape by its neighbours (see `set_held`); one that
+        // rests free of them goes back to its rest shape.
+        if self.falls() || self.held {
             self.cage.rebase_equilibrium(true);
             self.equilibrium.copy_from_slice(&self.fit_cage);
-            // What the cage does not reproduce of that shape stays as a detail on top of it:
-            // the cage level holds the shape exactly (no jump).
-            self.cage.set_detail(None)?;
-            self.cage.exact_points(&mut self.nodes_work)?;
-            let detail = self
-                .precise
-                .body()
-                .positions()
-                .iter()
-                .zip(&self.nodes_work)
-                .map(|(x, c)| x - c)
-                .collect();
-            self.cage.set_detail(Some(detail))?;
-        } else {
-            self.cage.set_detail(None)?;
+            self.rebased = true;
+        } else if self.rebased {
+            self.cage.rebase_equilibrium(false);
+            self.equilibrium
+                .copy_from_slice(self.cage.cage().vertices());
+            self.rebased = false;
         }
+        // What the cage does not reproduce of the shape stays as a detail on top of it, so
+        // the switch does not move the surface at all (a neighbour pressed against it is not
+        // kicked by the fit's residual), and a free body keeps the shape it rests in.
+        self.cage.set_detail(None)?;
+        self.cage.exact_points(&mut self.nodes_work)?;
+        self.cage
+            .set_detail_between(self.precise.body().positions(), &self.nodes_work)?;
         self.cage.update_points()?;
         // The shadow carries on from the precise state the cage now stands for.
         self.restart_shadow()?;

@@ -43,9 +43,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use crate::Vec3;
-use crate::contact::{
-    ContactConfig, ContactError, Friction, Obstacle, SurfaceCollider, Tool, ToolContact,
-};
+use crate::contact::{ContactConfig, ContactError, Friction, Obstacle, SurfaceCollider, Tool};
 use crate::heat::{HeatBoundary, HeatError, HeatField, HeatParams};
 use crate::linalg::CgStats;
 use crate::mesh::TetMesh;
@@ -650,25 +648,29 @@ pub fn step_solvers<B: BorrowMut<SimBody> + Send, T: Borrow<Tool>>(
     tools: &[T],
     state: &ContactState,
 ) -> Result<(), WorldError> {
-    // Cautery: each tool's power is shared over the triangle points it touches (within the
-    // skin), by their weights.
+    // Cautery: each tool's power is shared over the points it pressed in the last step's
+    // contact solve (those with a normal force), each point's share by its weights.
     for (it, tool) in tools.iter().enumerate() {
         let tool = tool.borrow();
         let watts = tool.cautery_watts();
         if watts <= 0.0 {
             continue;
         }
-        let touching = |c: &&ToolContact| c.tool == it as u32 && c.depth > 0.0;
-        let total = state.tool_contacts.iter().filter(touching).count();
+        let pressing = |r: &&crate::contact::ContactRow| {
+            matches!(r.other, crate::contact::Counterpart::Tool { tool, .. } if tool == it as u32)
+                && r.is_contact()
+                && r.force.x > 0.0
+        };
+        let total = state.solved_rows().iter().filter(pressing).count();
         if total == 0 {
             continue;
         }
         let share = watts / total as f64;
-        for c in state.tool_contacts.iter().filter(touching) {
-            let b = bodies[c.body as usize].borrow_mut();
+        for r in state.solved_rows().iter().filter(pressing) {
+            let b = bodies[r.a.body as usize].borrow_mut();
             let Some(h) = b.heat.as_mut() else { continue };
-            for (v, w) in c.vertices.iter().zip(&c.weights) {
-                let node = b.collider.nodes()[*v as usize] as usize;
+            for (v, w) in r.a.terms() {
+                let node = b.collider.nodes()[v as usize] as usize;
                 h.add_power(node, share * w)
                     .map_err(|source| WorldError::Heat {
                         body: b.name.clone(),
@@ -712,6 +714,8 @@ impl SimBody {
                 .map_err(|e| self.precision_err(e))?;
         }
         self.contact_load.clear();
+        // Contacts with a force in the last step hold the body (it may rest pressed).
+        self.body.set_held(self.solve_contacts > 0);
         // The heat field and the mechanics do not read each other within a step: in a pool
         // they run side by side.
         // The heat field's new temperatures are taken only when the mechanics stepped too,

@@ -356,6 +356,26 @@ pub fn read_surface(path: impl AsRef<Path>) -> Result<SurfaceMesh, FormatError> 
     read_surface_with_notes(path).map(|read| read.surface)
 }
 
+/// Parses a triangle surface from bytes, the format named by `name`'s extension (OBJ, STL,
+/// PLY, or a self-contained binary glTF `.glb`; a `.gltf` needs its side files: read it with
+/// [`read_surface`]).
+pub fn parse_surface(data: &[u8], name: &str) -> Result<SurfaceMesh, FormatError> {
+    let ext = Path::new(name)
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("obj") => parse_obj(data, name),
+        Some("stl") => parse_stl_with_notes(data, name).map(|l| l.surface),
+        Some("ply") => parse_ply(data, name),
+        Some("glb") => gltf::read_beside(data, Path::new(name)),
+        _ => Err(FormatError::unsupported(
+            name,
+            "unknown surface extension: expected .obj, .stl, .ply or .glb",
+        )),
+    }
+}
+
 /// Reads a triangle surface as [`read_surface`] does, with notes on what the reader
 /// overruled in the file.
 pub fn read_surface_with_notes(path: impl AsRef<Path>) -> Result<LoadedSurface, FormatError> {
