@@ -12,7 +12,10 @@ use soft_tissue_core::mesh::io::{FormatError, MeshFormat, parse_tet_mesh, parse_
 use soft_tissue_core::scenario::{CYLINDER_FEM, CYLINDER_MSD, MeshSource, Scene, SceneError};
 use soft_tissue_core::world::{SceneOptions, WorldError, check_mesh_path, placed_mesh};
 
-use crate::components::{MsdMaterial, SoftBody, SoftBodyTuning, TissueHeat, TissueMaterial};
+use crate::components::{
+    MsdMaterial, ObstacleCollider, SoftBody, SoftBodyTuning, SoftObstacle, TissueHeat,
+    TissueMaterial,
+};
 use crate::physics::SoftTissueConfig;
 
 /// A tetrahedral mesh, shared (`Arc`) with every body built from it.
@@ -360,6 +363,8 @@ pub struct SceneAsset {
     /// Every body's placed mesh, in scene order.
     #[dependency]
     pub meshes: Vec<Handle<TetMeshAsset>>,
+    /// The scene's obstacles, built (shapes read, placed), in scene order.
+    pub obstacles: Vec<soft_tissue_core::contact::Obstacle>,
 }
 
 /// Why a scene file did not load.
@@ -386,6 +391,14 @@ pub enum SceneLoadError {
         body: String,
         /// Why.
         source: TetMeshLoadError,
+    },
+    /// An obstacle's shape did not load or is unusable (the message names the file).
+    #[error("obstacle `{obstacle}`: {message}")]
+    Obstacle {
+        /// The obstacle.
+        obstacle: String,
+        /// Why.
+        message: String,
     },
 }
 
@@ -472,7 +485,45 @@ impl AssetLoader for SceneLoader {
                 load_context.add_labeled_asset(format!("Body{i}"), TetMeshAsset::from(placed)),
             );
         }
-        Ok(SceneAsset { scene, meshes })
+        let mut obstacles = Vec::with_capacity(scene.obstacles.len());
+        for o in &scene.obstacles {
+            let err = |message: String| SceneLoadError::Obstacle {
+                obstacle: o.name.clone(),
+                message,
+            };
+            let shape = match &o.shape {
+                soft_tissue_core::scenario::ObstacleShape::Mesh(file) => {
+                    let bytes = load_context
+                        .read_asset_bytes(std::path::PathBuf::from(file))
+                        .await
+                        .map_err(|e| err(format!("{file}: {e}")))?;
+                    let surface = soft_tissue_core::mesh::io::parse_surface(&bytes, file)
+                        .map_err(|e| err(e.to_string()))?;
+                    let shape = soft_tissue_core::contact::MeshShape::new(
+                        surface.positions,
+                        surface.triangles,
+                    )
+                    .map_err(|e| err(format!("{file}: {e}")))?;
+                    soft_tissue_core::contact::RigidShape::Mesh(std::sync::Arc::new(shape))
+                }
+                _ => soft_tissue_core::world::obstacle_shape(o, std::path::Path::new(""), options)
+                    .map_err(|e| err(e.to_string()))?,
+            };
+            obstacles.push(
+                soft_tissue_core::contact::Obstacle::new(
+                    o.name.clone(),
+                    shape,
+                    soft_tissue_core::world::placement_pose(&o.placement),
+                    o.friction.unwrap_or_default(),
+                )
+                .map_err(|e| err(e.to_string()))?,
+            );
+        }
+        Ok(SceneAsset {
+            scene,
+            meshes,
+            obstacles,
+        })
     }
 
     fn extensions(&self) -> &[&str] {
@@ -569,6 +620,22 @@ fn spawn_scenes(
                 e.insert(TissueHeat(h));
             }
             bodies.push(e.id());
+        }
+        for o in &asset.obstacles {
+            let pose = o.pose();
+            let t = &pose.translation.vector;
+            let q = pose.rotation;
+            commands.spawn((
+                Name::new(o.name().to_string()),
+                SoftObstacle {
+                    collider: ObstacleCollider::from_shape(o.shape()),
+                    friction: *o.friction(),
+                },
+                Transform::from_xyz(t.x as f32, t.y as f32, t.z as f32).with_rotation(
+                    Quat::from_xyzw(q.i as f32, q.j as f32, q.k as f32, q.w as f32),
+                ),
+                ChildOf(root),
+            ));
         }
         let mut r = commands.entity(root);
         r.insert(SceneBodies(bodies));

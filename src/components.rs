@@ -289,6 +289,8 @@ pub struct SoftBodyDiagnostics {
     pub contacts: u32,
     /// Deepest penetration of its contacts after this step, scene units.
     pub max_penetration: f64,
+    /// The same as a fraction of the body's smallest bounding-box dimension.
+    pub penetration_ratio: f64,
     /// Largest surface displacement from the settled shape, scene units.
     pub max_displacement: f64,
     /// Distance of the cage level from a shadow precise simulation, as a fraction of the
@@ -529,6 +531,22 @@ pub enum ObstacleCollider {
 }
 
 impl ObstacleCollider {
+    /// The collider of a core shape.
+    pub fn from_shape(shape: &RigidShape) -> Self {
+        match shape {
+            RigidShape::Plane => ObstacleCollider::Plane,
+            RigidShape::Box { half_extents } => ObstacleCollider::Box {
+                half_extents: crate::convert::to_bevy(half_extents),
+            },
+            RigidShape::Sphere { radius } => ObstacleCollider::Sphere { radius: *radius },
+            RigidShape::Capsule { radius, length } => ObstacleCollider::Capsule {
+                radius: *radius,
+                length: *length,
+            },
+            RigidShape::Mesh(m) => ObstacleCollider::Mesh(m.clone()),
+        }
+    }
+
     /// The core shape.
     pub fn shape(&self) -> RigidShape {
         match self {

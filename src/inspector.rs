@@ -12,6 +12,7 @@ use bevy_egui::{EguiContexts, EguiPlugin, EguiPrimaryContextPass, egui};
 use egui_plot::{Legend, Line, Plot, PlotPoints};
 
 use crate::components::*;
+use crate::core::contact::ToolShape;
 use crate::core::timing::StageTimes;
 use crate::physics::{ResetSimulation, SoftPhysics, SoftTissueStatus};
 
@@ -87,6 +88,7 @@ fn inspector_panel(
         &SoftBodyDiagnostics,
         Option<&Temperature>,
     )>,
+    mut tools: Query<(Entity, Option<&Name>, &mut SoftTool, &ToolReaction)>,
     mut reset: MessageWriter<ResetSimulation>,
 ) -> Result {
     let ctx = contexts.ctx_mut()?;
@@ -158,8 +160,8 @@ fn inspector_panel(
             }
             egui::Grid::new("bodies").striped(true).show(ui, |ui| {
                 for h in [
-                    "body", "level", "method", "E", "step us", "switches", "jump %", "C", "cage %",
-                    "unconv.",
+                    "body", "level", "method", "E", "mu", "step us", "contacts", "pen. %",
+                    "switches", "jump %", "C", "cage %", "unconv.",
                 ] {
                     ui.strong(h);
                 }
@@ -196,7 +198,19 @@ fn inspector_panel(
                     {
                         material.fem.young_modulus = young;
                     }
+                    // Friction (static; the kinetic one kept at most the static).
+                    let mut mu = material.friction.static_coefficient;
+                    if ui
+                        .add(egui::DragValue::new(&mut mu).speed(0.01).range(0.0..=2.0))
+                        .changed()
+                    {
+                        let f = &mut material.friction;
+                        f.static_coefficient = mu;
+                        f.kinetic_coefficient = f.kinetic_coefficient.min(mu);
+                    }
                     ui.label(format!("{:.0}", diag.step_us));
+                    ui.label(format!("{}", diag.contacts));
+                    ui.label(format!("{:.4}", 100.0 * diag.penetration_ratio));
                     ui.label(format!("{}", level.switches));
                     ui.label(
                         level
@@ -216,6 +230,51 @@ fn inspector_panel(
                         );
                     } else {
                         ui.label("0");
+                    }
+                    ui.end_row();
+                }
+            });
+            // Tools: the contact force the step balanced, and the jaws of a grasper.
+            egui::Grid::new("tools").striped(true).show(ui, |ui| {
+                for h in ["tool", "force", "|F|", "contacts", "grips", "jaws", "mu"] {
+                    ui.strong(h);
+                }
+                ui.end_row();
+                let mut rows: Vec<_> = tools.iter_mut().collect();
+                rows.sort_by_key(|r| r.0);
+                for (e, name, mut tool, reaction) in rows {
+                    ui.label(name.map_or_else(|| format!("{e}"), |n| n.as_str().to_owned()));
+                    let f = reaction.force;
+                    ui.label(format!("({:.2}, {:.2}, {:.2})", f.x, f.y, f.z));
+                    ui.label(format!("{:.3}", f.length()));
+                    ui.label(format!("{}", reaction.contacts));
+                    ui.label(format!("{}", reaction.grips));
+                    if let ToolShape::Grasper { max_opening, .. } = tool.shape {
+                        let mut jaws = tool.jaws;
+                        if ui
+                            .add(
+                                egui::Slider::new(&mut jaws, 0.0..=max_opening).text(format!(
+                                    "{:.3} now, squeeze {:.2} / {:.2}",
+                                    reaction.opening,
+                                    reaction.jaw_forces[0],
+                                    reaction.jaw_forces[1]
+                                )),
+                            )
+                            .changed()
+                        {
+                            tool.jaws = jaws;
+                        }
+                    } else {
+                        ui.label("-");
+                    }
+                    let mut mu = tool.friction.static_coefficient;
+                    if ui
+                        .add(egui::DragValue::new(&mut mu).speed(0.01).range(0.0..=2.0))
+                        .changed()
+                    {
+                        tool.friction.static_coefficient = mu;
+                        tool.friction.kinetic_coefficient =
+                            tool.friction.kinetic_coefficient.min(mu);
                     }
                     ui.end_row();
                 }

@@ -251,8 +251,15 @@ pub(super) fn tool_pose(
 
 /// Builds the core obstacles of every [`SoftObstacle`] again when one was added, changed,
 /// moved or removed (sorted by entity, so the order does not depend on the query's).
+#[allow(clippy::type_complexity)]
 pub(super) fn build_obstacles(
-    changed: Query<(), Or<(Changed<SoftObstacle>, Changed<GlobalTransform>)>>,
+    changed: Query<
+        (),
+        (
+            With<SoftObstacle>,
+            Or<(Changed<SoftObstacle>, Changed<GlobalTransform>)>,
+        ),
+    >,
     all: Query<(Entity, &SoftObstacle, Option<&Name>)>,
     mut removed: RemovedComponents<SoftObstacle>,
     poses: TransformHelper,

@@ -416,6 +416,7 @@ pub(super) fn writeback_stage(
             step_us: d.step_us + d.switch_us,
             contacts: d.contacts,
             max_penetration: d.max_penetration,
+            penetration_ratio: d.max_penetration / lb.smallest_dimension(),
             max_displacement: d.max_displacement,
             shadow_error_ratio: d.shadow.map(|e| e.max_ratio),
             unconverged_solves: d.unconverged_solves,

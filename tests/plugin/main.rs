@@ -5,6 +5,7 @@
 //! helpers they share are here.
 
 mod assets;
+mod contact;
 mod inputs;
 mod steps;
 mod visual;
@@ -109,9 +110,12 @@ fn drive_tool(
             ScriptAction::Jaws(w) => spec.jaws = *w,
         }
     }
+    // The rotation as the plugin reads it: from the global transform's matrix (its bits
+    // may differ from the `Transform`'s quaternion).
+    let (_, rotation, translation) = GlobalTransform::from(tf).to_scale_rotation_translation();
     (
-        bevy_soft_tissue::convert::to_core(tf.translation),
-        bevy_soft_tissue::convert::to_core_rotation(tf.rotation),
+        bevy_soft_tissue::convert::to_core(translation),
+        bevy_soft_tissue::convert::to_core_rotation(rotation),
         actions,
     )
 }

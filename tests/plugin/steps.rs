@@ -82,10 +82,11 @@ fn the_plugin_and_the_core_world_give_the_same_states() {
     let ti =
         world.add_tool(bevy_soft_tissue::core::contact::Tool::new("tool", script.tool).unwrap());
     let start = tool_transform(&script, 0.0);
+    let (_, rotation, translation) = GlobalTransform::from(start).to_scale_rotation_translation();
     world.tools_mut()[ti]
-        .set_pose(
-            bevy_soft_tissue::convert::to_core(start.translation),
-            bevy_soft_tissue::convert::to_core(start.rotation * Vec3::Y),
+        .set_pose_rotation(
+            bevy_soft_tissue::convert::to_core(translation),
+            bevy_soft_tissue::convert::to_core_rotation(rotation),
         )
         .unwrap();
     // The first update builds the bodies (and steps once with the tool at its start).

@@ -1,0 +1,94 @@
+//! Contact in the plugin: a body resting on an obstacle entity, a grasper driven by its
+//! component.
+
+use super::*;
+use bevy_soft_tissue::core::contact::JawShape;
+use bevy_soft_tissue::{ContactPartner, ObstacleCollider, SoftObstacle, SoftTissueContacts};
+
+/// A free cylinder under gravity falls onto a table entity (a plane obstacle) and comes to
+/// rest on it: the contacts name the obstacle's entity, nothing sinks into the table by more
+/// than 1e-3 of the cylinder's smallest dimension, and it drops back to its cage at rest.
+#[test]
+fn a_body_comes_to_rest_on_an_obstacle_entity() {
+    let dt = 0.01;
+    let mut app = app(dt);
+    app.world_mut().resource_mut::<SoftTissueConfig>().gravity =
+        bevy::math::DVec3::new(0.0, -2.0, 0.0);
+    let mesh = cylinder_asset(&mut app);
+    // The cylinder's axis is z: it lies on its side, its lowest point at y = -0.62.
+    let body = app
+        .world_mut()
+        .spawn((SoftBody::new(mesh), Transform::from_xyz(0.0, 0.63, 0.0)))
+        .id();
+    let table = app
+        .world_mut()
+        .spawn((
+            SoftObstacle::new(ObstacleCollider::Plane),
+            Transform::default(),
+        ))
+        .id();
+    let (mut seen, mut worst) = (false, 0.0f64);
+    for _ in 0..1500 {
+        app.update();
+        let contacts = app.world().resource::<SoftTissueContacts>();
+        for c in contacts.involving(body) {
+            if c.partner == ContactPartner::Obstacle(table) {
+                seen = true;
+                assert!(c.force.y > 0.0, "the table pushes up: {c:?}");
+            }
+        }
+        let d = app.world().get::<SoftBodyDiagnostics>(body).unwrap();
+        worst = worst.max(d.penetration_ratio);
+    }
+    assert!(seen, "the body touched the table");
+    assert!(
+        worst <= 1e-3,
+        "penetration {worst:.2e} of the smallest dimension"
+    );
+    assert_eq!(
+        level(&app, body),
+        Level::Cage,
+        "at rest on the table: its cage"
+    );
+    let sim = app.world().get::<SimulatedBody>(body).unwrap();
+    let lowest = sim
+        .body()
+        .surface_positions()
+        .iter()
+        .map(|p| p[1])
+        .fold(f32::INFINITY, f32::min);
+    assert!(
+        lowest > -1e-3 && lowest < 0.02,
+        "resting on the table: lowest {lowest}"
+    );
+}
+
+/// A grasper's jaws move toward the opening its component asks for, at the jaw speed, and
+/// report it.
+#[test]
+fn a_grasper_follows_its_jaws_setting() {
+    let mut app = app(0.01);
+    let mut tool = SoftTool::grasper(
+        JawShape::Capsule {
+            radius: 0.02,
+            length: 0.2,
+        },
+        0.3,
+    );
+    tool.jaws = 0.3;
+    let e = app
+        .world_mut()
+        .spawn((tool, Transform::from_xyz(5.0, 5.0, 5.0)))
+        .id();
+    app.update();
+    app.update();
+    let r = *app.world().get::<ToolReaction>(e).unwrap();
+    assert!((r.opening - 0.3).abs() < 1e-12, "{r:?}");
+    app.world_mut().get_mut::<SoftTool>(e).unwrap().jaws = 0.1;
+    for _ in 0..100 {
+        app.update();
+    }
+    let r = *app.world().get::<ToolReaction>(e).unwrap();
+    assert!((r.opening - 0.1).abs() < 1e-12, "closed to 0.1: {r:?}");
+    assert_eq!(r.contacts, 0);
+}
