@@ -1,0 +1,165 @@
+//! Closed triangle surfaces with closed-form volumes: grid spheres, ellipsoids and tori, an
+//! L-shaped prism, and pieces joined into one surface.
+
+use std::f64::consts::PI;
+
+use soft_tissue_core::Vec3;
+use soft_tissue_core::mesh::io::SurfaceMesh;
+
+/// A closed grid surface: `f(u, v)` over `nu` x `nv` cells, periodic in `u`; `v` periodic
+/// too (torus) or ending at two poles (sphere).
+pub fn grid(nu: usize, nv: usize, periodic_v: bool, f: impl Fn(f64, f64) -> Vec3) -> SurfaceMesh {
+    let mut positions = Vec::new();
+    let mut triangles = Vec::new();
+    let rows = if periodic_v { nv } else { nv - 1 };
+    for j in 0..rows {
+        let v = if periodic_v {
+            j as f64 / nv as f64
+        } else {
+            (j + 1) as f64 / nv as f64
+        };
+        for i in 0..nu {
+            positions.push(f(i as f64 / nu as f64, v));
+        }
+    }
+    let at = |i: usize, j: usize| (j * nu + i % nu) as u32;
+    let ring_pairs = if periodic_v { rows } else { rows - 1 };
+    for j in 0..ring_pairs {
+        let jn = (j + 1) % rows;
+        for i in 0..nu {
+            let (a, b, c, d) = (at(i, j), at(i + 1, j), at(i + 1, jn), at(i, jn));
+            triangles.push([a, b, c]);
+            triangles.push([a, c, d]);
+        }
+    }
+    if !periodic_v {
+        let south = positions.len() as u32;
+        positions.push(f(0.0, 0.0));
+        let north = positions.len() as u32;
+        positions.push(f(0.0, 1.0));
+        for i in 0..nu {
+            triangles.push([south, at(i + 1, 0), at(i, 0)]);
+            triangles.push([north, at(i, rows - 1), at(i + 1, rows - 1)]);
+        }
+    }
+    SurfaceMesh {
+        positions,
+        triangles,
+    }
+}
+
+pub fn sphere(r: f64) -> SurfaceMesh {
+    grid(48, 24, false, |u, v| {
+        let (t, p) = (2.0 * PI * u, PI * v);
+        Vec3::new(r * p.sin() * t.cos(), r * p.sin() * t.sin(), -r * p.cos())
+    })
+}
+
+/// An ellipsoid with semi-axes `a`, `b`, `c`: flat (`c` small), its rim curves as sharply as
+/// a liver's edge.
+pub fn ellipsoid(a: f64, b: f64, c: f64) -> SurfaceMesh {
+    grid(96, 48, false, |u, v| {
+        let (t, p) = (2.0 * PI * u, PI * v);
+        Vec3::new(a * p.sin() * t.cos(), b * p.sin() * t.sin(), -c * p.cos())
+    })
+}
+
+pub fn torus(big: f64, small: f64) -> SurfaceMesh {
+    grid(64, 24, true, |u, v| {
+        let (t, p) = (2.0 * PI * u, 2.0 * PI * v);
+        let rho = big + small * p.cos();
+        Vec3::new(rho * t.cos(), rho * t.sin(), small * p.sin())
+    })
+}
+
+/// An L-shaped prism: the L of two unit squares on a 2 x 2 square's corner removed, `depth`
+/// deep, each side face split into a fine grid so its triangles are not slivers.
+pub fn l_prism(depth: f64) -> SurfaceMesh {
+    // The L polygon, counter-clockwise: (0,0) (2,0) (2,1) (1,1) (1,2) (0,2).
+    let outline: [(f64, f64); 6] = [
+        (0.0, 0.0),
+        (2.0, 0.0),
+        (2.0, 1.0),
+        (1.0, 1.0),
+        (1.0, 2.0),
+        (0.0, 2.0),
+    ];
+    let mut positions = Vec::new();
+    let mut triangles = Vec::new();
+    let n = 8; // subdivisions per unit length
+    // Caps: the L as three unit squares, each an n x n grid, at z = 0 (facing -z) and
+    // z = depth (facing +z).
+    for (z, up) in [(0.0, false), (depth, true)] {
+        for (ox, oy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)] {
+            let base = positions.len() as u32;
+            for j in 0..=n {
+                for i in 0..=n {
+                    positions.push(Vec3::new(
+                        ox + i as f64 / n as f64,
+                        oy + j as f64 / n as f64,
+                        z,
+                    ));
+                }
+            }
+            let at = |i: u32, j: u32| base + j * (n as u32 + 1) + i;
+            for j in 0..n as u32 {
+                for i in 0..n as u32 {
+                    let (a, b, c, d) = (at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1));
+                    if up {
+                        triangles.push([a, b, c]);
+                        triangles.push([a, c, d]);
+                    } else {
+                        triangles.push([a, c, b]);
+                        triangles.push([a, d, c]);
+                    }
+                }
+            }
+        }
+    }
+    // Sides: each outline edge extruded, facing out (the outline runs counter-clockwise).
+    let layers = (depth * n as f64).ceil() as u32;
+    for k in 0..outline.len() {
+        let (x0, y0) = outline[k];
+        let (x1, y1) = outline[(k + 1) % outline.len()];
+        let len = (x1 - x0).hypot(y1 - y0);
+        let m = (len * n as f64).round() as u32;
+        let base = positions.len() as u32;
+        for j in 0..=layers {
+            for i in 0..=m {
+                let s = i as f64 / m as f64;
+                positions.push(Vec3::new(
+                    x0 + s * (x1 - x0),
+                    y0 + s * (y1 - y0),
+                    depth * j as f64 / layers as f64,
+                ));
+            }
+        }
+        let at = |i: u32, j: u32| base + j * (m + 1) + i;
+        for j in 0..layers {
+            for i in 0..m {
+                let (a, b, c, d) = (at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1));
+                triangles.push([a, b, c]);
+                triangles.push([a, c, d]);
+            }
+        }
+    }
+    // The caps and sides share their rim vertices by position: the repair welds them.
+    SurfaceMesh {
+        positions,
+        triangles,
+    }
+}
+
+/// Pieces joined into one surface, each renumbered; `inward` turns a piece inside out.
+pub fn joined(parts: &[(SurfaceMesh, bool)]) -> SurfaceMesh {
+    let mut out = SurfaceMesh::default();
+    for (part, inward) in parts {
+        let base = out.positions.len() as u32;
+        out.positions.extend(&part.positions);
+        out.triangles.extend(part.triangles.iter().map(|t| {
+            let t = t.map(|v| base + v);
+            if *inward { [t[0], t[2], t[1]] } else { t }
+        }));
+    }
+    out
+}
