@@ -1,5 +1,6 @@
 //! Deterministic mutation sweep (issue 21): every real-world mesh (the repository's
-//! `assets/meshes`, the shared folder `../shared/meshes` beside the clone when present, and
+//! `assets/meshes`, the shared folder `../shared/meshes` beside the clone when present (its
+//! absence fails the test under `SOFT_TISSUE_REQUIRE_SHARED=1`, as in CI), and
 //! the folders named in `SOFT_TISSUE_MUTATION_DIRS`, separated by `:`), every scene in
 //! `assets/scenes`, the script, recording and OBJ seeds of the fuzz targets (`fuzz/seeds`),
 //! and recordings sampled from those scripts are read after seeded truncations, bit flips,
@@ -223,17 +224,16 @@ fn no_reader_panics_or_hangs_on_mutated_real_files() {
     let own = mesh_inputs(&root.join("assets/meshes"), true, &mut inputs);
     assert!(own > 0, "no meshes in assets/meshes");
     let shared = root.join("../shared/meshes");
-    if shared.is_dir() {
-        let n = mesh_inputs(&shared, true, &mut inputs);
+    if let Some(shared) = support::shared_folder(
+        &shared,
+        "mutation sweep of the shared real-world meshes",
+        support::shared_meshes_required(),
+    ) {
+        let n = mesh_inputs(shared, true, &mut inputs);
         eprintln!(
             "mutation sweep: {n} shared meshes from {}",
             shared.display()
         );
-    } else {
-        loud(&format!(
-            "mutation sweep: SKIPPED the shared real-world meshes: {} is not present",
-            shared.display()
-        ));
     }
     for dir in std::env::var("SOFT_TISSUE_MUTATION_DIRS")
         .unwrap_or_default()
