@@ -163,3 +163,65 @@ pub fn joined(parts: &[(SurfaceMesh, bool)]) -> SurfaceMesh {
     }
     out
 }
+
+/// A box of `size` with a corner at minus half of it, each face an `n`-per-unit grid of
+/// squares split into triangles (outward): its volume is the closed form's exactly.
+pub fn cuboid(size: Vec3, n: usize) -> SurfaceMesh {
+    let half = size / 2.0;
+    let mut out = SurfaceMesh::default();
+    // Each face: the axis it faces along, its sign, and the two axes spanning it (ordered
+    // so that u x v points out).
+    for (axis, sign, u, v) in [
+        (0, 1.0, 1, 2),
+        (0, -1.0, 2, 1),
+        (1, 1.0, 2, 0),
+        (1, -1.0, 0, 2),
+        (2, 1.0, 0, 1),
+        (2, -1.0, 1, 0),
+    ] {
+        let (nu, nv) = (
+            ((size[u] * n as f64).round() as usize).max(1),
+            ((size[v] * n as f64).round() as usize).max(1),
+        );
+        let base = out.positions.len() as u32;
+        for j in 0..=nv {
+            for i in 0..=nu {
+                let mut p = Vec3::zeros();
+                p[axis] = sign * half[axis];
+                p[u] = -half[u] + size[u] * i as f64 / nu as f64;
+                p[v] = -half[v] + size[v] * j as f64 / nv as f64;
+                out.positions.push(p);
+            }
+        }
+        let at = |i: usize, j: usize| base + (j * (nu + 1) + i) as u32;
+        for j in 0..nv {
+            for i in 0..nu {
+                let (a, b, c, d) = (at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1));
+                out.triangles.push([a, b, c]);
+                out.triangles.push([a, c, d]);
+            }
+        }
+    }
+    // The faces share their rim vertices by position: the repair welds them.
+    out
+}
+
+/// A capsule along z: a cylinder of `radius` and `length` (centred on the origin) between
+/// two half balls, as one grid (48 around, 48 from pole to pole: 12 rings on each cap,
+/// 24 along the cylinder).
+pub fn capsule(radius: f64, length: f64) -> SurfaceMesh {
+    grid(48, 48, false, |u, v| {
+        let t = 2.0 * PI * u;
+        // v in [0, 1/4]: the lower cap, [1/4, 3/4]: the cylinder, [3/4, 1]: the upper cap.
+        let (rho, z) = if v < 0.25 {
+            let a = PI / 2.0 * (1.0 - 4.0 * v);
+            (radius * a.cos(), -length / 2.0 - radius * a.sin())
+        } else if v <= 0.75 {
+            (radius, -length / 2.0 + length * (v - 0.25) * 2.0)
+        } else {
+            let a = PI / 2.0 * (4.0 * v - 3.0);
+            (radius * a.cos(), length / 2.0 + radius * a.sin())
+        };
+        Vec3::new(rho * t.cos(), rho * t.sin(), z)
+    })
+}
