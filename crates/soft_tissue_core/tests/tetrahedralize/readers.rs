@@ -153,8 +153,21 @@ fn gltf_files_written_by_trimesh_and_pygltflib_read_back_placed() {
     assert!(e.to_string().contains("cut.glb"), "{e}");
     let gltf = std::fs::read(dir.join("spheres.gltf")).unwrap();
     let bin = std::fs::read(dir.join("spheres.bin")).unwrap();
+    // A buffer file that is not there: the error names the glTF, the buffer and its file.
     let e = soft_tissue_core::mesh::io::read_surface(dir.join("missing_buffer.gltf"));
     assert!(e.is_err());
+    let e = parse_gltf(&gltf, "missing.gltf", &mut |uri| {
+        Err(soft_tissue_core::mesh::io::FormatError::Io {
+            file: uri.to_owned(),
+            source: std::io::ErrorKind::NotFound.into(),
+        })
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.starts_with("missing.gltf: buffer 0: spheres.bin: "),
+        "{e}"
+    );
     let e = parse_gltf(&gltf, "short.gltf", &mut |_| Ok(bin[..100].to_vec())).unwrap_err();
     assert!(
         e.to_string().contains("short.gltf") && e.to_string().contains("buffer 0"),
