@@ -18,6 +18,7 @@ pub(super) fn onto_surface(mesh: TetMesh, goal: &Goal<'_>) -> (TetMesh, usize, u
     (mesh, projected, snapped)
 }
 
+/// Whether node `v`'s tetrahedra are positive and keep every dihedral angle in
 /// [`min_dihedral`, 180 - `min_dihedral`] at positions `x`.
 pub(super) fn node_ok(mesh: &TetMesh, x: &[Vec3], v: usize, min_dihedral: f64) -> bool {
     mesh.node_tets(v).iter().all(|&t| {
@@ -111,11 +112,7 @@ fn fit_features(mesh: TetMesh, samples: &[Vec3], min_dihedral: f64, tol: f64) ->
     }
 }
 
-/// Where the boundary still passes farther than `tol` from the surface, or the surface from
-/// it, after the node moves: the boundary edge involved is split (every tetrahedron around
-/// it bisected) and the new node put on the input surface, where all the new tetrahedra
-/// keep the quality bound (else three quarters, half or a quarter of the way there from the
-
+/// Whether every tetrahedron around node `m` keeps the quality bound at positions `x`, after
 /// moving the interior nodes of those that do not, if need be: each such node in turn goes
 /// where the worst of its own tetrahedra is best (a compass search: steps along the axes,
 /// halved when none helps). On failure every moved node goes back; on success the nodes

@@ -142,6 +142,11 @@ pub(super) fn samples(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
     out
 }
 
+/// Where the boundary still passes farther than `tol` from the surface, or the surface from
+/// it, after the node moves: the boundary edge involved is split (every tetrahedron around
+/// it bisected) and the new node put on the input surface, where all the new tetrahedra
+/// keep the quality bound (else three quarters, half or a quarter of the way there from the
+/// edge's midpoint; at each, interior nodes may move to make room, see `make_room`); a
 /// split no placement allows is undone. Candidates are boundary edges whose midpoint is far from the
 /// surface (the node goes to the midpoint's closest surface point), the longest edge of a
 /// boundary triangle whose centroid is far (the same), and surface samples far
