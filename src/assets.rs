@@ -645,6 +645,7 @@ pub fn body_label(
 /// organ it is (`liver.vtk`) rather than an entity id (`396v0`). Runs in `PreUpdate`, before
 /// the fixed steps that build bodies; a body with a name, or whose mesh was made in code,
 /// is left as it is.
+#[allow(clippy::type_complexity)]
 fn name_bodies(
     mut commands: Commands,
     server: Res<AssetServer>,
