@@ -6,8 +6,9 @@
 //! One file per concern: the closed-form shapes (`shapes.rs`), the repair of scan defects,
 //! nesting and overlaps (`repair.rs`), the surface readers against other writers' files
 //! (`readers.rs`), a meshed surface simulated (`simulate.rs`), the meshes byte for byte
-//! (`golden.rs`).
+//! (`golden.rs`), meshing to a distance (`distance.rs`).
 
+mod distance;
 mod golden;
 mod readers;
 mod repair;

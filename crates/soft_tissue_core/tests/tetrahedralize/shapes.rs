@@ -225,3 +225,53 @@ pub fn capsule(radius: f64, length: f64) -> SurfaceMesh {
         Vec3::new(rho * t.cos(), rho * t.sin(), z)
     })
 }
+
+/// A closed cup: a cylinder of `radius` and `height` (base at z = 0) hollowed from the top,
+/// its side wall and bottom `wall` thick, the rim closed; the profile revolved in `around`
+/// steps, each of its segments cut about as long as one step along the outer circle.
+pub fn cup(radius: f64, height: f64, wall: f64, around: usize) -> SurfaceMesh {
+    let step = 2.0 * PI * radius / around as f64;
+    let corners = [
+        (0.0, 0.0),
+        (radius, 0.0),
+        (radius, height),
+        (radius - wall, height),
+        (radius - wall, wall),
+        (0.0, wall),
+    ];
+    // The profile (rho, z), from the outer pole to the inner one.
+    let mut profile = Vec::new();
+    for w in corners.windows(2) {
+        let ((r0, z0), (r1, z1)) = (w[0], w[1]);
+        let n = ((r1 - r0).hypot(z1 - z0) / step).round().max(1.0) as usize;
+        for k in 0..n {
+            let s = k as f64 / n as f64;
+            profile.push((r0 + s * (r1 - r0), z0 + s * (z1 - z0)));
+        }
+    }
+    profile.push(corners[5]);
+    let mut out = SurfaceMesh::default();
+    let rings = profile.len() - 2;
+    for &(rho, z) in &profile[1..=rings] {
+        for i in 0..around {
+            let a = 2.0 * PI * i as f64 / around as f64;
+            out.positions
+                .push(Vec3::new(rho * a.cos(), rho * a.sin(), z));
+        }
+    }
+    let at = |ring: usize, i: usize| (ring * around + i % around) as u32;
+    let (outer, inner) = (out.positions.len() as u32, out.positions.len() as u32 + 1);
+    out.positions.push(Vec3::new(0.0, 0.0, 0.0));
+    out.positions.push(Vec3::new(0.0, 0.0, wall));
+    for i in 0..around {
+        out.triangles.push([outer, at(0, i + 1), at(0, i)]);
+        out.triangles
+            .push([inner, at(rings - 1, i), at(rings - 1, i + 1)]);
+        for r in 0..rings - 1 {
+            let (a, b, c, d) = (at(r, i), at(r, i + 1), at(r + 1, i + 1), at(r + 1, i));
+            out.triangles.push([a, b, c]);
+            out.triangles.push([a, c, d]);
+        }
+    }
+    out
+}

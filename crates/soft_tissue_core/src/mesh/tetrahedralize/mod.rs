@@ -27,8 +27,9 @@
 //! pieces and `buried.rs` for overlapping parts), `stuffing.rs` (the lattice and the spacing
 //! for a count), `fitting.rs` (projection onto the surface and the crease fit), `passes.rs`
 //! (edge splits, the volume restored, the distances both ways), `graded.rs` (the finer
-//! lattice coarsened back toward the count); this file holds the options, the report, the
-//! errors and the order of the steps.
+//! lattice coarsened back toward the count), `thickness.rs` (how thin the walls are) and
+//! `distance.rs` (the count grown until the boundary lies within a distance); this file
+//! holds the options, the report, the errors and the order of the steps.
 
 use super::generate::GenerateError;
 use super::io::SurfaceMesh;
@@ -37,14 +38,20 @@ use super::{QualityReport, TetMesh};
 use crate::Vec3;
 
 mod buried;
+mod distance;
 mod fitting;
 mod graded;
 mod nesting;
 mod passes;
 mod repair;
 mod stuffing;
+mod thickness;
 
+pub use distance::{
+    DistanceGoal, DistanceSearch, DistanceTry, WallAdvice, tetrahedralize_to_distance, wall_advice,
+};
 pub use repair::{RepairedSurface, repair};
+pub use thickness::{WallThickness, wall_thickness};
 
 use buried::unburied_samples;
 use fitting::onto_surface;
