@@ -682,7 +682,52 @@ pub fn spawn_scene_and_wait(app: &mut App, path: &str) -> Result<Vec<Entity>, St
     result
 }
 
-/// Registers the mesh and scene assets and their loaders, and spawns scene roots.
+/// The file name of the mesh behind `mesh` (`liver.vtk`, with its label where it has one:
+/// `organ.stl#Surface`), where it was loaded from a path; `None` for a mesh made in code.
+pub fn mesh_file_name(server: &AssetServer, mesh: &Handle<TetMeshAsset>) -> Option<String> {
+    let path = server.get_path(mesh.id())?;
+    let file = path.path().file_name()?.to_string_lossy().into_owned();
+    Some(match path.label() {
+        Some(label) => format!("{file}#{label}"),
+        None => file,
+    })
+}
+
+/// What to call a body where a person reads it (the inspector, a log line, an error): its
+/// [`Name`], else its mesh's file name ([`mesh_file_name`]), else the entity.
+pub fn body_label(
+    entity: Entity,
+    name: Option<&Name>,
+    body: Option<&SoftBody>,
+    server: &AssetServer,
+) -> String {
+    if let Some(name) = name {
+        return name.as_str().to_owned();
+    }
+    body.and_then(|b| mesh_file_name(server, &b.mesh))
+        .unwrap_or_else(|| format!("{entity}"))
+}
+
+/// Gives a body spawned without a [`Name`] its mesh's file name ([`mesh_file_name`]), so
+/// that the simulation built from it, its errors and log lines, and the inspector say which
+/// organ it is (`liver.vtk`) rather than an entity id (`396v0`). Runs in `PreUpdate`, before
+/// the fixed steps that build bodies; a body with a name, or whose mesh was made in code,
+/// is left as it is.
+#[allow(clippy::type_complexity)]
+fn name_bodies(
+    mut commands: Commands,
+    server: Res<AssetServer>,
+    bodies: Query<(Entity, &SoftBody), (Added<SoftBody>, Without<Name>)>,
+) {
+    for (entity, body) in &bodies {
+        if let Some(file) = mesh_file_name(&server, &body.mesh) {
+            commands.entity(entity).insert(Name::new(file));
+        }
+    }
+}
+
+/// Registers the mesh and scene assets and their loaders, spawns scene roots, and names
+/// unnamed bodies after their mesh files.
 #[derive(Default)]
 pub struct SoftTissueAssetPlugin;
 
@@ -695,6 +740,6 @@ impl Plugin for SoftTissueAssetPlugin {
             .register_asset_loader(SceneLoader)
             .register_asset_loader(SurfaceLoader)
             .register_type::<SoftTissueSceneRoot>()
-            .add_systems(PreUpdate, spawn_scenes);
+            .add_systems(PreUpdate, (spawn_scenes, name_bodies));
     }
 }

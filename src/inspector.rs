@@ -1,4 +1,5 @@
-//! The inspector (feature `inspector`, bevy_egui): every body's level, precise method
+//! The inspector (feature `inspector`, bevy_egui): every body (by its `Name`, else its mesh's
+//! file name: see [`body_label`]) with its level, precise method
 //! (switchable), Young's modulus (editable: the body's [`TissueMaterial`]), step time, switches, last jump, temperature range, shadow error and
 //! unconverged solves; the simulation's rate, the last step's time and the median, 99th
 //! percentile and largest of the whole step and of each stage over the last steps, the error
@@ -11,6 +12,7 @@ use bevy::prelude::*;
 use bevy_egui::{EguiContexts, EguiPlugin, EguiPrimaryContextPass, egui};
 use egui_plot::{Legend, Line, Plot, PlotPoints};
 
+use crate::assets::body_label;
 use crate::components::*;
 use crate::core::contact::ToolShape;
 use crate::core::timing::StageTimes;
@@ -43,7 +45,13 @@ const HISTORY: usize = 500;
 
 fn record_history(
     status: Res<SoftTissueStatus>,
-    bodies: Query<(Entity, Option<&Name>, &SoftBodyDiagnostics)>,
+    server: Res<AssetServer>,
+    bodies: Query<(
+        Entity,
+        Option<&Name>,
+        Option<&SoftBody>,
+        &SoftBodyDiagnostics,
+    )>,
     mut history: ResMut<StepHistory>,
 ) {
     if status.steps == history.last_step {
@@ -54,11 +62,11 @@ fn record_history(
     }
     history.last_step = status.steps;
     let step = status.steps as f64;
-    for (e, name, d) in &bodies {
+    for (e, name, body, d) in &bodies {
         let i = match history.series.iter().position(|s| s.0 == e) {
             Some(i) => i,
             None => {
-                let n = name.map_or_else(|| format!("{e}"), |n| n.as_str().to_owned());
+                let n = body_label(e, name, body, &server);
                 history
                     .series
                     .push((e, n, VecDeque::with_capacity(HISTORY)));
@@ -79,6 +87,7 @@ fn inspector_panel(
     mut status: ResMut<SoftTissueStatus>,
     mut clock: ResMut<Time<SoftPhysics>>,
     history: Res<StepHistory>,
+    server: Res<AssetServer>,
     mut bodies: Query<(
         Entity,
         Option<&Name>,
@@ -169,7 +178,7 @@ fn inspector_panel(
                 let mut rows: Vec<_> = bodies.iter_mut().collect();
                 rows.sort_by_key(|r| r.0);
                 for (e, name, mut body, mut material, level, diag, temp) in rows {
-                    ui.label(name.map_or_else(|| format!("{e}"), |n| n.as_str().to_owned()));
+                    ui.label(body_label(e, name, Some(&*body), &server));
                     let (text, colour) = match level.level {
                         Level::Cage => ("cage", egui::Color32::from_rgb(90, 170, 255)),
                         Level::Precise => ("precise", egui::Color32::from_rgb(255, 150, 60)),

@@ -1,4 +1,6 @@
-//! Messages games can react to (read them with `MessageReader`).
+//! Messages games can react to (read them with `MessageReader`). Each names the body's
+//! entity; its `Name` says which organ it is (a body spawned without one is given its mesh's
+//! file name, `liver.vtk`: see [`crate::assets::body_label`]).
 
 use bevy::prelude::*;
 

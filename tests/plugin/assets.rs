@@ -111,6 +111,59 @@ fn scene_assets_keep_mesh_paths_inside_the_assets_folder_unless_allowed() {
 /// A closed surface loads as a soft body: meshed on load with the `.meta` settings, its
 /// surface kept as the `Surface` sub-asset to draw with, and cached so the next start reads
 /// the mesh back instead of meshing again.
+/// A body spawned without a `Name` is called by its mesh's file name, in the ECS and in the
+/// simulation built from it (which the core's errors and the log use), not by an entity id;
+/// a body with a `Name` keeps it; a mesh made in code leaves the body unnamed.
+#[test]
+fn a_body_without_a_name_is_called_by_its_mesh_file() {
+    let mut app = app(0.02);
+    let server = app.world().resource::<AssetServer>().clone();
+    let liver: Handle<TetMeshAsset> = server.load("meshes/liver.vtk");
+    let unnamed = app.world_mut().spawn(SoftBody::new(liver.clone())).id();
+    let named = app
+        .world_mut()
+        .spawn((Name::new("my liver"), SoftBody::new(liver)))
+        .id();
+    let handle = cylinder_asset(&mut app);
+    let in_code = app.world_mut().spawn(SoftBody::new(handle)).id();
+    for _ in 0..3000 {
+        app.update();
+        if [unnamed, named, in_code]
+            .iter()
+            .all(|&e| app.world().get::<SimulatedBody>(e).is_some())
+        {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let world = app.world();
+    let sim_name = |e: Entity| {
+        world
+            .get::<SimulatedBody>(e)
+            .unwrap()
+            .body()
+            .name()
+            .to_owned()
+    };
+    assert_eq!(world.get::<Name>(unnamed).unwrap().as_str(), "liver.vtk");
+    assert_eq!(sim_name(unnamed), "liver.vtk");
+    assert_eq!(world.get::<Name>(named).unwrap().as_str(), "my liver");
+    assert_eq!(sim_name(named), "my liver");
+    assert!(world.get::<Name>(in_code).is_none());
+    assert_eq!(sim_name(in_code), format!("{in_code}"));
+    let server = world.resource::<AssetServer>();
+    let label = |e: Entity| {
+        bevy_soft_tissue::assets::body_label(
+            e,
+            world.get::<Name>(e),
+            world.get::<SoftBody>(e),
+            server,
+        )
+    };
+    assert_eq!(label(unnamed), "liver.vtk");
+    assert_eq!(label(in_code), format!("{in_code}"));
+}
+
 #[test]
 fn a_surface_file_becomes_a_body_and_its_mesh_is_cached() {
     surface_becomes_a_cached_body("meshes/sphere.stl", "stl");

@@ -197,7 +197,7 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
     sorted.sort_unstable_by(f64::total_cmp);
     let physics_median = sorted.get(sorted.len() / 2).copied().unwrap_or(f64::NAN);
     let physics_max = sorted.last().copied().unwrap_or(f64::NAN);
-    let machine = crate::machine();
+    let machine = crate::bench::machine();
     let rate = run.ticks as f64 / args.seconds;
     let target_met = p99 <= 1100.0;
     if args.json {

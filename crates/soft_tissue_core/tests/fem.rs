@@ -353,3 +353,151 @@ fn corotational_is_right_under_a_large_rotation_and_linear_is_not() {
         errors[0]
     );
 }
+
+/// The P1 gradients and volume of a tetrahedron, from its corners (here, not the library's
+/// kernels): `grad N_k` for k = 1..3 are the rows of the inverse of the edge matrix
+/// `[x1 - x0, x2 - x0, x3 - x0]`, and `grad N_0` is minus their sum.
+fn p1_gradients(p: [Vec3; 4]) -> ([Vec3; 4], f64) {
+    let d = Matrix3::from_columns(&[p[1] - p[0], p[2] - p[0], p[3] - p[0]]);
+    let inv = d.try_inverse().unwrap();
+    let g: [Vec3; 3] = [0, 1, 2].map(|k| inv.row(k).transpose());
+    (
+        [-(g[0] + g[1] + g[2]), g[0], g[1], g[2]],
+        d.determinant().abs() / 6.0,
+    )
+}
+
+/// `L u` for `L = sum_e V G_e^T G_e` (the rest mesh's scalar stiffness, the same for each
+/// axis), from the definition.
+fn laplacian_times(mesh: &TetMesh, u: &[Vec3]) -> Vec<Vec3> {
+    let mut out = vec![Vec3::zeros(); u.len()];
+    for t in mesh.tets() {
+        let (g, v) = p1_gradients(t.map(|i| mesh.positions()[i as usize]));
+        for a in 0..4 {
+            for b in 0..4 {
+                out[t[a] as usize] += v * g[a].dot(&g[b]) * u[t[b] as usize];
+            }
+        }
+    }
+    out
+}
+
+/// The prefactored model in the patch test: the boundary of a cube held on an affine map
+/// (a uniform strain seen through a quarter turn), one step long enough to be quasi-static
+/// (dt 1000: the inertia weighs 1e-6 of the stiffness) with the iterations run to
+/// convergence puts every interior node on the affine map: its own forces (the eight-lane
+/// element loop) and its constant matrix reproduce a uniform strain exactly.
+#[test]
+fn prefactored_steps_reproduce_a_uniform_strain_exactly() {
+    let mesh = cube(3);
+    let map = |p: &Vec3| {
+        quarter_turn() * (Matrix3::identity() + strain()) * p + Vec3::new(0.3, -0.2, 0.1)
+    };
+    let fixed: Vec<usize> = (0..mesh.positions().len())
+        .filter(|&i| on_boundary(&mesh.positions()[i]))
+        .collect();
+    let mut c = config(FemModel::CorotationalPrefactored, 1000.0, 0.3);
+    c.dt = 1000.0;
+    c.prefactored_iterations = 400;
+    let mut body = FemBody::new(&mesh, c, &Boundary::fixed_nodes(fixed.iter().copied())).unwrap();
+    let target: Vec<Vec3> = mesh.positions().iter().map(map).collect();
+    for &i in &fixed {
+        body.positions_mut()[i] = target[i];
+    }
+    body.step().unwrap();
+    let worst = body
+        .positions()
+        .iter()
+        .zip(&target)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-9, "interior off the affine field by {worst}");
+}
+
+/// The prefactored model against finite differences of the corotated energy: one iteration
+/// of its step from rest (no gravity, a free body, so the inertial target is the start `x`)
+/// moves the body by `dx` with `A dx = -grad E(x)`, `A = c M + (2 mu + 3 lambda) L` (its
+/// module's definition, rebuilt here from the mesh), `grad E` by central differences of
+/// the energy (step 1e-6), at a strained and at a rotated and strained state. And that
+/// matrix bounds the energy's Hessian from above (what keeps the model from gaining energy
+/// at any step): `d^T H d <= (2 mu + 3 lambda) d^T L d` along random directions, `H d` by
+/// central differences of the forces.
+#[test]
+fn prefactored_step_matches_finite_differences_of_the_energy() {
+    let mesh = block(Vec3::zeros(), Vec3::new(2.0, 1.0, 1.0), [2, 1, 1]).unwrap();
+    let (young, nu) = (100.0, 0.35);
+    let (lambda, mu) = element::lame(young, nu);
+    let kappa = 2.0 * mu + 3.0 * lambda;
+    let n = mesh.positions().len();
+    let rot = Rotation3::from_euler_angles(0.4, -0.9, 1.3);
+    let states = [
+        ("strained", jitter(&mesh, 0.15, 1)),
+        (
+            "rotated and strained",
+            jitter(&mesh, 0.15, 2)
+                .iter()
+                .map(|p| rot * p)
+                .collect::<Vec<_>>(),
+        ),
+    ];
+    let h = 1e-6;
+    for (name, x) in &states {
+        let mut c = config(FemModel::CorotationalPrefactored, young, nu);
+        c.dt = 0.05;
+        c.prefactored_iterations = 1;
+        let mut body = FemBody::new(&mesh, c, &Boundary::free()).unwrap();
+        body.positions_mut().copy_from_slice(x);
+        body.sync_rotations();
+        body.step().unwrap();
+        let dx: Vec<Vec3> = body.positions().iter().zip(x).map(|(a, b)| a - b).collect();
+        let lap = laplacian_times(&mesh, &dx);
+        let inertia = 1.0 / (c.dt * c.dt);
+        let mut f = vec![Vec3::zeros(); n];
+        let mut scale: f64 = 0.0;
+        let mut worst: f64 = 0.0;
+        for i in 0..n {
+            for a in 0..3 {
+                let mut xp = x.clone();
+                xp[i][a] += h;
+                let mut xm = x.clone();
+                xm[i][a] -= h;
+                let ep = body.forces_and_energy(&xp, FemModel::Corotational, &mut f);
+                let em = body.forces_and_energy(&xm, FemModel::Corotational, &mut f);
+                let force = -(ep - em) / (2.0 * h);
+                let a_dx = inertia * body.masses()[i] * dx[i][a] + kappa * lap[i][a];
+                scale = scale.max(force.abs());
+                worst = worst.max((a_dx - force).abs());
+            }
+        }
+        assert!(
+            worst < 1e-6 * scale,
+            "{name}: A dx off -dE/dx by {worst} (forces up to {scale})"
+        );
+        // The bound on the Hessian, along seeded directions.
+        let (mut fp, mut fm) = (vec![Vec3::zeros(); n], vec![Vec3::zeros(); n]);
+        for seed in 10..16 {
+            let d: Vec<Vec3> = jitter(&mesh, 1.0, seed)
+                .iter()
+                .zip(mesh.positions())
+                .map(|(a, b)| a - b)
+                .collect();
+            let xp: Vec<Vec3> = x.iter().zip(&d).map(|(p, q)| p + h * q).collect();
+            let xm: Vec<Vec3> = x.iter().zip(&d).map(|(p, q)| p - h * q).collect();
+            body.forces_and_energy(&xp, FemModel::Corotational, &mut fp);
+            body.forces_and_energy(&xm, FemModel::Corotational, &mut fm);
+            let hessian: f64 = (0..n)
+                .map(|i| -d[i].dot(&(fp[i] - fm[i])) / (2.0 * h))
+                .sum();
+            let bound: f64 = kappa
+                * laplacian_times(&mesh, &d)
+                    .iter()
+                    .zip(&d)
+                    .map(|(l, q)| l.dot(q))
+                    .sum::<f64>();
+            assert!(
+                hessian <= bound * (1.0 + 1e-6),
+                "{name}, direction {seed}: d^T H d {hessian} above the matrix's {bound}"
+            );
+        }
+    }
+}

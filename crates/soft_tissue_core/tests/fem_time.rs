@@ -1,5 +1,6 @@
 //! Validation of the FEM solvers' time integration: energy, the prefactored model's
-//! iterations against the backward-Euler step, BDF2's order on oscillators and a cantilever,
+//! iterations against the backward-Euler step, BDF2's order on oscillators and a cantilever
+//! (and its first order under rotation with the corotational CG model),
 //! rest on the static solution.
 
 #![allow(clippy::needless_range_loop)] // index loops over parallel node arrays
@@ -340,16 +341,18 @@ fn bdf2_is_second_order_and_backward_euler_first_on_an_oscillator() {
     }
 }
 
-/// A cube turning and vibrating (nonlinear corotated forces), corotational CG model, against
-/// BDF2 at a step 16 times finer. The CG model linearizes each step once, at its start, with
-/// the warped stiffness, which leaves out the derivative of the rotations: under rotation of
-/// a deformed body that error (proportional to the strain) makes BDF2 first order, measured
-/// 2.6e-2, 1.2e-2, 5.4e-3 at dt 0.01, 0.005, 0.0025 against backward Euler's 1.6e-2, 9.9e-3,
-/// 6.0e-3. Linearizing at the predicted positions `x + h v` made it second order (ratios
-/// 4.1 and 4.2) but blew up in the ten-times-the-step hard case, so it is not used. Checked:
-/// the error falls with the step.
+/// A cube turning and vibrating (nonlinear corotated forces), corotational CG model (the
+/// prefactored one refuses BDF2), against BDF2 at a step 16 times finer. The CG model
+/// linearizes each step once, at its start, with the warped stiffness, which leaves out the
+/// derivative of the rotations: under rotation of a deformed body that error (proportional
+/// to the strain) makes BDF2 first order here, measured 2.6e-2, 1.2e-2, 5.4e-3 at dt 0.01,
+/// 0.005, 0.0025 (ratios 2.08 and 2.30) against backward Euler's 1.6e-2, 9.9e-3, 6.0e-3.
+/// Linearizing at the predicted positions `x + h v` made it second order (ratios 4.1 and
+/// 4.2) but blew up in the ten-times-the-step hard case, so it is not used. Checked: each
+/// halving of the step divides the error by 1.8 to 3 (first order; second order would
+/// divide it by 4, and would fail this test until it is renamed).
 #[test]
-fn bdf2_is_second_order_for_the_corotational_models_under_rotation() {
+fn bdf2_is_first_order_for_corotational_fem_under_rotation() {
     let mesh = cube(2);
     let run = |model: FemModel, integrator: FemIntegrator, dt: f64| {
         let mut c = config(model, 20.0, 0.3);
@@ -387,11 +390,14 @@ fn bdf2_is_second_order_for_the_corotational_models_under_rotation() {
             errors(FemIntegrator::BackwardEuler),
         );
         println!("{model:?} errors: BDF2 {bdf2:?}, backward Euler {be:?}");
-        // Converges (at least first order); on the linear part of the motion (the
-        // oscillator test) it is second order.
+        // First order: the error halves with the step (on the linear part of the motion,
+        // the oscillator test, it is second order).
         for w in bdf2.windows(2) {
             let r = w[0] / w[1];
-            assert!(r > 1.8, "{model:?} BDF2 ratio {r}: {bdf2:?}");
+            assert!(
+                (1.8..3.0).contains(&r),
+                "{model:?} BDF2 ratio {r}: {bdf2:?}"
+            );
         }
     }
 }

@@ -545,31 +545,17 @@ fn tetgen_and_obj_malformed_inputs_name_the_line() {
     assert!(e.to_string().contains("c.obj: line 1"), "{e}");
 }
 
-/// Whether a missing shared-mesh folder skips the test (the default, printed as SKIPPED on
-/// stderr) or fails it: `SOFT_TISSUE_REQUIRE_SHARED=1`, which CI sets where the folder is
-/// beside the clone, so a wrong path or a lost folder cannot pass as a skip.
-fn shared_meshes_required() -> bool {
-    std::env::var("SOFT_TISSUE_REQUIRE_SHARED").is_ok_and(|v| !v.is_empty() && v != "0")
-}
-
 #[test]
 fn real_world_meshes_from_shared_folder() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/meshes");
-    let entries = match std::fs::read_dir(&dir) {
-        Ok(entries) => entries,
-        Err(e) if !shared_meshes_required() => {
-            eprintln!(
-                "SKIPPED real_world_meshes_from_shared_folder: {}: {e} (set \
-                 SOFT_TISSUE_REQUIRE_SHARED=1 to make this a failure)",
-                dir.display()
-            );
-            return;
-        }
-        Err(e) => panic!(
-            "{}: {e}, and SOFT_TISSUE_REQUIRE_SHARED is set",
-            dir.display()
-        ),
+    let Some(dir) = support::shared_folder(
+        &dir,
+        "real_world_meshes_from_shared_folder",
+        support::shared_meshes_required(),
+    ) else {
+        return;
     };
+    let entries = std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
     let mut seen = 0;
     for entry in entries {
         let path = entry.unwrap().path();
@@ -589,6 +575,33 @@ fn real_world_meshes_from_shared_folder() {
         seen += 1;
     }
     assert!(seen > 0);
+}
+
+/// A missing shared folder fails the test where the flag asks for it, and is skipped (with
+/// SKIPPED printed) where it does not; a folder that is there is read.
+#[test]
+fn a_missing_shared_folder_fails_when_required() {
+    let missing = Path::new(env!("CARGO_MANIFEST_DIR")).join("no-such-folder/meshes");
+    let failed = std::panic::catch_unwind(|| support::shared_folder(&missing, "probe", true));
+    let message = failed.expect_err("a missing folder passed under the flag");
+    let text = message
+        .downcast_ref::<String>()
+        .cloned()
+        .unwrap_or_default();
+    assert!(
+        text.contains("no-such-folder/meshes") && text.contains("SOFT_TISSUE_REQUIRE_SHARED"),
+        "{text}"
+    );
+    assert_eq!(
+        support::shared_folder(
+            &missing,
+            "the probe of a missing folder (an expected skip)",
+            false
+        ),
+        None
+    );
+    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
+    assert_eq!(support::shared_folder(here, "probe", true), Some(here));
 }
 
 /// Every parser must return (never panic) on truncated and corrupted copies of valid files

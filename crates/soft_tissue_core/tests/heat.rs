@@ -202,6 +202,43 @@ fn damage_at_constant_temperature_is_the_arrhenius_integral() {
     assert_eq!(field.time(), 0.0);
 }
 
+/// The 43 C threshold, against the closed form: tissue held at 42 C for 10 s takes no
+/// damage (the model integrates nothing at or below the threshold, where the Arrhenius rate
+/// would be 1.4e-3 per second of spurious drift), and at 44 C it takes
+/// `Omega = A exp(-Ea / (R (44 + 273.15))) t` (2.6e-3 per second for liver: far from
+/// coagulation, which takes minutes at 44 C, seconds near 60 C).
+#[test]
+fn damage_starts_above_43_c_at_the_arrhenius_rate() {
+    let mesh = rod(0.01, 3);
+    let hp = params();
+    assert_eq!(hp.damage_threshold, 43.0);
+    let held = |celsius: f64| {
+        let fixed: Vec<(usize, f64)> = (0..mesh.node_count()).map(|i| (i, celsius)).collect();
+        let mut field = HeatField::new(&mesh, hp, 0.5, &HeatBoundary { fixed }).unwrap();
+        for _ in 0..20 {
+            field.step().unwrap();
+        }
+        assert!((field.time() - 10.0).abs() < 1e-12);
+        field.damage().to_vec()
+    };
+    let rate = |celsius: f64| {
+        hp.damage_frequency
+            * (-hp.damage_activation_energy / (GAS_CONSTANT * (celsius + KELVIN_OFFSET))).exp()
+    };
+    assert!(held(42.0).iter().all(|&d| d == 0.0), "{:?}", held(42.0));
+    let exact = rate(44.0) * 10.0;
+    for omega in held(44.0) {
+        assert!(
+            ((omega - exact) / exact).abs() < 1e-12,
+            "{omega} against the closed form {exact}"
+        );
+    }
+    // The closed form's own values for liver, so that a wrong constant in it shows: about
+    // 2.6e-3 per second at 44 C, and doubling about every degree and a half.
+    assert!((2.0e-3..3.2e-3).contains(&rate(44.0)), "{}", rate(44.0));
+    assert!((1.5..2.5).contains(&(rate(44.0) / rate(42.5))));
+}
+
 #[test]
 fn bad_inputs_are_typed_errors() {
     let mesh = rod(0.01, 2);

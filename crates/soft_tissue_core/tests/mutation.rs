@@ -1,8 +1,10 @@
 //! Deterministic mutation sweep (issue 21): every real-world mesh (the repository's
-//! `assets/meshes`, the shared folder `../shared/meshes` beside the clone when present, and
+//! `assets/meshes`, the shared folder `../shared/meshes` beside the clone when present (its
+//! absence fails the test under `SOFT_TISSUE_REQUIRE_SHARED=1`, as in CI), and
 //! the folders named in `SOFT_TISSUE_MUTATION_DIRS`, separated by `:`), every scene in
 //! `assets/scenes`, the script, recording and OBJ seeds of the fuzz targets (`fuzz/seeds`),
-//! and recordings sampled from those scripts are read after seeded truncations, bit flips,
+//! recordings sampled from those scripts, and the surface files (OBJ, STL, PLY, glTF and GLB
+//! in `tests/fixtures` and `assets/meshes`; each surface read is then repaired) are read after seeded truncations, bit flips,
 //! byte replacements and declared counts replaced by zero, negative and huge values. Each
 //! read must return `Ok` or a typed error (a mesh error names the file), never panic and
 //! never hang: a panic is caught and reported with the file and the mutation that caused it,
@@ -14,7 +16,11 @@
 //! runs ten times as many mutations, `SOFT_TISSUE_MUTATION_SEED=N` other ones.
 
 use soft_tissue_core::haptics::Recording;
-use soft_tissue_core::mesh::io::{MeshFormat, parse_obj, parse_tet_mesh};
+use soft_tissue_core::mesh::io::{
+    FormatError, MeshFormat, SurfaceMesh, parse_gltf, parse_obj, parse_ply, parse_stl,
+    parse_tet_mesh,
+};
+use soft_tissue_core::mesh::tetrahedralize::repair;
 use soft_tissue_core::scenario::Scene;
 use soft_tissue_core::world::Script;
 use std::panic::{AssertUnwindSafe, catch_unwind};
@@ -34,7 +40,12 @@ const HANG_GUARD: Duration = Duration::from_secs(60);
 #[derive(Debug, Clone, Copy)]
 enum Reader {
     Mesh(MeshFormat),
+    /// The surface readers, each followed by the mesher's repair of what it read (which
+    /// must not panic either).
     Obj,
+    Stl,
+    Ply,
+    Gltf,
     Scene,
     Script,
     Recording,
@@ -101,9 +112,25 @@ fn read(reader: Reader, bytes: &[u8], name: &str) -> Result<(), String> {
         Reader::Mesh(f) => parse_tet_mesh(bytes, f, name)
             .map(drop)
             .map_err(|e| named(e.to_string())),
-        Reader::Obj => parse_obj(bytes, name)
-            .map(drop)
-            .map_err(|e| named(e.to_string())),
+        Reader::Obj => surface(parse_obj(bytes, name), named),
+        Reader::Stl => surface(parse_stl(bytes, name), named),
+        Reader::Ply => surface(parse_ply(bytes, name), named),
+        // A buffer in another file is answered with the unchanged `spheres.bin` of the
+        // fixtures, any other name as missing (the mutations reach the JSON and the GLB
+        // container).
+        Reader::Gltf => surface(
+            parse_gltf(bytes, name, &mut |uri| {
+                let found = match uri {
+                    "spheres.bin" => std::fs::read(repo().join("tests/fixtures/spheres.bin")),
+                    _ => Err(std::io::ErrorKind::NotFound.into()),
+                };
+                found.map_err(|source| FormatError::Io {
+                    file: uri.to_owned(),
+                    source,
+                })
+            }),
+            named,
+        ),
         Reader::Scene => Scene::from_ron(&text(), name)
             .map(drop)
             .map_err(|e| e.to_string()),
@@ -114,6 +141,17 @@ fn read(reader: Reader, bytes: &[u8], name: &str) -> Result<(), String> {
             .map(drop)
             .map_err(|e| e.to_string()),
     }
+}
+
+/// A surface reader's result, then the mesher's repair of the surface (its error is no
+/// failure: a mutated surface may be beyond repair).
+fn surface(
+    read: Result<SurfaceMesh, FormatError>,
+    named: impl Fn(String) -> String,
+) -> Result<(), String> {
+    let s = read.map_err(|e| named(e.to_string()))?;
+    let _ = repair(&s);
+    Ok(())
 }
 
 struct Outcome {
@@ -223,17 +261,16 @@ fn no_reader_panics_or_hangs_on_mutated_real_files() {
     let own = mesh_inputs(&root.join("assets/meshes"), true, &mut inputs);
     assert!(own > 0, "no meshes in assets/meshes");
     let shared = root.join("../shared/meshes");
-    if shared.is_dir() {
-        let n = mesh_inputs(&shared, true, &mut inputs);
+    if let Some(shared) = support::shared_folder(
+        &shared,
+        "mutation sweep of the shared real-world meshes",
+        support::shared_meshes_required(),
+    ) {
+        let n = mesh_inputs(shared, true, &mut inputs);
         eprintln!(
             "mutation sweep: {n} shared meshes from {}",
             shared.display()
         );
-    } else {
-        loud(&format!(
-            "mutation sweep: SKIPPED the shared real-world meshes: {} is not present",
-            shared.display()
-        ));
     }
     for dir in std::env::var("SOFT_TISSUE_MUTATION_DIRS")
         .unwrap_or_default()
@@ -260,6 +297,22 @@ fn no_reader_panics_or_hangs_on_mutated_real_files() {
     for p in files(&seeds.join("obj")) {
         inputs.push(input(&p, Reader::Obj));
     }
+    // The surface files the tests read back against other writers (meshio, trimesh,
+    // pygltflib), and the STL and glTF in `assets/meshes`.
+    let fixtures = root.join("tests/fixtures");
+    for (file, reader) in [
+        ("sphere.obj", Reader::Obj),
+        ("sphere_ascii.stl", Reader::Stl),
+        ("sphere_binary.stl", Reader::Stl),
+        ("sphere_ascii.ply", Reader::Ply),
+        ("sphere_binary.ply", Reader::Ply),
+        ("sphere.glb", Reader::Gltf),
+        ("spheres.gltf", Reader::Gltf),
+        ("spheres_embedded.gltf", Reader::Gltf),
+    ] {
+        inputs.push(input(&fixtures.join(file), reader));
+    }
+    inputs.push(input(&root.join("assets/meshes/sphere.stl"), Reader::Stl));
 
     let (scale, seed) = (scale(), base_seed());
     let files = inputs.len();

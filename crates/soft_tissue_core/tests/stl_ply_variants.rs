@@ -575,3 +575,182 @@ fn ply_bad_strip_index_names_the_row_the_index_and_the_vertex_count() {
         }
     }
 }
+
+/// A glTF of one triangle, (0,0,0) (1,0,0) (0,1,0) in a data URI, under the given nodes and
+/// scene roots.
+fn gltf_with_nodes(nodes: &str, roots: &str) -> Vec<u8> {
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":{roots}}}],
+        "nodes":{nodes},"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3",
+        "min":[0,0,0],"max":[1,1,0]}}],"bufferViews":[{{"buffer":0,"byteLength":36}}],
+        "buffers":[{{"byteLength":36,
+        "uri":"data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAA"}}]}}"#
+    )
+    .into_bytes()
+}
+
+/// The variants the tests above (and `tetrahedralize/readers.rs` for glTF) read, as files:
+/// (fuzz target, name, bytes). Each is a seed of its fuzz target's corpus
+/// (`fuzz/corpus/TARGET/variant-NAME`), so that fuzzing starts from the files real
+/// exporters write, not only from tidy ones.
+fn reader_variants() -> Vec<(&'static str, &'static str, Vec<u8>)> {
+    let t = tetrahedron();
+    let mut nan = tetrahedron();
+    nan[2][1].y = f64::NAN;
+    let mut cut = binary_stl("solid cut", 4, &t, &[]);
+    cut.truncate(84 + 2 * 50 + 17);
+    let bom = |data: &[u8]| [b"\xEF\xBB\xBF".as_slice(), data].concat();
+    let text = ascii_solid("part", &t);
+    let mut bad_face = tetra_faces();
+    bad_face[2][1] = -1;
+    let mut newline_x = corners();
+    newline_x[0].x = f32::from_bits(0x3F80_000A) as f64;
+    let comment = [
+        "comment the header ends at end_header below",
+        "obj_info end_header",
+    ];
+    let glb = std::fs::read(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures/sphere.glb"),
+    )
+    .unwrap();
+    vec![
+        (
+            "stl",
+            "binary-zero-count",
+            binary_stl("streamed", 0, &t, &[]),
+        ),
+        (
+            "stl",
+            "binary-solid-zero-count",
+            binary_stl("solid streamed", 0, &t, &[]),
+        ),
+        (
+            "stl",
+            "binary-count-too-large",
+            binary_stl("solid exported", 1000, &t, &[]),
+        ),
+        (
+            "stl",
+            "binary-count-too-small",
+            binary_stl("exported", 1, &t, &[]),
+        ),
+        (
+            "stl",
+            "binary-padded",
+            binary_stl("solid padded", 4, &t, &[0; 7]),
+        ),
+        ("stl", "binary-truncated", cut),
+        ("stl", "binary-nan", binary_stl("nan", 0, &nan, &[])),
+        ("stl", "ascii-upper-case", text.to_uppercase().into_bytes()),
+        (
+            "stl",
+            "ascii-bom-crlf",
+            bom(text.replace('\n', "\r\n").as_bytes()),
+        ),
+        (
+            "stl",
+            "ascii-several-solids",
+            (ascii_solid("a", &t[..1]) + &ascii_solid("b", &t[1..3]) + &ascii_solid("", &t[3..]))
+                .into_bytes(),
+        ),
+        ("stl", "ascii-short", b"solid x\nendsolid x\n".to_vec()),
+        (
+            "ply",
+            "ascii-comment-end-header",
+            ascii_ply(&comment, "\n", &tetra_faces()),
+        ),
+        (
+            "ply",
+            "binary-comment-end-header",
+            binary_ply(&comment, "\n", &corners()),
+        ),
+        ("ply", "ascii-crlf", ascii_ply(&[], "\r\n", &tetra_faces())),
+        ("ply", "ascii-cr", ascii_ply(&[], "\r", &tetra_faces())),
+        (
+            "ply",
+            "binary-cr-newline-byte",
+            binary_ply(&[], "\r", &newline_x),
+        ),
+        (
+            "ply",
+            "ascii-bad-face-index",
+            ascii_ply(&[], "\n", &bad_face),
+        ),
+        (
+            "ply",
+            "ascii-faces-before-vertices",
+            b"ply\nformat ascii 1.0\nelement face 2\nproperty list uchar int vertex_index\n\
+              element vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+              end_header\n3 0 1 2\n3 2 1 -3\n0 0 0\n1 0 0\n0 1 0\n"
+                .to_vec(),
+        ),
+        (
+            "ply",
+            "binary-bom",
+            bom(&binary_ply(&[], "\r\n", &corners())),
+        ),
+        (
+            "ply",
+            "ascii-strips-restarted",
+            strips_ply(false, &[], &[vec![0, 2, 1, 3, -1, 1, 3, 0, 2]]),
+        ),
+        (
+            "ply",
+            "binary-strips-joined",
+            strips_ply(true, &[], &[vec![0, 2, 1, 3, 3, 1, 1, 3, 0, 2]]),
+        ),
+        (
+            "ply",
+            "binary-faces-and-strips",
+            strips_ply(true, &[[0, 2, 1], [0, 1, 3]], &[vec![0, 3, 2, 1]]),
+        ),
+        (
+            "ply",
+            "ascii-bad-strip-index",
+            strips_ply(false, &[], &[vec![0, 2, 1, 3], vec![1, 3, -2, 0]]),
+        ),
+        (
+            "gltf",
+            "node-under-two-parents",
+            gltf_with_nodes(r#"[{"children":[1,2]},{"children":[2]},{"mesh":0}]"#, "[0]"),
+        ),
+        (
+            "gltf",
+            "shared-mesh-placed-twice",
+            gltf_with_nodes(
+                r#"[{"children":[1,2]},{"mesh":0},{"mesh":0,"translation":[0,0,5]}]"#,
+                "[0]",
+            ),
+        ),
+        (
+            "gltf",
+            "no-triangles",
+            br#"{"asset":{"version":"2.0"}}"#.to_vec(),
+        ),
+        ("gltf", "glb-cut-short", glb[..glb.len() - 9].to_vec()),
+    ]
+}
+
+/// The fuzz corpora of the surface readers (`fuzz/corpus/stl`, `ply`, `gltf`) hold every
+/// reader variant above, byte for byte. After changing a variant, write them again with
+/// `SOFT_TISSUE_WRITE_FUZZ_VARIANTS=1 cargo test -p soft_tissue_core --test
+/// stl_ply_variants fuzz_corpora` and commit the files.
+#[test]
+fn the_fuzz_corpora_hold_every_reader_variant() {
+    let corpus = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fuzz/corpus");
+    let write = std::env::var_os("SOFT_TISSUE_WRITE_FUZZ_VARIANTS").is_some();
+    let mut missing = Vec::new();
+    for (target, name, bytes) in reader_variants() {
+        let path = corpus.join(target).join(format!("variant-{name}"));
+        if write {
+            std::fs::write(&path, &bytes).unwrap();
+        } else if std::fs::read(&path).ok().as_deref() != Some(bytes.as_slice()) {
+            missing.push(path.display().to_string());
+        }
+    }
+    assert!(
+        missing.is_empty(),
+        "missing or out of date (see this test's docs to write them): {missing:#?}"
+    );
+}

@@ -388,7 +388,7 @@ pub fn report(args: &ReportArgs) -> Res<()> {
             + 7,
         start: Instant::now(),
     };
-    let machine = crate::machine();
+    let machine = crate::bench::machine();
     // The header goes on top at the end, once the spread it states has been measured.
     let mut md = String::new();
     let mut js = serde_json::Map::new();

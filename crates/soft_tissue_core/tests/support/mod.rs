@@ -6,6 +6,42 @@
 #![allow(dead_code)] // Each test file uses part of it.
 
 use std::fmt;
+use std::path::Path;
+
+/// Whether a missing shared-mesh folder (`../shared/meshes` beside the clone) skips what
+/// reads it (the default, printed as SKIPPED on stderr) or fails the test:
+/// `SOFT_TISSUE_REQUIRE_SHARED=1`, which `.ci/run` always sets (it requires the folder), so
+/// a wrong path or a lost folder cannot pass as a skip.
+pub fn shared_meshes_required() -> bool {
+    std::env::var("SOFT_TISSUE_REQUIRE_SHARED").is_ok_and(|v| !v.is_empty() && v != "0")
+}
+
+/// The shared-mesh folder `dir` where it is a folder. Where it is not: a panic naming it and
+/// `test` when `required` (see [`shared_meshes_required`]), else `None` after printing
+/// SKIPPED for `test` on stderr
+/// (shown even when the test passes).
+pub fn shared_folder<'a>(dir: &'a Path, test: &str, required: bool) -> Option<&'a Path> {
+    if dir.is_dir() {
+        return Some(dir);
+    }
+    if required {
+        panic!(
+            "{test}: the shared real-world meshes are missing ({} is not a folder), and \
+             SOFT_TISSUE_REQUIRE_SHARED is set",
+            dir.display()
+        );
+    }
+    // Written to the standard error itself, which `cargo test` shows even when the test
+    // passes (the print macros' output is captured).
+    use std::io::Write;
+    let _ = writeln!(
+        std::io::stderr(),
+        "SKIPPED {test}: {} is not a folder (set SOFT_TISSUE_REQUIRE_SHARED=1 to make this a \
+         failure)",
+        dir.display()
+    );
+    None
+}
 
 /// A small deterministic generator (xorshift64): the same seed gives the same mutations.
 pub struct Rng(u64);

@@ -37,7 +37,8 @@ pub fn gltf_external_uris(data: &[u8], name: &str) -> Result<Vec<String>, Format
 }
 
 /// Parses a glTF or GLB file into one triangle surface. `external` returns the bytes of a
-/// buffer kept in another file, by its (percent-decoded) URI; `name` is used in messages.
+/// buffer kept in another file, by its (percent-decoded) URI; `name` is used in messages
+/// (an error of `external` is returned naming `name` and the buffer before it).
 pub fn parse_gltf(
     data: &[u8],
     name: &str,
@@ -56,7 +57,17 @@ pub fn parse_gltf(
             })?,
             Source::Uri(uri) if uri.starts_with("data:") => decode_data_uri(uri)
                 .map_err(|why| FormatError::unsupported(name, format!("buffer {i}: {why}")))?,
-            Source::Uri(uri) => external(&percent_decode(uri))?,
+            // The caller's error names the buffer's file; the message names the glTF too.
+            Source::Uri(uri) => {
+                let file = percent_decode(uri);
+                external(&file).map_err(|e| match e {
+                    FormatError::Io { file: path, source } => FormatError::Io {
+                        file: format!("{name}: buffer {i}: {path}"),
+                        source,
+                    },
+                    e => FormatError::unsupported(name, format!("buffer {i} ({file}): {e}")),
+                })?
+            }
         };
         if bytes.len() < buffer.length() {
             return Err(FormatError::unsupported(
