@@ -7,7 +7,9 @@
 //! surface hardly sees, which would otherwise drift. The residual's Jacobian is
 //! `J = Phi + Psi D`, `D = dT/dV` (each face's term depends on its own three vertices: exact
 //! derivatives from [`GreenCoordinates::face_term_jacobians`]), and `J^T J` is assembled from
-//! the Gram matrices `Phi^T Phi`, `Phi^T Psi` and `Psi^T Psi` (no pass over the surface). A
+//! the Gram matrices `Phi^T Phi`, `Phi^T Psi` and `Psi^T Psi` (no pass over the surface); the
+//! gradient `J^T r` from the residual formed point by point (one pass: from the Gram matrices it
+//! cancels to rounding near a minimum with a residual left, and the steps stall). A
 //! step solves `(H + lambda diag(J^T J) + mu I + rho I) dV = -g` with `H` the Hessian (`J^T J`
 //! plus the face terms' second derivatives weighted by `Psi^T r`,
 //! [`GreenCoordinates::face_term_curvatures`]), or with `H = J^T J` (Gauss-Newton) where that
@@ -24,7 +26,7 @@
 //! fits; with this fallback those of the first 58 steps converge, and once the tool's dent
 //! deepens the objective is a narrow curved valley in which the steps stop at the cap (the
 //! fit is then the best found, not the optimum). About 70 ms a fit there (2-core EPYC VM);
-//! the 64-vertex cage, whose fixed point failed in 55 of the 500, fails in 44.
+//! the 64-vertex cage, whose fixed point failed in 55 of the 500, fails in 43.
 
 use super::{FitReport, SurfaceFit};
 use crate::Vec3;
@@ -48,8 +50,6 @@ const PRIOR: f64 = 1e-6;
 pub(super) struct Newton {
     /// `Psi^T Psi` over the surface points, cage faces x cage faces.
     psi_t_psi: DMatrix<f64>,
-    /// `Psi^T` times the values fitted, cage faces x 3.
-    psi_rhs: DMatrix<f64>,
     /// Per face, `d t_j / d v` for its three vertices.
     jac: Vec<[Matrix3<f64>; 3]>,
     /// Per cage vertex, the faces it belongs to and its corner there: `corners[start[v]..
@@ -106,7 +106,6 @@ impl Newton {
         let d = 3 * nv;
         Newton {
             psi_t_psi: psi_s.tr_mul(&psi_s),
-            psi_rhs: DMatrix::zeros(nf, 3),
             jac: vec![[Matrix3::zeros(); 3]; nf],
             start,
             corners,
@@ -176,34 +175,12 @@ fn nan_max(a: f64, b: f64) -> f64 {
     }
 }
 
-/// `m`'s row `r` (3 columns) as a vector.
-fn row(m: &DMatrix<f64>, r: usize) -> Vec3 {
-    Vec3::new(m[(r, 0)], m[(r, 1)], m[(r, 2)])
-}
-
 impl SurfaceFit {
     /// The workspace, made on first use.
     fn newton(&mut self, coords: &GreenCoordinates) -> &mut Newton {
         let surface = &self.surface;
         self.newton
             .get_or_insert_with(|| Box::new(Newton::new(coords, surface)))
-    }
-
-    /// `Psi^T values` over the surface points (a pass over the surface).
-    fn project_psi(&mut self, coords: &GreenCoordinates, values: &[Vec3]) {
-        self.newton(coords);
-        let Some(n) = self.newton.as_mut() else {
-            return;
-        };
-        n.psi_rhs.fill(0.0);
-        for &i in &self.surface {
-            let t = values[i as usize];
-            for (j, w) in coords.psi(i as usize).iter().enumerate() {
-                n.psi_rhs[(j, 0)] += w * t.x;
-                n.psi_rhs[(j, 1)] += w * t.y;
-                n.psi_rhs[(j, 2)] += w * t.z;
-            }
-        }
     }
 
     /// The face terms (into `terms`) and their derivatives at `cage`, and `J^T J` there.
@@ -258,40 +235,38 @@ impl SurfaceFit {
         }
     }
 
-    /// `J^T r` at `cage` into the workspace's gradient ([`SurfaceFit::assemble`] first; `r`
-    /// the residual of the values projected by `project_values` and `project_psi`).
-    fn gradient(&mut self, coords: &GreenCoordinates, cage: &[Vec3]) {
+    /// `J^T r` at `cage` into the workspace's gradient ([`SurfaceFit::assemble`] first, for
+    /// the face terms and their derivatives), `r` the residual against `values`, and `Psi^T
+    /// r` into the workspace's face weights. One pass over the surface: `r` is formed per
+    /// point, not from the Gram matrices, whose difference `A V + B T - Phi^T P` cancels to
+    /// rounding long before a fit with a residual left converges.
+    fn gradient(&mut self, coords: &GreenCoordinates, cage: &[Vec3], values: &[Vec3]) {
         let Some(n) = self.newton.as_mut() else {
             return;
         };
-        let (a, b, c) = (&self.phi_t_phi, &self.phi_t_psi, &n.psi_t_psi);
-        let (nv, nf) = (cage.len(), self.terms.len());
-        // Phi^T r = A V + B T - Phi^T P.
-        for v in 0..nv {
-            let mut g = -Vec3::new(
-                self.fixed_rhs[(v, 0)],
-                self.fixed_rhs[(v, 1)],
-                self.fixed_rhs[(v, 2)],
-            );
-            for (x, w) in cage.iter().zip(a.column(v).iter()) {
-                g += x * *w;
+        n.grad.fill(0.0);
+        n.fw.fill(Vec3::zeros());
+        for (c, &i) in self.surface.iter().enumerate() {
+            let i = i as usize;
+            let phi = self.phi_t.column(c);
+            let psi = coords.psi(i);
+            let mut r = -values[i];
+            for (x, w) in cage.iter().zip(phi.iter()) {
+                r += x * *w;
             }
-            for (t, w) in self.terms.iter().zip(b.row(v).iter()) {
-                g += t * *w;
+            for (t, w) in self.terms.iter().zip(psi) {
+                r += t * *w;
             }
-            n.grad[3 * v..3 * v + 3].copy_from_slice(g.as_slice());
+            for (v, w) in phi.iter().enumerate() {
+                for a in 0..3 {
+                    n.grad[3 * v + a] += w * r[a];
+                }
+            }
+            for (f, w) in n.fw.iter_mut().zip(psi) {
+                *f += r * *w;
+            }
         }
-        // Psi^T r = B^T V + C T - Psi^T P, through the face terms' derivatives.
-        for j in 0..nf {
-            let mut acc = -row(&n.psi_rhs, j);
-            for (x, w) in cage.iter().zip(b.column(j).iter()) {
-                acc += x * *w;
-            }
-            for (t, w) in self.terms.iter().zip(c.column(j).iter()) {
-                acc += t * *w;
-            }
-            n.fw[j] = acc;
-        }
+        // Through the face terms' derivatives.
         for (j, (jf, w)) in n.jac.iter().zip(&n.fw).enumerate() {
             for (k, v) in coords.face_vertices(j).into_iter().enumerate() {
                 let g = jf[k].tr_mul(w);
@@ -424,7 +399,7 @@ impl SurfaceFit {
         tolerance: f64,
         iterations_before: u32,
     ) -> FitReport {
-        self.project_psi(coords, points);
+        self.newton(coords);
         let nv = cage.len();
         let rho = PRIOR * self.phi_t_phi.trace() / nv as f64;
         if let Some(n) = self.newton.as_mut() {
@@ -453,7 +428,7 @@ impl SurfaceFit {
         for _ in 0..STEPS {
             if fresh {
                 self.assemble(coords, cage);
-                self.gradient(coords, cage);
+                self.gradient(coords, cage, points);
                 self.add_curvature(coords, cage);
                 if let Some(n) = self.newton.as_mut() {
                     for (v, (x, p)) in cage.iter().zip(&n.prior).enumerate() {
@@ -519,7 +494,7 @@ impl SurfaceFit {
         velocities: &mut [Vec3],
         iterations_before: u32,
     ) -> FitReport {
-        self.project_psi(coords, point_velocities);
+        self.newton(coords);
         self.assemble(coords, cage);
         if let Some(n) = self.newton.as_mut() {
             n.rho = 0.0;
@@ -532,7 +507,7 @@ impl SurfaceFit {
         self.terms.fill(Vec3::zeros());
         let mut zero = std::mem::take(&mut self.mapped);
         zero.fill(Vec3::zeros());
-        self.gradient(coords, &zero);
+        self.gradient(coords, &zero, point_velocities);
         self.mapped = zero;
         let solved = self.solve(coords, 0.0, false);
         let mut change: f64 = 0.0;
@@ -583,10 +558,9 @@ mod tests {
             .enumerate()
             .map(|(i, v)| v + Vec3::new(0.01 * (i as f64).sin(), 0.02, -0.01 * (i as f64).cos()))
             .collect();
-        fit.project_values(&points);
-        fit.project_psi(&coords, &points);
+        fit.newton(&coords);
         fit.assemble(&coords, &x);
-        fit.gradient(&coords, &x);
+        fit.gradient(&coords, &x, &points);
         fit.add_curvature(&coords, &x);
         let n = fit.newton.as_ref().unwrap();
         let (grad, mut h) = (n.grad.clone(), n.h.clone());
@@ -617,12 +591,12 @@ mod tests {
             y[c / 3][c % 3] += eps;
             let fp = f(&mut fit, &y);
             fit.assemble(&coords, &y);
-            fit.gradient(&coords, &y);
+            fit.gradient(&coords, &y, &points);
             let gp = fit.newton.as_ref().unwrap().grad.clone();
             y[c / 3][c % 3] -= 2.0 * eps;
             let fm = f(&mut fit, &y);
             fit.assemble(&coords, &y);
-            fit.gradient(&coords, &y);
+            fit.gradient(&coords, &y, &points);
             let gm = fit.newton.as_ref().unwrap().grad.clone();
             let fd = (fp - fm) / (2.0 * eps);
             worst_g = worst_g.max((fd - grad[c]).abs());
