@@ -28,6 +28,7 @@
 pub mod bench;
 pub mod boundary;
 pub mod cage;
+pub mod calibration;
 pub mod contact;
 pub mod fem;
 mod geometry;

@@ -623,36 +623,6 @@ fn replays_end_in_the_same_state_hash() {
     assert_ne!(a, c, "the model changes the result");
 }
 
-/// The thread count never changes a state: the organs at real-mesh sizes (`organs-fine`, 2.8k
-/// to 4.8k tetrahedra a body, so the element loops split too) held precise under a poke of
-/// the liver, with the CG and the prefactored corotational models, end in the same
-/// `state_hash` on one, two and three threads.
-#[test]
-fn one_and_several_threads_end_in_the_same_state_hash() {
-    use soft_tissue_core::fem::FemModel;
-    use soft_tissue_core::precision::PreciseMethod;
-    for model in [FemModel::Corotational, FemModel::CorotationalPrefactored] {
-        let end = |threads: usize| {
-            let mut w = SoftTissueWorld::from_scene(&Scene::fine_organs(), assets()).unwrap();
-            w.set_threads(threads).unwrap();
-            assert_eq!(w.threads().count(), threads);
-            for b in w.bodies_mut() {
-                let mesh = b.mesh().clone();
-                let body = b.body_mut();
-                body.set_precise_method(&mesh, PreciseMethod::fem(model))
-                    .unwrap();
-                body.pin(Some(Level::Precise)).unwrap();
-            }
-            let s = Script::builtin("poke-liver", &w).unwrap();
-            run(&mut w, &s, 60, |_| {});
-            w.state_hash()
-        };
-        let one = end(1);
-        assert_eq!(one, end(2), "{model:?}: two threads");
-        assert_eq!(one, end(3), "{model:?}: three threads");
-    }
-}
-
 /// A scene's mesh paths stay inside the assets folder unless the caller allows otherwise: an
 /// absolute path and a `..` path are errors naming the body and the path; allowed, they load.
 #[test]

@@ -322,7 +322,7 @@ pub fn report(args: &ReportArgs) -> Res<()> {
     if args.fig5_only {
         let mut progress = Progress {
             done: 0,
-            total: 4 * cages.len(),
+            total: 6 * cages.len(),
             start: Instant::now(),
         };
         let mut md = String::from("# Fig. 5 only\n\n");
@@ -377,7 +377,7 @@ pub fn report(args: &ReportArgs) -> Res<()> {
         done: 0,
         total: 2 * pairs.len()
             + 2
-            + 4 * cages.len()
+            + 6 * cages.len()
             + 2 * resting.len()
             + resolutions.len()
             + sweep_configs.len()

@@ -457,3 +457,104 @@ fn kernel_dispatch(packed: &[Lane], k: usize, q: [&[f32]; 3], rest: &[Vec3], out
         KernelVariant::Portable => kernel::<false>(packed, k, q, rest, out),
     }
 }
+
+/// One face's term `s n'` and its derivatives by the face's three deformed vertices `p`
+/// (see [`GreenCoordinates::face_term_jacobians`]).
+fn face_jacobian(f: &Face, rest: &[Vec3], p: [Vec3; 3]) -> (Vec3, [nalgebra::Matrix3<f64>; 3]) {
+    use nalgebra::Matrix3;
+    let [i0, i1, i2] = f.v.map(|i| i as usize);
+    let (u, v) = (rest[i1] - rest[i0], rest[i2] - rest[i0]);
+    let (du, dv) = (p[1] - p[0], p[2] - p[0]);
+    let c = du.cross(&dv);
+    let len = c.norm();
+    let (uu, vv, uv) = (u.norm_squared(), v.norm_squared(), u.dot(&v));
+    let q = du.norm_squared() * vv - 2.0 * du.dot(&dv) * uv + dv.norm_squared() * uu;
+    let root = q.max(0.0).sqrt();
+    let k = 8f64.sqrt() * f.area;
+    let s = root / k;
+    if !(len > 0.0 && root > 0.0) {
+        let t = if len > 0.0 {
+            c * (s / len)
+        } else {
+            Vec3::zeros()
+        };
+        return (t, [Matrix3::zeros(); 3]);
+    }
+    let n = c / len;
+    let ds_du = (du * vv - dv * uv) / (root * k);
+    let ds_dv = (dv * uu - du * uv) / (root * k);
+    let proj = (Matrix3::identity() - n * n.transpose()) / len;
+    let j_du = n * ds_du.transpose() - proj * dv.cross_matrix() * s;
+    let j_dv = n * ds_dv.transpose() + proj * du.cross_matrix() * s;
+    (c * (s / len), [-(j_du + j_dv), j_du, j_dv])
+}
+
+/// The face terms' derivatives, for fits that move the cage by Gauss-Newton steps.
+impl GreenCoordinates {
+    /// The cage vertices of face `j`, in the order [`GreenCoordinates::face_term_jacobians`]
+    /// gives their derivatives.
+    pub fn face_vertices(&self, j: usize) -> [u32; 3] {
+        self.faces[j].v
+    }
+
+    /// The face terms `t_j = s_j n'_j` of a deformed cage (as
+    /// [`GreenCoordinates::face_terms`]) and their exact derivatives: `jac[j][k]` is
+    /// `d t_j / d v'` for the `k`-th vertex of face `j` (row: component of `t_j`, column:
+    /// component of the vertex). With `u'`, `v'` the deformed edges from the first vertex,
+    /// `c = u' x v'`, `n' = c / |c|` and `s_j = sqrt(q) / (sqrt(8) A)`, `q = |u'|^2 |v|^2 - 2
+    /// (u'.v')(u.v) + |v'|^2 |u|^2`: `dt = n' ds + s dn'`, `ds / du' = (|v|^2 u' - (u.v) v') /
+    /// (sqrt(q) sqrt(8) A)` (and `u`, `v` swapped for `v'`), `dn' = (I - n' n'^T) dc / |c|`
+    /// with `dc = -[v']x du' + [u']x dv'`; the first vertex takes minus the sum of the other
+    /// two. A degenerate deformed face (zero area or stretch) gets zero derivatives.
+    pub fn face_term_jacobians(
+        &self,
+        deformed: &[Vec3],
+        terms: &mut [Vec3],
+        jac: &mut [[nalgebra::Matrix3<f64>; 3]],
+    ) {
+        for ((f, o), jf) in self.faces.iter().zip(terms.iter_mut()).zip(jac.iter_mut()) {
+            let p = f.v.map(|i| deformed[i as usize]);
+            (*o, *jf) = face_jacobian(f, &self.rest_vertices, p);
+        }
+    }
+
+    /// The second derivatives of the face terms weighted per face: `out[j]` is the `9 x 9`
+    /// matrix (row-major; index `3 k + a` for axis `a` of the face's `k`-th vertex) of
+    /// `sum_c weights[j]_c d^2 t_jc / dx dx'`, by central differences of the exact first
+    /// derivatives (step 1e-6 of the face's longest deformed edge), symmetrised. With
+    /// `weights` the face rows of `Psi^T r` it is the part of a least-squares fit's Hessian
+    /// that Gauss-Newton leaves out.
+    pub fn face_term_curvatures(&self, deformed: &[Vec3], weights: &[Vec3], out: &mut [[f64; 81]]) {
+        for ((f, w), o) in self.faces.iter().zip(weights).zip(out.iter_mut()) {
+            let p = f.v.map(|i| deformed[i as usize]);
+            let size = [
+                (p[1] - p[0]).norm(),
+                (p[2] - p[1]).norm(),
+                (p[0] - p[2]).norm(),
+            ]
+            .into_iter()
+            .fold(0.0, f64::max);
+            let eps = 1e-6 * size.max(f64::MIN_POSITIVE);
+            for col in 0..9 {
+                let (k, b) = (col / 3, col % 3);
+                let (mut plus, mut minus) = (p, p);
+                plus[k][b] += eps;
+                minus[k][b] -= eps;
+                let (_, jp) = face_jacobian(f, &self.rest_vertices, plus);
+                let (_, jm) = face_jacobian(f, &self.rest_vertices, minus);
+                for row in 0..9 {
+                    let (k2, a) = (row / 3, row % 3);
+                    let d = jp[k2].column(a) - jm[k2].column(a);
+                    o[row * 9 + col] = w.dot(&d) / (2.0 * eps);
+                }
+            }
+            for r in 0..9 {
+                for c in r + 1..9 {
+                    let m = 0.5 * (o[r * 9 + c] + o[c * 9 + r]);
+                    o[r * 9 + c] = m;
+                    o[c * 9 + r] = m;
+                }
+            }
+        }
+    }
+}

@@ -13,6 +13,7 @@
 //!   vertices through the transpose of the coordinates.
 
 pub mod build;
+pub mod condense;
 pub mod fit;
 pub mod green;
 pub mod reduced;

@@ -242,6 +242,41 @@ impl ReducedModel {
         }
     }
 
+    /// This model with other reduced mass, stiffness and damping matrices (row-major, `dim x
+    /// dim`, symmetric), for a calibration computed elsewhere; its face-term derivatives,
+    /// rest and frame are kept. A matrix of another size or with a non-finite entry is an
+    /// error.
+    pub fn with_matrices(
+        &self,
+        mass: Vec<f64>,
+        stiffness: Vec<f64>,
+        damping: Vec<f64>,
+    ) -> Result<Self, CageError> {
+        let d2 = self.dim * self.dim;
+        for (what, m) in [
+            ("reduced mass", &mass),
+            ("reduced stiffness", &stiffness),
+            ("reduced damping", &damping),
+        ] {
+            if m.len() != d2 {
+                return Err(CageError::LengthMismatch {
+                    what,
+                    expected: d2,
+                    found: m.len(),
+                });
+            }
+            if let Some(index) = m.iter().position(|v| !v.is_finite()) {
+                return Err(CageError::NonFinite { what, index });
+            }
+        }
+        Ok(ReducedModel {
+            mass,
+            stiffness,
+            damping,
+            ..self.clone()
+        })
+    }
+
     /// Number of reduced coordinates (`3 x cage vertices`).
     pub fn dim(&self) -> usize {
         self.dim
