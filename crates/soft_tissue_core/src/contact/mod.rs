@@ -24,7 +24,7 @@
 //!   The contact set is detected again on the corrected positions, and a new round solves
 //!   what changed, until no contact penetrates beyond the tolerance. The force on a tool is
 //!   the sum of its rows' forces.
-//! - **Stages** ([`stages`]): [`detect_contacts`] at the start of a step (who is touched, to
+//! - **Stages** (`contact/stages/`): [`detect_contacts`] at the start of a step (who is touched, to
 //!   raise it before the contact is resolved; cautery) and [`solve_contacts`] after the free
 //!   motion.
 
