@@ -82,7 +82,7 @@ pub(super) fn contact_section(
     )?;
     let mut rows = Vec::new();
     let g = 9.81;
-    let angles: &[f64] = if quick { &[25.0] } else { &[15.0, 25.0, 35.0] };
+    let angles: &[f64] = incline_angles(quick);
     for mu in [0.3, 0.6] {
         for &angle in angles {
             step(&format!("contact: incline {angle} degrees, mu {mu}"));
@@ -205,4 +205,16 @@ pub(super) fn contact_section(
     writeln!(md)?;
     js.insert("contact".into(), json);
     Ok(())
+}
+
+/// The incline angles the section runs (one in the quick report).
+fn incline_angles(quick: bool) -> &'static [f64] {
+    if quick { &[25.0] } else { &[15.0, 25.0, 35.0] }
+}
+
+/// How many progress steps the section takes: the inclines at two mu, the Hertz meshes, the
+/// balance, the grasp at two mu, the stack.
+pub(super) fn steps(quick: bool) -> usize {
+    let hertz = if quick { 1 } else { cases::HERTZ_MESHES.len() };
+    2 * incline_angles(quick).len() + hertz + 1 + 2 + 1
 }

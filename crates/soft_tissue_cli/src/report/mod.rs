@@ -156,6 +156,8 @@ struct Progress {
 impl Progress {
     fn step(&mut self, what: &str) {
         self.done += 1;
+        // A count that came out short grows rather than overflowing the bar.
+        self.total = self.total.max(self.done);
         let width = 30;
         let filled = width * self.done / self.total.max(1);
         eprint!(
@@ -302,7 +304,7 @@ pub fn report(args: &ReportArgs) -> Res<()> {
     if args.contact_only {
         let mut progress = Progress {
             done: 0,
-            total: if quick { 5 } else { 13 },
+            total: contact::steps(quick),
             start: Instant::now(),
         };
         let mut md = String::from("# Contact only\n\n");
@@ -385,7 +387,7 @@ pub fn report(args: &ReportArgs) -> Res<()> {
             + cases.len()
             + peers.len()
             + 3
-            + 7,
+            + contact::steps(quick),
         start: Instant::now(),
     };
     let machine = crate::bench::machine();
