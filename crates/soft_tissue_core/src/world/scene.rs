@@ -95,15 +95,7 @@ pub fn check_mesh_path(spec: &BodySpec, options: SceneOptions) -> Result<(), Wor
     let MeshSource::File(file) = &spec.mesh else {
         return Ok(());
     };
-    let leaves = Path::new(file).components().any(|c| {
-        matches!(
-            c,
-            std::path::Component::ParentDir
-                | std::path::Component::RootDir
-                | std::path::Component::Prefix(_)
-        )
-    });
-    if leaves && !options.allow_outside_assets {
+    if leaves_assets(file) && !options.allow_outside_assets {
         return Err(WorldError::Mesh {
             body: spec.name.clone(),
             message: format!(
@@ -273,15 +265,7 @@ pub fn obstacle_shape(
             length: *length,
         },
         ObstacleShape::Mesh(file) => {
-            let leaves = Path::new(file).components().any(|c| {
-                matches!(
-                    c,
-                    std::path::Component::ParentDir
-                        | std::path::Component::RootDir
-                        | std::path::Component::Prefix(_)
-                )
-            });
-            if leaves && !options.allow_outside_assets {
+            if leaves_assets(file) && !options.allow_outside_assets {
                 return Err(err(format!(
                     "mesh path `{file}` leaves the assets folder (absolute, or `..`)"
                 )));
@@ -319,4 +303,16 @@ pub fn scene_obstacles(
             })
         })
         .collect()
+}
+
+/// Whether a scene's file path leaves the assets folder (absolute, or through `..`).
+fn leaves_assets(file: &str) -> bool {
+    Path::new(file).components().any(|c| {
+        matches!(
+            c,
+            std::path::Component::ParentDir
+                | std::path::Component::RootDir
+                | std::path::Component::Prefix(_)
+        )
+    })
 }

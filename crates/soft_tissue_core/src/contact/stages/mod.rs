@@ -94,6 +94,25 @@ pub struct ContactState {
     stats: ContactStats,
 }
 
+/// The body pairs whose bounds, grown by the contact reach, overlap (sweep and prune on the
+/// bodies' current bounds), into `out`.
+fn body_pairs<B: BorrowMut<SimBody>>(
+    bodies: &[B],
+    config: &ContactConfig,
+    state: &mut ContactState,
+    out: &mut Vec<(u32, u32)>,
+) {
+    state.bounds.clear();
+    state
+        .bounds
+        .extend(bodies.iter().map(|b| b.borrow().collider.bounds()));
+    let grow = 0.5
+        * config
+            .search_radius
+            .max(config.thickness + config.body_margin);
+    broad_phase(&state.bounds, grow, &mut state.order, out);
+}
+
 /// Makes sure pair `key` has its entry in `list` (created empty, so stale, the first time).
 fn ensure_entry(list: &mut Vec<((u32, u32), PairCandidates, Vec<BodyContact>)>, key: (u32, u32)) {
     if let Err(k) = list.binary_search_by_key(&key, |c| c.0) {
@@ -209,15 +228,9 @@ pub fn detect_contacts<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
     config: &ContactConfig,
     state: &mut ContactState,
 ) {
-    state.bounds.clear();
-    state
-        .bounds
-        .extend(bodies.iter().map(|b| b.borrow().collider.bounds()));
-    let grow = 0.5
-        * config
-            .search_radius
-            .max(config.thickness + config.body_margin);
-    broad_phase(&state.bounds, grow, &mut state.order, &mut state.pairs);
+    let mut pairs = std::mem::take(&mut state.pairs);
+    body_pairs(bodies, config, state, &mut pairs);
+    state.pairs = pairs;
     state.tool_contacts.clear();
     state.body_contacts.clear();
     // Tools.
@@ -436,20 +449,9 @@ fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
         }
     }
     // Pairs on the moved bounds.
-    state.bounds.clear();
-    state
-        .bounds
-        .extend(bodies.iter().map(|b| b.borrow().collider.bounds()));
-    let grow = 0.5
-        * config
-            .search_radius
-            .max(config.thickness + config.body_margin);
-    broad_phase(
-        &state.bounds,
-        grow,
-        &mut state.order,
-        &mut state.solve_pairs,
-    );
+    let mut pairs = std::mem::take(&mut state.solve_pairs);
+    body_pairs(bodies, config, state, &mut pairs);
+    state.solve_pairs = pairs;
     state.solved.clear();
     let settings = SolverSettings {
         max_sweeps: config.max_sweeps,
