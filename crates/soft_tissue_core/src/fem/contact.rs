@@ -31,6 +31,10 @@ use crate::linalg::ColumnCache;
 pub(super) struct FemContact {
     cache: ColumnCache,
     slots: Vec<u32>,
+    /// The request's nodes left without columns, and the body's response to unit forces on
+    /// all of them per axis (see [`crate::linalg::compliance`]).
+    deferred: Vec<u32>,
+    lumped: [Vec<Vec3>; 3],
     rotations: Vec<Matrix3<f64>>,
     rhs: Vec<Vec3>,
     dv: Vec<Vec3>,
@@ -64,6 +68,7 @@ impl FemBody {
             c.dv = vec![Vec3::zeros(); n];
             c.dx = vec![Vec3::zeros(); n];
             c.axis = vec![0.0; n];
+            c.lumped = std::array::from_fn(|_| vec![Vec3::zeros(); n]);
             let mut count = vec![0u32; n + 1];
             for t in &self.tets {
                 for &i in t {
@@ -129,7 +134,6 @@ impl FemBody {
             self.prefactored = Some(prefactored::Prefactored::new(self)?);
         }
         let scale = if prefactored { 1.0 } else { h * h };
-        let m = nodes.len();
         let mut failure = None;
         {
             let FemBody {
@@ -147,28 +151,27 @@ impl FemBody {
                     continue;
                 }
                 let FemContact {
-                    cache,
-                    slots,
-                    rhs,
-                    axis,
-                    ..
+                    cache, slots, axis, ..
                 } = contact;
-                let s = cache.slot(k as usize, slots, &mut |a, column: &mut [Vec3]| {
+                let s = cache.slot(k as usize, slots, &mut |columns| {
                     let r = if prefactored {
                         let p = pre.as_mut().expect("built above");
-                        axis.fill(0.0);
-                        axis[k as usize] = if state.fixed[k as usize][a] { 0.0 } else { 1.0 };
-                        let f = p.axis_factor[a];
-                        let r = p.factors[f].solve_in_place(axis);
-                        for (c, v) in column.iter_mut().zip(axis.iter()) {
-                            *c = Vec3::zeros();
-                            c[a] = *v;
+                        let mut r = Ok(());
+                        for (a, column) in columns.into_iter().enumerate() {
+                            axis.fill(0.0);
+                            axis[k as usize] = if state.fixed[k as usize][a] { 0.0 } else { 1.0 };
+                            let f = p.axis_factor[a];
+                            r = r.and(p.factors[f].solve_in_place(axis));
+                            for (c, v) in column.iter_mut().zip(axis.iter()) {
+                                *c = Vec3::zeros();
+                                c[a] = *v;
+                            }
                         }
                         r.map_err(FemError::from)
                     } else {
-                        rhs.fill(Vec3::zeros());
-                        rhs[k as usize][a] = 1.0;
-                        system.solve_direct(rhs, column).map_err(FemError::from)
+                        system
+                            .solve_unit_nodes(&[k], columns)
+                            .map_err(FemError::from)
                     };
                     if let Err(e) = r
                         && failure.is_none()
@@ -179,6 +182,9 @@ impl FemBody {
                 slots.push(s);
             }
         }
+        if failure.is_none() {
+            failure = self.lump_deferred(nodes).err();
+        }
         if let Some(e) = failure {
             self.contact.cache.forget();
             return Err(e);
@@ -187,24 +193,57 @@ impl FemBody {
         rotations.clear();
         rotations.extend(nodes.iter().map(|&k| self.node_rotation(k as usize)));
         let c = &self.contact;
-        for (j, &kj) in nodes.iter().enumerate() {
-            let slot = c.slots[j];
-            for (i, &ki) in nodes.iter().enumerate() {
-                out[i * m + j] = if slot == u32::MAX {
-                    // Beyond the pool: the node alone, by its mass (more compliant than the
-                    // body: the contact rounds finish what this leaves).
-                    if i == j {
-                        Matrix3::identity() * (scale / self.nodes.mass[kj as usize].max(1e-300))
-                    } else {
-                        Matrix3::zeros()
-                    }
-                } else {
-                    let b = c.cache.block(slot, ki as usize) * scale;
-                    rotations[i] * b * rotations[j].transpose()
-                };
+        let mass = &self.nodes.mass;
+        // A lumped block that is no compliance: the node alone, by its mass (more compliant
+        // than the body: the contact rounds finish what this leaves).
+        let alone = |k: u32| Matrix3::identity() * (h * h / mass[k as usize].max(1e-300));
+        crate::linalg::compliance::assemble_blocks(
+            &c.cache, &c.slots, nodes, &c.lumped, scale, &rotations, &alone, out,
+        );
+        self.contact.rotations = rotations;
+        Ok(())
+    }
+
+    /// The response to unit forces on all the request's nodes left without columns, per
+    /// axis, into `contact.lumped` (nothing when every node has its columns).
+    fn lump_deferred(&mut self, nodes: &[u32]) -> Result<(), FemError> {
+        let FemBody {
+            contact,
+            system,
+            prefactored: pre,
+            nodes: state,
+            config,
+            ..
+        } = self;
+        contact.deferred.clear();
+        contact.deferred.extend(
+            nodes
+                .iter()
+                .zip(&contact.slots)
+                .filter(|(_, s)| **s == u32::MAX)
+                .map(|(k, _)| *k),
+        );
+        if contact.deferred.is_empty() {
+            return Ok(());
+        }
+        let [x, y, z] = &mut contact.lumped;
+        if config.model != FemModel::CorotationalPrefactored {
+            return Ok(system.solve_unit_nodes(&contact.deferred, [x, y, z])?);
+        }
+        let p = pre.as_mut().expect("built before the columns");
+        for (a, column) in contact.lumped.iter_mut().enumerate() {
+            contact.axis.fill(0.0);
+            for &k in &contact.deferred {
+                if !state.fixed[k as usize][a] {
+                    contact.axis[k as usize] += 1.0;
+                }
+            }
+            p.factors[p.axis_factor[a]].solve_in_place(&mut contact.axis)?;
+            for (c, v) in column.iter_mut().zip(contact.axis.iter()) {
+                *c = Vec3::zeros();
+                c[a] = *v;
             }
         }
-        self.contact.rotations = rotations;
         Ok(())
     }
 

@@ -8,6 +8,18 @@
 //! for the nodes that touched: a pool of slots that grows as contact reaches new nodes (one
 //! allocation per new slot, an event like a first touch), bounded in bytes, the least
 //! recently used slot reused when it is full.
+//!
+//! The nodes left without columns in a request (more contact nodes than the pool holds, on
+//! a large body pressed over a wide patch) are not taken as free: one more pass over the
+//! factor gives the body's response to a unit force on all of them together, per axis
+//! ([`crate::linalg::SparseCholesky::solve_unit_nodes`]), and each takes its own row of that
+//! response as its compliance, lumped ([`assemble_blocks`]). For one node that is its exact
+//! block; for a patch pressed as a whole (a face meeting a table) each node's lumped block
+//! moves it as the patch moves under the sum of the forces, which is what the contact
+//! solve needs to close the gaps of the patch together. The blocks between a node with
+//! columns and one without are exact (by symmetry, from the kept column).
+
+use nalgebra::Matrix3;
 
 use crate::Vec3;
 
@@ -82,14 +94,14 @@ impl ColumnCache {
         self.computed
     }
 
-    /// The slot holding `node`'s columns, computing them with `solve(axis, column)` (which
-    /// writes `A^-1 e_(node, axis)` into `column`) when they are not kept. Slots used in the
+    /// The slot holding `node`'s columns, computing them with `solve(columns)` (which writes
+    /// `A^-1 e_(node, a)` into `columns[a]`) when they are not kept. Slots used in the
     /// current request (`protect` holds their slot numbers) are never taken for another node.
     pub fn slot(
         &mut self,
         node: usize,
         protect: &[u32],
-        solve: &mut dyn FnMut(usize, &mut [Vec3]),
+        solve: &mut dyn FnMut([&mut [Vec3]; 3]),
     ) -> u32 {
         self.clock += 1;
         let s = self.slot_of[node];
@@ -121,10 +133,9 @@ impl ColumnCache {
             self.slot_of[self.node_of[s] as usize] = u32::MAX;
         }
         let n = self.nodes;
-        for axis in 0..3 {
-            let start = (3 * s + axis) * n;
-            solve(axis, &mut self.data[start..start + n]);
-        }
+        let (x, rest) = self.data[3 * s * n..3 * (s + 1) * n].split_at_mut(n);
+        let (y, z) = rest.split_at_mut(n);
+        solve([x, y, z]);
         self.computed += 1;
         self.node_of[s] = node as u32;
         self.slot_of[node] = s as u32;
@@ -159,6 +170,55 @@ impl ColumnCache {
     }
 }
 
+/// Writes the compliance blocks between `nodes` (row-major, `nodes.len()^2` blocks): `scale`
+/// times the blocks of `A^-1`, turned by `rotations[i] * block * rotations[j]^T` (the
+/// warped compliance of a corotational body; pass identities otherwise). `slots[i]` is the
+/// slot of node `i` in `cache`, or `u32::MAX` when it has no columns: then `lumped[a]` must
+/// hold `A^-1` applied to unit forces along axis `a` on every node without columns
+/// together, whose rows give those nodes their (lumped) diagonal blocks, and the blocks
+/// between two of them are zero (see the module docs). A lumped block whose diagonal is not
+/// positive (a response that is no compliance) is replaced by `alone(node)`.
+#[allow(clippy::too_many_arguments)]
+pub fn assemble_blocks(
+    cache: &ColumnCache,
+    slots: &[u32],
+    nodes: &[u32],
+    lumped: &[Vec<Vec3>; 3],
+    scale: f64,
+    rotations: &[Matrix3<f64>],
+    alone: &dyn Fn(u32) -> Matrix3<f64>,
+    out: &mut [Matrix3<f64>],
+) {
+    let m = nodes.len();
+    for (j, &kj) in nodes.iter().enumerate() {
+        for (i, &ki) in nodes.iter().enumerate() {
+            let (si, sj) = (slots[i], slots[j]);
+            let block = if sj != u32::MAX {
+                cache.block(sj, ki as usize) * scale
+            } else if si != u32::MAX {
+                // (A^-1)_(i j) = ((A^-1)_(j i))^T, and the kept column of i holds row j.
+                cache.block(si, kj as usize).transpose() * scale
+            } else if i == j {
+                let k = kj as usize;
+                let b = Matrix3::from_columns(&[lumped[0][k], lumped[1][k], lumped[2][k]]);
+                let b = (b + b.transpose()) * (0.5 * scale);
+                let fixed_or_positive = (0..3).all(|a| {
+                    let d = b[(a, a)];
+                    d > 0.0 || (d == 0.0 && b.row(a).iter().all(|v| *v == 0.0))
+                });
+                if fixed_or_positive && b.iter().all(|v| v.is_finite()) {
+                    b
+                } else {
+                    alone(kj)
+                }
+            } else {
+                Matrix3::zeros()
+            };
+            out[i * m + j] = rotations[i] * block * rotations[j].transpose();
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -172,10 +232,12 @@ mod tests {
         let cap = c.capacity();
         assert!(cap >= 4);
         let mut calls = 0;
-        let mut solve = |axis: usize, col: &mut [Vec3]| {
+        let mut solve = |cols: [&mut [Vec3]; 3]| {
             calls += 1;
-            for (i, v) in col.iter_mut().enumerate() {
-                *v = Vec3::new(axis as f64, i as f64, 1.0);
+            for (axis, col) in cols.into_iter().enumerate() {
+                for (i, v) in col.iter_mut().enumerate() {
+                    *v = Vec3::new(axis as f64, i as f64, 1.0);
+                }
             }
         };
         let s0 = c.slot(0, &[], &mut solve);
@@ -187,5 +249,108 @@ mod tests {
         c.prepare(4, 8);
         c.slot(0, &[], &mut solve);
         assert_eq!(c.computed(), 2, "a new key recomputes");
+    }
+
+    /// The blocks `assemble_blocks` writes: exact where one side has columns (by symmetry
+    /// when only the row's node has them), the exact block for a lone node without columns,
+    /// and for several without columns each one's row of their summed response (the
+    /// compliance of the patch pressed as a whole), checked against the inverse of the
+    /// assembled matrix.
+    #[test]
+    fn blocks_are_exact_or_lumped_from_the_factor() {
+        use crate::linalg::{BlockSparse, SparseCholesky};
+        let n = 6;
+        let mut m = BlockSparse::from_pairs(n, (0..n - 1).map(|i| [i, i + 1]));
+        for i in 0..n - 1 {
+            let d = Vec3::new(1.0, 0.3 * i as f64, 0.5).normalize();
+            let b = d * d.transpose() + Matrix3::identity() * 0.2;
+            for (r, c, v) in [(i, i + 1, -b), (i + 1, i, -b), (i, i, b), (i + 1, i + 1, b)] {
+                let k = m.block_index(r, c).unwrap();
+                m.blocks_mut()[k] += v;
+            }
+        }
+        for i in 0..n {
+            let k = m.diag_index(i);
+            m.blocks_mut()[k] += Matrix3::identity() * 0.1;
+        }
+        let mut chol = SparseCholesky::new(&m, &vec![false; 3 * n]).unwrap();
+        chol.factorize(&m).unwrap();
+        // The dense inverse, block (i, j).
+        let mut dense = nalgebra::DMatrix::<f64>::zeros(3 * n, 3 * n);
+        for i in 0..n {
+            let (cols, range) = m.row(i);
+            for (&j, k) in cols.iter().zip(range) {
+                let b = m.blocks()[k];
+                for a in 0..3 {
+                    for c in 0..3 {
+                        dense[(3 * i + a, 3 * j as usize + c)] = b[(a, c)];
+                    }
+                }
+            }
+        }
+        let inv = dense.try_inverse().unwrap();
+        let block = |i: usize, j: usize| -> Matrix3<f64> {
+            Matrix3::from_fn(|a, c| inv[(3 * i + a, 3 * j + c)])
+        };
+        let mut cache = ColumnCache::default();
+        cache.prepare(n, 1);
+        let nodes = [1u32, 2, 4, 5];
+        let mut slots = Vec::new();
+        for &k in &nodes[..2] {
+            let s = cache.slot(k as usize, &slots, &mut |cols| {
+                chol.solve_unit_nodes(&[k], cols).unwrap();
+            });
+            slots.push(s);
+        }
+        slots.extend([u32::MAX, u32::MAX]);
+        let mut lumped: [Vec<Vec3>; 3] = std::array::from_fn(|_| vec![Vec3::zeros(); n]);
+        {
+            let [x, y, z] = &mut lumped;
+            chol.solve_unit_nodes(&[4, 5], [x, y, z]).unwrap();
+        }
+        let rotations = [Matrix3::identity(); 4];
+        let mut out = [Matrix3::zeros(); 16];
+        let alone = |_: u32| Matrix3::identity() * 1e9;
+        assemble_blocks(
+            &cache, &slots, &nodes, &lumped, 2.0, &rotations, &alone, &mut out,
+        );
+        let close = |a: Matrix3<f64>, b: Matrix3<f64>| (a - b).amax() <= 1e-10 * b.amax();
+        for i in 0..4 {
+            for j in 0..4 {
+                let (ki, kj) = (nodes[i] as usize, nodes[j] as usize);
+                let want = if i < 2 || j < 2 {
+                    block(ki, kj) * 2.0
+                } else if i == j {
+                    let sum = block(ki, 4) + block(ki, 5);
+                    (sum + sum.transpose()) * 0.5 * 2.0
+                } else {
+                    Matrix3::zeros()
+                };
+                assert!(
+                    close(out[i * 4 + j], want)
+                        || (want == Matrix3::zeros() && out[i * 4 + j] == want),
+                    "block ({ki}, {kj}): {} vs {}",
+                    out[i * 4 + j],
+                    want
+                );
+            }
+        }
+        // A lone node without columns gets its exact block.
+        {
+            let [x, y, z] = &mut lumped;
+            chol.solve_unit_nodes(&[4], [x, y, z]).unwrap();
+        }
+        let mut one = [Matrix3::zeros(); 1];
+        assemble_blocks(
+            &cache,
+            &[u32::MAX],
+            &[4],
+            &lumped,
+            1.0,
+            &rotations[..1],
+            &alone,
+            &mut one,
+        );
+        assert!(close(one[0], block(4, 4)), "{} vs {}", one[0], block(4, 4));
     }
 }

@@ -160,6 +160,16 @@ impl ImplicitSystem {
         self.factor.solve_nodes(b, x)
     }
 
+    /// The held factorization's inverse applied to unit forces on `nodes`, per axis (see
+    /// [`SparseCholesky::solve_unit_nodes`](super::SparseCholesky::solve_unit_nodes)).
+    pub fn solve_unit_nodes(
+        &mut self,
+        nodes: &[u32],
+        out: [&mut [Vec3]; 3],
+    ) -> Result<(), LinalgError> {
+        self.factor.solve_unit_nodes(nodes, out)
+    }
+
     /// Preconditioned conjugate gradients from the initial guess in `x`, until
     /// `|b - A x| <= tolerance |b|` or `max_iterations`. Fixed components of `b` are ignored and
     /// those of `x` set to zero.

@@ -24,6 +24,11 @@ pub(super) struct MsdContact {
     slots: Vec<u32>,
     rhs: Vec<Vec3>,
     dv: Vec<Vec3>,
+    /// The request's nodes left without columns, the response to unit forces on all of
+    /// them per axis, and identity rotations (see [`crate::linalg::compliance`]).
+    deferred: Vec<u32>,
+    lumped: [Vec<Vec3>; 3],
+    identities: Vec<Matrix3<f64>>,
 }
 
 impl MsdBody {
@@ -61,6 +66,7 @@ impl MsdBody {
         if c.rhs.len() != n {
             c.rhs = vec![Vec3::zeros(); n];
             c.dv = vec![Vec3::zeros(); n];
+            c.lumped = std::array::from_fn(|_| vec![Vec3::zeros(); n]);
         }
         c.cache.prepare(
             n,
@@ -74,13 +80,9 @@ impl MsdBody {
                 c.slots.push(u32::MAX);
                 continue;
             }
-            let MsdContact {
-                cache, slots, rhs, ..
-            } = c;
-            let s = cache.slot(k as usize, slots, &mut |a, column: &mut [Vec3]| {
-                rhs.fill(Vec3::zeros());
-                rhs[k as usize][a] = 1.0;
-                if let Err(e) = imp.system.solve_direct(rhs, column)
+            let MsdContact { cache, slots, .. } = c;
+            let s = cache.slot(k as usize, slots, &mut |columns| {
+                if let Err(e) = imp.system.solve_unit_nodes(&[k], columns)
                     && failure.is_none()
                 {
                     failure = Some(e);
@@ -88,24 +90,37 @@ impl MsdBody {
             });
             slots.push(s);
         }
+        c.deferred.clear();
+        c.deferred.extend(
+            nodes
+                .iter()
+                .zip(&c.slots)
+                .filter(|(_, s)| **s == u32::MAX)
+                .map(|(k, _)| *k),
+        );
+        if failure.is_none() && !c.deferred.is_empty() {
+            let [x, y, z] = &mut c.lumped;
+            failure = imp.system.solve_unit_nodes(&c.deferred, [x, y, z]).err();
+        }
         if let Some(e) = failure {
             c.cache.forget();
             return Err(e.into());
         }
-        for (j, &kj) in nodes.iter().enumerate() {
-            let slot = c.slots[j];
-            for (i, &ki) in nodes.iter().enumerate() {
-                out[i * m + j] = if slot == u32::MAX {
-                    if i == j {
-                        Matrix3::identity() * (h * h / self.nodes.mass[kj as usize])
-                    } else {
-                        Matrix3::zeros()
-                    }
-                } else {
-                    c.cache.block(slot, ki as usize) * (h * h)
-                };
-            }
+        if c.identities.len() < m {
+            c.identities.resize(m, Matrix3::identity());
         }
+        let mass = &self.nodes.mass;
+        let alone = |k: u32| Matrix3::identity() * (h * h / mass[k as usize]);
+        crate::linalg::compliance::assemble_blocks(
+            &c.cache,
+            &c.slots,
+            nodes,
+            &c.lumped,
+            h * h,
+            &c.identities[..m],
+            &alone,
+            out,
+        );
         Ok(())
     }
 
