@@ -63,6 +63,9 @@ pub(super) fn prepare_stage(
 ) {
     let mut t = Instant::now();
     let dt = status.dt.unwrap_or_default();
+    // Bodies queued for a rebuild: gone before the next stage runs, so not among this step's
+    // bodies (their indices would shift the contact indices of the bodies after them).
+    let mut rebuilt: SmallVec<[Entity; 4]> = SmallVec::new();
     for (entity, (spec, material, heat, tuning, pin, shadow), mut sim) in &mut bodies {
         let now = BuiltFrom::of(&spec, tuning, dt, &config);
         // Computed from the transforms now (the entity's or a parent's may have been written
@@ -73,6 +76,7 @@ pub(super) fn prepare_stage(
         if now != sim.built_from || moved {
             // Built again at the next step, at rest, from the inputs then.
             commands.entity(entity).remove::<SimulatedBody>();
+            rebuilt.push(entity);
             continue;
         }
         let b = &mut sim.body;
@@ -185,7 +189,10 @@ pub(super) fn prepare_stage(
     }
     let contacts = &mut *contacts;
     in_order(
-        bodies.iter_mut().map(|(e, _, b)| (e, b)),
+        bodies
+            .iter_mut()
+            .filter(|(e, _, _)| !rebuilt.contains(e))
+            .map(|(e, _, b)| (e, b)),
         tools.iter_mut().map(|(e, _, t)| (e, t)),
         Some((&mut contacts.bodies, &mut contacts.tools)),
         |b, tl| prepare(b, tl, dt),

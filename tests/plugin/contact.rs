@@ -92,3 +92,59 @@ fn a_grasper_follows_its_jaws_setting() {
     assert!((r.opening - 0.1).abs() < 1e-12, "closed to 0.1: {r:?}");
     assert_eq!(r.contacts, 0);
 }
+
+/// A body rebuilt because its transform moved is not counted among the contact bodies of
+/// the step that queued its rebuild: the contacts of a body built after it keep naming that
+/// body, not the one being rebuilt (whose index it would take).
+#[test]
+fn contacts_name_the_touched_body_while_another_is_rebuilt() {
+    let dt = 0.01;
+    let mut app = app(dt);
+    let mesh = cylinder_asset(&mut app);
+    let moving = app
+        .world_mut()
+        .spawn((
+            SoftBody::new(mesh.clone()),
+            Transform::from_xyz(5.0, 0.0, 0.0),
+        ))
+        .id();
+    app.update();
+    let touched = app
+        .world_mut()
+        .spawn((SoftBody::new(mesh), Transform::default()))
+        .id();
+    // A ball pressed into the top of the cylinder lying on its side (radius about 0.62).
+    let probe = app
+        .world_mut()
+        .spawn((
+            SoftTool {
+                shape: ToolShape::Sphere { radius: 0.1 },
+                grab: false,
+                cautery_watts: 0.0,
+                jaws: 0.0,
+                friction: Default::default(),
+            },
+            Transform::from_xyz(0.0, 0.66, 0.0),
+        ))
+        .id();
+    let mut touches = 0;
+    for k in 0..60 {
+        // Moved once while it still comes first in build order, then every step.
+        if k == 20 || k > 40 {
+            app.world_mut()
+                .get_mut::<Transform>(moving)
+                .unwrap()
+                .translation
+                .x = 5.0 + 0.001 * k as f32;
+        }
+        app.update();
+        let contacts = app.world().resource::<SoftTissueContacts>();
+        for c in contacts.iter() {
+            assert_eq!(c.body, touched, "step {k}: a contact names {c:?}");
+            assert_eq!(c.partner, ContactPartner::Tool(probe), "step {k}: {c:?}");
+            touches += 1;
+        }
+        assert_eq!(contacts.involving(moving).count(), 0, "step {k}");
+    }
+    assert!(touches > 30, "the probe pressed the body: {touches} steps");
+}
