@@ -468,7 +468,7 @@ impl AssetLoader for SceneLoader {
                 }
                 MeshSource::Generated { organ, resolution } => {
                     organ.generate(*resolution).map_err(|e| WorldError::Mesh {
-                        body: body.name.clone(),
+                        body: body.name.clone().into(),
                         message: format!(
                             "generating {} at resolution {resolution}: {e}",
                             organ.name()
@@ -478,7 +478,7 @@ impl AssetLoader for SceneLoader {
             };
             let placed =
                 placed_mesh(&mesh, &body.placement).map_err(|message| WorldError::Mesh {
-                    body: body.name.clone(),
+                    body: body.name.clone().into(),
                     message,
                 })?;
             meshes.push(

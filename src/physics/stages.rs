@@ -232,7 +232,9 @@ fn lap(t: &mut Instant) -> f64 {
     e
 }
 
-/// A stage's result: a failure names the body the core's error names, by entity.
+/// A stage's result: a failure names the body the core's error is about, by entity (found
+/// by the body's id, so two bodies of the same name, from two copies of a scene, are told
+/// apart).
 fn report<'a>(
     status: &mut SoftTissueStatus,
     stage: &'static str,
@@ -241,8 +243,8 @@ fn report<'a>(
 ) {
     if let Err(e) = r {
         let body = e
-            .subject()
-            .and_then(|n| bodies.find(|(_, b)| b.body.name() == n).map(|(e, _)| e));
+            .body_id()
+            .and_then(|id| bodies.find(|(_, b)| b.body.id() == id).map(|(e, _)| e));
         fail(status, stage_error(stage, body, e));
     }
 }

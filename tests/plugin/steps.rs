@@ -281,3 +281,44 @@ fn a_failed_stage_stops_the_step_there_and_no_nan_reaches_a_mesh() {
             .all(|c| c.is_finite())
     );
 }
+
+/// Two copies of one scene in an app have bodies of the same names: a failure of a body of
+/// the second copy names that body's entity, not its namesake's in the first.
+#[test]
+fn a_failure_names_the_failing_body_among_namesakes() {
+    let (mut app, first, _) = scene_app(CYLINDERS);
+    let second = bevy_soft_tissue::spawn_scene_and_wait(&mut app, CYLINDERS).unwrap();
+    app.update();
+    let name = |app: &App, e: Entity| {
+        app.world()
+            .get::<SimulatedBody>(e)
+            .unwrap()
+            .body()
+            .name()
+            .to_string()
+    };
+    assert_eq!(name(&app, first[0]), name(&app, second[0]), "namesakes");
+    let culprit = second[0];
+    app.world_mut()
+        .entity_mut(culprit)
+        .insert(PinnedLevel(Level::Precise));
+    for _ in 0..3 {
+        app.update();
+    }
+    assert_eq!(level(&app, culprit), Level::Precise);
+    assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
+    // A non-finite position in its precise state: the step refuses it, naming the body.
+    {
+        let mut sim = app.world_mut().get_mut::<SimulatedBody>(culprit).unwrap();
+        let body = sim.body_mut().body_mut();
+        body.precise_mut().positions_mut()[0].x = f64::NAN;
+    }
+    app.update();
+    let error = app
+        .world()
+        .resource::<SoftTissueStatus>()
+        .error
+        .clone()
+        .expect("the step failed");
+    assert_eq!(error.body, Some(culprit), "{error}");
+}

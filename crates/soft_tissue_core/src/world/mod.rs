@@ -58,24 +58,24 @@ pub enum WorldError {
     /// A body's levels failed.
     #[error("body `{body}`: {source}")]
     Precision {
-        /// Body name.
-        body: String,
+        /// The body.
+        body: BodyName,
         /// Underlying error.
         source: PrecisionError,
     },
     /// A body's heat field failed.
     #[error("body `{body}`: {source}")]
     Heat {
-        /// Body name.
-        body: String,
+        /// The body.
+        body: BodyName,
         /// Underlying error.
         source: HeatError,
     },
     /// A body's surface or a tool is unusable for contact.
     #[error("`{name}`: {source}")]
     Contact {
-        /// Body or tool name.
-        name: String,
+        /// The body, or a tool or obstacle (by name, without an id).
+        name: BodyName,
         /// Underlying error.
         source: ContactError,
     },
@@ -85,8 +85,8 @@ pub enum WorldError {
     /// A mesh could not be read or placed.
     #[error("body `{body}`: mesh: {message}")]
     Mesh {
-        /// Body name.
-        body: String,
+        /// The body.
+        body: BodyName,
         /// What failed.
         message: String,
     },
@@ -114,13 +114,57 @@ pub enum WorldError {
     /// A stage met or would have left a non-finite value (the stage left the state as it was).
     #[error("body `{body}`: non-finite position at node {node} after {stage}")]
     NonFinite {
-        /// Body name.
-        body: String,
+        /// The body.
+        body: BodyName,
         /// Node.
         node: usize,
         /// Stage.
         stage: &'static str,
     },
+}
+
+/// The body an error is about: its name (what the message shows), and the process-unique
+/// id of the built body that raised it ([`SimBody::id`]; none for a body still being built,
+/// or a tool or obstacle).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BodyName {
+    /// Name.
+    pub name: String,
+    /// [`SimBody::id`] of the body, if built.
+    pub id: Option<u64>,
+}
+
+impl std::fmt::Display for BodyName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.name)
+    }
+}
+
+impl From<String> for BodyName {
+    fn from(name: String) -> Self {
+        BodyName { name, id: None }
+    }
+}
+
+impl From<&str> for BodyName {
+    fn from(name: &str) -> Self {
+        BodyName {
+            name: name.to_string(),
+            id: None,
+        }
+    }
+}
+
+impl PartialEq<str> for BodyName {
+    fn eq(&self, other: &str) -> bool {
+        self.name == other
+    }
+}
+
+impl PartialEq<&str> for BodyName {
+    fn eq(&self, other: &&str) -> bool {
+        self.name == *other
+    }
 }
 
 /// World settings.
@@ -178,6 +222,17 @@ pub struct BodyDiagnostics {
 impl WorldError {
     /// The body (or tool) the error names, if it names one.
     pub fn subject(&self) -> Option<&str> {
+        self.named().map(|b| b.name.as_str())
+    }
+
+    /// The process-unique id of the body the error is about ([`SimBody::id`]), when a built
+    /// body raised it: unlike the name, it tells apart bodies of the same name (two copies
+    /// of one scene in a plugin app).
+    pub fn body_id(&self) -> Option<u64> {
+        self.named().and_then(|b| b.id)
+    }
+
+    fn named(&self) -> Option<&BodyName> {
         match self {
             WorldError::Precision { body, .. }
             | WorldError::Heat { body, .. }
@@ -257,7 +312,7 @@ impl SimBody {
         let name = name.into();
         let dt = settings.dt;
         let precision = |source| WorldError::Precision {
-            body: name.clone(),
+            body: name.clone().into(),
             source,
         };
         let settings_method = settings.precise;
@@ -274,7 +329,7 @@ impl SimBody {
             );
         }
         let mut collider = SurfaceCollider::new(&mesh).map_err(|source| WorldError::Contact {
-            name: name.clone(),
+            name: name.clone().into(),
             source,
         })?;
         collider.gather(body.node_positions());
@@ -282,7 +337,7 @@ impl SimBody {
             Some((params, boundary)) => Some(
                 HeatField::new(&mesh, params, dt, &boundary).map_err(|source| {
                     WorldError::Heat {
-                        body: name.clone(),
+                        body: name.clone().into(),
                         source,
                     }
                 })?,
@@ -341,6 +396,20 @@ impl SimBody {
         &self.name
     }
 
+    /// A number no other body of this process has (its contact surface's; a clone keeps
+    /// it), which errors carry ([`WorldError::body_id`]).
+    pub fn id(&self) -> u64 {
+        self.collider.id()
+    }
+
+    /// The name and id errors about this body carry.
+    pub fn label(&self) -> BodyName {
+        BodyName {
+            name: self.name.clone(),
+            id: Some(self.id()),
+        }
+    }
+
     /// The tetrahedral mesh (rest shape, scene coordinates).
     pub fn mesh(&self) -> &Arc<TetMesh> {
         &self.mesh
@@ -381,7 +450,7 @@ impl SimBody {
         friction
             .validate(&self.name)
             .map_err(|source| WorldError::Contact {
-                name: self.name.clone(),
+                name: self.label(),
                 source,
             })?;
         self.friction = friction;
@@ -422,7 +491,7 @@ impl SimBody {
         self.body
             .set_shadow(&self.mesh, on)
             .map_err(|source| WorldError::Precision {
-                body: self.name.clone(),
+                body: self.label(),
                 source,
             })?;
         self.diagnostics.shadow = self.body.shadow_error();
@@ -452,7 +521,7 @@ impl SimBody {
             Some((params, boundary)) => Some(
                 HeatField::new(&self.mesh, params, self.body.settings().dt, &boundary).map_err(
                     |source| WorldError::Heat {
-                        body: self.name.clone(),
+                        body: self.label(),
                         source,
                     },
                 )?,
@@ -489,7 +558,7 @@ impl SimBody {
             self.surface_written = false;
             self.diagnostics.max_displacement = f64::NAN;
             return Err(WorldError::NonFinite {
-                body: self.name.clone(),
+                body: self.label(),
                 node: node as usize,
                 stage: "writeback",
             });
@@ -523,7 +592,7 @@ impl SimBody {
 
     fn precision_err(&self, source: PrecisionError) -> WorldError {
         WorldError::Precision {
-            body: self.name.clone(),
+            body: self.label(),
             source,
         }
     }
@@ -668,12 +737,16 @@ pub fn step_solvers<B: BorrowMut<SimBody> + Send, T: Borrow<Tool>>(
         let share = watts / total as f64;
         for r in state.solved_rows().iter().filter(pressing) {
             let b = bodies[r.a.body as usize].borrow_mut();
+            let label = || BodyName {
+                name: b.name.clone(),
+                id: Some(b.collider.id()),
+            };
             let Some(h) = b.heat.as_mut() else { continue };
             for (v, w) in r.a.terms() {
                 let node = b.collider.nodes()[v as usize] as usize;
                 h.add_power(node, share * w)
                     .map_err(|source| WorldError::Heat {
-                        body: b.name.clone(),
+                        body: label(),
                         source,
                     })?;
             }
@@ -731,7 +804,7 @@ impl SimBody {
             None => (Ok(()), self.body.step(self.touched)),
         };
         heat.map_err(|source| WorldError::Heat {
-            body: self.name.clone(),
+            body: self.label(),
             source,
         })?;
         let stats = mechanics.map_err(|e| self.precision_err(e))?;

@@ -66,7 +66,7 @@ pub fn load_mesh_with(
     options: SceneOptions,
 ) -> Result<TetMesh, WorldError> {
     let err = |message: String| WorldError::Mesh {
-        body: spec.name.clone(),
+        body: spec.name.clone().into(),
         message,
     };
     check_mesh_path(spec, options)?;
@@ -97,7 +97,7 @@ pub fn check_mesh_path(spec: &BodySpec, options: SceneOptions) -> Result<(), Wor
     };
     if leaves_assets(file) && !options.allow_outside_assets {
         return Err(WorldError::Mesh {
-            body: spec.name.clone(),
+            body: spec.name.clone().into(),
             message: format!(
                 "mesh path `{file}` leaves the assets folder (absolute, or `..`); the caller \
                  can allow it (`SceneOptions::allow_outside_assets`, `simulate \
@@ -115,7 +115,7 @@ pub fn body_settings(
     gravity: Vec3,
 ) -> Result<BodySettings, WorldError> {
     let bad = |message: &str| WorldError::Mesh {
-        body: spec.name.clone(),
+        body: spec.name.clone().into(),
         message: message.into(),
     };
     let method = spec.precise;
@@ -251,7 +251,7 @@ pub fn obstacle_shape(
     options: SceneOptions,
 ) -> Result<RigidShape, WorldError> {
     let err = |message: String| WorldError::Mesh {
-        body: spec.name.clone(),
+        body: spec.name.clone().into(),
         message,
     };
     Ok(match &spec.shape {
@@ -298,7 +298,7 @@ pub fn scene_obstacles(
                 o.friction.unwrap_or_default(),
             )
             .map_err(|source| WorldError::Contact {
-                name: o.name.clone(),
+                name: o.name.clone().into(),
                 source,
             })
         })

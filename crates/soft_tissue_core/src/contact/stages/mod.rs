@@ -378,7 +378,7 @@ pub fn solve_contacts<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
             && let Some((what, node)) = b.body.first_non_finite_level_state()
         {
             result = Err(WorldError::NonFinite {
-                body: b.name.clone(),
+                body: b.label(),
                 node,
                 stage: if what == "position" {
                     "contact solve"
@@ -441,7 +441,7 @@ fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
                 .position(|p| !p.iter().all(|c| c.is_finite()))
             {
                 return Err(WorldError::NonFinite {
-                    body: b.name.clone(),
+                    body: b.label(),
                     node: b.collider.nodes()[v] as usize,
                     stage: "contact solve (its input)",
                 });
