@@ -9,6 +9,7 @@
 
 mod coarsen;
 mod coarsen_boundary;
+pub mod cut;
 pub mod embed;
 pub mod generate;
 pub mod io;
