@@ -215,14 +215,7 @@ impl FemBody {
             config,
             ..
         } = self;
-        contact.deferred.clear();
-        contact.deferred.extend(
-            nodes
-                .iter()
-                .zip(&contact.slots)
-                .filter(|(_, s)| **s == u32::MAX)
-                .map(|(k, _)| *k),
-        );
+        crate::linalg::compliance::without_columns(nodes, &contact.slots, &mut contact.deferred);
         if contact.deferred.is_empty() {
             return Ok(());
         }

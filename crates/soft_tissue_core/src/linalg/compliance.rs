@@ -170,6 +170,18 @@ impl ColumnCache {
     }
 }
 
+/// The nodes of a request left without columns (`slots[i] == u32::MAX`), into `out`.
+pub fn without_columns(nodes: &[u32], slots: &[u32], out: &mut Vec<u32>) {
+    out.clear();
+    out.extend(
+        nodes
+            .iter()
+            .zip(slots)
+            .filter(|(_, s)| **s == u32::MAX)
+            .map(|(k, _)| *k),
+    );
+}
+
 /// Writes the compliance blocks between `nodes` (row-major, `nodes.len()^2` blocks): `scale`
 /// times the blocks of `A^-1`, turned by `rotations[i] * block * rotations[j]^T` (the
 /// warped compliance of a corotational body; pass identities otherwise). `slots[i]` is the

@@ -90,14 +90,7 @@ impl MsdBody {
             });
             slots.push(s);
         }
-        c.deferred.clear();
-        c.deferred.extend(
-            nodes
-                .iter()
-                .zip(&c.slots)
-                .filter(|(_, s)| **s == u32::MAX)
-                .map(|(k, _)| *k),
-        );
+        crate::linalg::compliance::without_columns(nodes, &c.slots, &mut c.deferred);
         if failure.is_none() && !c.deferred.is_empty() {
             let [x, y, z] = &mut c.lumped;
             failure = imp.system.solve_unit_nodes(&c.deferred, [x, y, z]).err();
