@@ -96,7 +96,8 @@ pub use messages::{BodyTouched, LevelChanged};
 pub use physics::{
     ContactPartner, ResetSimulation, SoftBodyError, SoftContact, SoftPhysics, SoftTissueConfig,
     SoftTissueContacts, SoftTissueError, SoftTissueObstacles, SoftTissuePhysicsPlugin,
-    SoftTissueSchedule, SoftTissueStatus, SoftTissueStep, SoftTissueSystems, SoftTissueThreads,
+    SoftTissueSchedule, SoftTissueStage, SoftTissueStatus, SoftTissueStep, SoftTissueSystems,
+    SoftTissueThreads,
 };
 pub use render::{EmbeddedVisual, SoftBodyMesh, SoftTissueMeshPlugin, SoftTissueMeshSystems};
 

@@ -289,7 +289,10 @@ pub(super) fn build_obstacles(
                 obstacles.obstacles.push(o);
                 obstacles.entities.push(entity);
             }
-            Err(e) => fail(&mut status, stage_error("an obstacle", Some(entity), e)),
+            Err(e) => fail(
+                &mut status,
+                stage_error(SoftTissueStage::Prepare, "an obstacle", Some(entity), e),
+            ),
         }
     }
 }

@@ -204,7 +204,8 @@ fn run_steps(world: &mut World) {
             fail(
                 &mut status,
                 SoftTissueError {
-                    stage: "the step",
+                    stage: SoftTissueStage::Step,
+                    what: "the step",
                     body: None,
                     message: format!("the step must be positive and finite, found {dt} s"),
                 },
@@ -264,12 +265,14 @@ fn fail(status: &mut SoftTissueStatus, error: SoftTissueError) {
 
 /// A stage's error about `body` (or the whole step).
 fn stage_error(
-    stage: &'static str,
+    stage: SoftTissueStage,
+    what: &'static str,
     body: Option<Entity>,
     message: impl ToString,
 ) -> SoftTissueError {
     SoftTissueError {
         stage,
+        what,
         body,
         message: message.to_string(),
     }

@@ -104,12 +104,34 @@ pub struct SoftTissueStatus {
     pub error: Option<SoftTissueError>,
 }
 
-/// Why a step failed: the stage, the body when one is to blame, and the core's message.
+/// The part of a step that failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum SoftTissueStage {
+    /// The step itself (its time step).
+    Step,
+    /// A [`crate::ResetSimulation`].
+    Reset,
+    /// Applying the components' changes before the step ([`SoftTissueSystems::Prepare`]).
+    Prepare,
+    /// Raising and lowering bodies ([`SoftTissueSystems::SwitchPrecision`]).
+    SwitchPrecision,
+    /// The solvers' free step ([`SoftTissueSystems::StepSolvers`]).
+    StepSolvers,
+    /// The contact solve ([`SoftTissueSystems::Collide`]).
+    Collide,
+    /// Writing positions back to meshes ([`SoftTissueSystems::Writeback`]).
+    Writeback,
+}
+
+/// Why a step failed: the stage, what it was doing, the body or tool when one is to blame,
+/// and the core's message.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
-#[error("{stage}{}: {message}", body.map(|e| format!(" ({e})")).unwrap_or_default())]
+#[error("{what}{}: {message}", body.map(|e| format!(" ({e})")).unwrap_or_default())]
 pub struct SoftTissueError {
-    /// The stage that failed (`stepping the solvers`, `collisions`, …).
-    pub stage: &'static str,
+    /// The stage that failed.
+    pub stage: SoftTissueStage,
+    /// What it was doing (`stepping the solvers`, `changing the material`, …).
+    pub what: &'static str,
     /// The body the error names, if it names one.
     pub body: Option<Entity>,
     /// What went wrong.

@@ -21,7 +21,10 @@ pub(super) fn reset_simulation(
     status.recent.clear();
     for (e, mut b) in &mut bodies {
         if let Err(err) = b.body.reset() {
-            fail(&mut status, stage_error("resetting", Some(e), err));
+            fail(
+                &mut status,
+                stage_error(SoftTissueStage::Reset, "resetting", Some(e), err),
+            );
         }
         b.dirty = true;
     }
@@ -96,7 +99,12 @@ pub(super) fn prepare_stage(
                 Ok(()) => {}
                 Err(e) => fail(
                     &mut status,
-                    stage_error("changing the method", Some(entity), e),
+                    stage_error(
+                        SoftTissueStage::Prepare,
+                        "changing the method",
+                        Some(entity),
+                        e,
+                    ),
                 ),
             }
         }
@@ -105,13 +113,23 @@ pub(super) fn prepare_stage(
             if let Err(e) = b.set_materials(material.fem, msd, springs) {
                 fail(
                     &mut status,
-                    stage_error("changing the material", Some(entity), e),
+                    stage_error(
+                        SoftTissueStage::Prepare,
+                        "changing the material",
+                        Some(entity),
+                        e,
+                    ),
                 );
             }
             if let Err(e) = b.set_friction(material.friction) {
                 fail(
                     &mut status,
-                    stage_error("changing the friction", Some(entity), e),
+                    stage_error(
+                        SoftTissueStage::Prepare,
+                        "changing the friction",
+                        Some(entity),
+                        e,
+                    ),
                 );
             }
         }
@@ -128,7 +146,12 @@ pub(super) fn prepare_stage(
                 Ok(()) => {}
                 Err(e) => fail(
                     &mut status,
-                    stage_error("changing the heat", Some(entity), e),
+                    stage_error(
+                        SoftTissueStage::Prepare,
+                        "changing the heat",
+                        Some(entity),
+                        e,
+                    ),
                 ),
             }
             sim.dirty = true;
@@ -138,12 +161,18 @@ pub(super) fn prepare_stage(
         if b.body().pinned() != pinned
             && let Err(e) = b.body_mut().pin(pinned)
         {
-            fail(&mut status, stage_error("pinning", Some(entity), e));
+            fail(
+                &mut status,
+                stage_error(SoftTissueStage::Prepare, "pinning", Some(entity), e),
+            );
         }
         if b.body().has_shadow() != shadow
             && let Err(e) = b.set_shadow(shadow)
         {
-            fail(&mut status, stage_error("shadow", Some(entity), e));
+            fail(
+                &mut status,
+                stage_error(SoftTissueStage::Prepare, "shadow", Some(entity), e),
+            );
         }
     }
     for (entity, spec, mut state) in &mut tools {
@@ -152,7 +181,10 @@ pub(super) fn prepare_stage(
         };
         let t = &mut state.tool;
         if let Err(e) = t.set_pose_rotation(position, rotation) {
-            fail(&mut status, stage_error("moving a tool", Some(entity), e));
+            fail(
+                &mut status,
+                stage_error(SoftTissueStage::Prepare, "moving a tool", Some(entity), e),
+            );
             continue;
         }
         if *t.friction() != spec.friction
@@ -160,7 +192,12 @@ pub(super) fn prepare_stage(
         {
             fail(
                 &mut status,
-                stage_error("a tool's friction", Some(entity), e),
+                stage_error(
+                    SoftTissueStage::Prepare,
+                    "a tool's friction",
+                    Some(entity),
+                    e,
+                ),
             );
         }
         if let ToolShape::Grasper { .. } = spec.shape
@@ -169,13 +206,23 @@ pub(super) fn prepare_stage(
         {
             fail(
                 &mut status,
-                stage_error("a grasper's jaws", Some(entity), e),
+                stage_error(
+                    SoftTissueStage::Prepare,
+                    "a grasper's jaws",
+                    Some(entity),
+                    e,
+                ),
             );
         }
         if let Err(e) = t.set_cautery(spec.cautery_watts) {
             fail(
                 &mut status,
-                stage_error("a tool's cautery", Some(entity), e),
+                stage_error(
+                    SoftTissueStage::Prepare,
+                    "a tool's cautery",
+                    Some(entity),
+                    e,
+                ),
             );
         }
         if spec.grab != state.grabbing {
@@ -237,7 +284,8 @@ fn lap(t: &mut Instant) -> f64 {
 /// apart).
 fn report<'a>(
     status: &mut SoftTissueStatus,
-    stage: &'static str,
+    stage: SoftTissueStage,
+    what: &'static str,
     r: Result<(), WorldError>,
     mut bodies: impl Iterator<Item = (Entity, &'a SimulatedBody)>,
 ) {
@@ -245,7 +293,7 @@ fn report<'a>(
         let body = e
             .body_id()
             .and_then(|id| bodies.find(|(_, b)| b.body.id() == id).map(|(e, _)| e));
-        fail(status, stage_error(stage, body, e));
+        fail(status, stage_error(stage, what, body, e));
     }
 }
 
@@ -272,7 +320,13 @@ pub(super) fn switch_stage(
     let r = in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, _| {
         switch_precision(b)
     });
-    report(&mut status, "switching precision", r, bodies.iter());
+    report(
+        &mut status,
+        SoftTissueStage::SwitchPrecision,
+        "switching precision",
+        r,
+        bodies.iter(),
+    );
     status.times.switch_us = lap(&mut t);
 }
 
@@ -290,7 +344,12 @@ pub(super) fn solve_stage(
             soft_tissue_core::parallel::Threads::new(config.threads).unwrap_or_else(|e| {
                 fail(
                     &mut status,
-                    stage_error("thread pool", None, format!("{e}; stepping on one thread")),
+                    stage_error(
+                        SoftTissueStage::StepSolvers,
+                        "thread pool",
+                        None,
+                        format!("{e}; stepping on one thread"),
+                    ),
                 );
                 soft_tissue_core::parallel::Threads::single()
             });
@@ -308,7 +367,13 @@ pub(super) fn solve_stage(
             step_solvers(b, tl, &contacts.state)
         }
     });
-    report(&mut status, "stepping the solvers", r, bodies.iter());
+    report(
+        &mut status,
+        SoftTissueStage::StepSolvers,
+        "stepping the solvers",
+        r,
+        bodies.iter(),
+    );
     status.times.solve_us = lap(&mut t);
 }
 
@@ -331,7 +396,13 @@ pub(super) fn contact_stage(
         )
     });
     contacts.gather(&obstacles.entities);
-    report(&mut status, "solving the contacts", r, bodies.iter());
+    report(
+        &mut status,
+        SoftTissueStage::Collide,
+        "solving the contacts",
+        r,
+        bodies.iter(),
+    );
     let whole = lap(&mut t);
     status.times.correct_us = contacts.state.stats().correct_us.min(whole);
     status.times.contact_us = whole - status.times.correct_us;
@@ -360,7 +431,10 @@ pub(super) fn writeback_stage(
         // is not finite is not written (the mesh keeps its last positions) and stops the
         // simulation.
         if let Err(e) = sim.body.writeback() {
-            fail(&mut status, stage_error("writeback", Some(entity), e));
+            fail(
+                &mut status,
+                stage_error(SoftTissueStage::Writeback, "writeback", Some(entity), e),
+            );
             continue;
         }
         let b = &sim.body;

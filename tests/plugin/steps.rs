@@ -255,6 +255,7 @@ fn a_failed_stage_stops_the_step_there_and_no_nan_reaches_a_mesh() {
     let error = s.error.clone().expect("the step failed");
     assert!(error.to_string().contains("tool"), "{error}");
     assert_eq!(error.body, Some(tool), "the error names the tool's entity");
+    assert_eq!(error.stage, bevy_soft_tissue::SoftTissueStage::Prepare);
     assert!(s.paused);
     // The stages after the failing one did not run: no step was counted, no state moved,
     // and the rendered mesh kept its finite positions.
@@ -321,4 +322,5 @@ fn a_failure_names_the_failing_body_among_namesakes() {
         .clone()
         .expect("the step failed");
     assert_eq!(error.body, Some(culprit), "{error}");
+    assert_eq!(error.stage, bevy_soft_tissue::SoftTissueStage::StepSolvers);
 }

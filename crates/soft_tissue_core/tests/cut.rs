@@ -134,11 +134,11 @@ fn a_bar_cut_through_falls_in_two_with_its_volume() {
 fn a_cut_half_way_opens_a_crack_in_one_piece() {
     let h = 0.1;
     let before = bar((6, 4, 4), h);
-    // The plane x = 0.33 from below up to y = 0.2 (half the bar's height), through its
-    // whole depth.
+    // The plane x = 0.35 (mid-cube, far from the snap threshold) from below up to y = 0.2
+    // (half the bar's height), through its whole depth.
     let after = cut(
         &before,
-        &plane_x(0.33, (-0.1, 0.2), (-0.1, 0.5)),
+        &plane_x(0.35, (-0.1, 0.2), (-0.1, 0.5)),
         &CutOptions::default(),
     )
     .unwrap();
@@ -210,6 +210,33 @@ fn a_cut_that_misses_changes_nothing_and_bad_blades_are_refused() {
     )
     .unwrap_err();
     assert!(e.to_string().contains("snap"), "{e}");
+    for snap in [0.0, 1e-9, f64::NAN] {
+        let r = cut(
+            &before,
+            &plane_x(0.1, (0.0, 1.0), (0.0, 1.0)),
+            &CutOptions { snap },
+        );
+        assert!(r.is_err(), "snap {snap} accepted");
+    }
+}
+
+/// A blade through a layer of nodes exactly (distance zero) cuts along the layer with the
+/// smallest snap allowed, no child flat.
+#[test]
+fn a_blade_through_nodes_exactly_cuts_along_them() {
+    let before = bar((4, 2, 2), 0.1);
+    let after = cut(
+        &before,
+        &plane_x(0.2, (-0.1, 0.3), (-0.1, 0.3)),
+        &CutOptions {
+            snap: soft_tissue_core::mesh::cut::MIN_SNAP,
+        },
+    )
+    .unwrap();
+    let c = check(&before, &after);
+    assert_eq!(c.pieces, 2, "{c:?}");
+    assert_eq!(after.bisected, 0);
+    assert!(c.smallest_volume_ratio > 0.0);
 }
 
 /// `count` random incisions (a blade triangle a third of the mesh across, anywhere in its

@@ -188,8 +188,9 @@ pub fn without_columns(nodes: &[u32], slots: &[u32], out: &mut Vec<u32>) {
 /// slot of node `i` in `cache`, or `u32::MAX` when it has no columns: then `lumped[a]` must
 /// hold `A^-1` applied to unit forces along axis `a` on every node without columns
 /// together, whose rows give those nodes their (lumped) diagonal blocks, and the blocks
-/// between two of them are zero (see the module docs). A lumped block whose diagonal is not
-/// positive (a response that is no compliance) is replaced by `alone(node)`.
+/// between two of them are zero (see the module docs). A lumped block that is not positive
+/// definite on its free axes (a response that is no compliance) is replaced by
+/// `alone(node)`.
 #[allow(clippy::too_many_arguments)]
 pub fn assemble_blocks(
     cache: &ColumnCache,
@@ -214,15 +215,16 @@ pub fn assemble_blocks(
                 let k = kj as usize;
                 let b = Matrix3::from_columns(&[lumped[0][k], lumped[1][k], lumped[2][k]]);
                 let b = (b + b.transpose()) * (0.5 * scale);
-                let fixed_or_positive = (0..3).all(|a| {
-                    let d = b[(a, a)];
-                    d > 0.0 || (d == 0.0 && b.row(a).iter().all(|v| *v == 0.0))
-                });
-                if fixed_or_positive && b.iter().all(|v| v.is_finite()) {
-                    b
-                } else {
-                    alone(kj)
+                // Positive definite on the free axes (a fixed axis has a zero row and
+                // column): a compliance.
+                let mut test = b;
+                for a in 0..3 {
+                    if b.row(a).iter().all(|v| *v == 0.0) {
+                        test[(a, a)] = 1.0;
+                    }
                 }
+                let compliance = b.iter().all(|v| v.is_finite()) && test.cholesky().is_some();
+                if compliance { b } else { alone(kj) }
             } else {
                 Matrix3::zeros()
             };

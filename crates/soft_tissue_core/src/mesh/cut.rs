@@ -52,10 +52,13 @@ pub struct CutTriangle {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CutOptions {
     /// A crossing closer than this fraction of its edge to an end moves the cut to that end
-    /// instead of bisecting (in `[0, 0.5)`; larger keeps children fatter, smaller follows the
-    /// blade more closely).
+    /// instead of bisecting (in `[0.01, 0.5)`; larger keeps children fatter, smaller follows
+    /// the blade more closely).
     pub snap: f64,
 }
+
+/// Smallest [`CutOptions::snap`]: below it children would be flatter than a mesh accepts.
+pub const MIN_SNAP: f64 = 0.01;
 
 impl Default for CutOptions {
     fn default() -> Self {
@@ -74,9 +77,17 @@ pub enum CutError {
         /// What is wrong with it.
         reason: &'static str,
     },
-    /// The snap fraction is outside `[0, 0.5)`.
-    #[error("snap fraction {0} is outside [0, 0.5)")]
+    /// The snap fraction is outside `[0.01, 0.5)`.
+    #[error("snap fraction {0} is outside [0.01, 0.5)")]
     BadSnap(f64),
+    /// A child tetrahedron came out inverted or flat (a bug: bisection keeps orientation).
+    #[error("tetrahedron {tet} came out with {ratio:e} of its parent's volume")]
+    Inverted {
+        /// Index of the child.
+        tet: usize,
+        /// Its signed volume over its parent's.
+        ratio: f64,
+    },
     /// The cut mesh failed validation (a bug: a cut keeps every tetrahedron's orientation).
     #[error("the cut mesh is invalid: {0}")]
     Mesh(#[from] MeshError),
@@ -171,6 +182,10 @@ pub struct CutMesh {
     pub separated: usize,
     /// Separated faces taken back to keep the boundary 2-manifold.
     pub taken_back: usize,
+    /// Smallest signed volume of a tetrahedron over its parent's, as cut (before the mesh's
+    /// own checks, which would turn an inverted one over); a cut with one at or below zero
+    /// is refused ([`CutError::Inverted`]).
+    pub smallest_volume_ratio: f64,
 }
 
 impl CutMesh {
@@ -194,7 +209,7 @@ pub fn cut(
     blade: &[CutTriangle],
     options: &CutOptions,
 ) -> Result<CutMesh, CutError> {
-    if !(0.0..0.5).contains(&options.snap) {
+    if !(MIN_SNAP..0.5).contains(&options.snap) {
         return Err(CutError::BadSnap(options.snap));
     }
     for (index, t) in blade.iter().enumerate() {
@@ -227,6 +242,18 @@ pub fn cut(
     for t in blade {
         work.cut_by(t, options.snap);
     }
+    // Orientation against the parent, before the mesh's own checks (which would turn an
+    // inverted tetrahedron over).
+    let mut smallest_volume_ratio = f64::INFINITY;
+    for (t, tet) in work.tets.iter().enumerate() {
+        let child = tet_signed_volume(&tet.map(|i| work.positions[i as usize]));
+        let parent = mesh.tets()[work.tet_origin[t] as usize].map(|i| mesh.positions()[i as usize]);
+        let ratio = child / tet_signed_volume(&parent);
+        if ratio.is_nan() || ratio <= 0.0 {
+            return Err(CutError::Inverted { tet: t, ratio });
+        }
+        smallest_volume_ratio = smallest_volume_ratio.min(ratio);
+    }
     let tets: Vec<[usize; 4]> = work.tets.iter().map(|t| t.map(|i| i as usize)).collect();
     let new_mesh = TetMesh::new(work.positions.clone(), tets)?;
     let cut_faces = work.cut_faces();
@@ -238,6 +265,7 @@ pub fn cut(
         bisected: work.bisected,
         separated: work.separated,
         taken_back: work.taken_back,
+        smallest_volume_ratio,
     })
 }
 
@@ -312,7 +340,8 @@ impl Work {
                 })
             })
             .fold(0.0, f64::max);
-        let mut candidates = boxes(1e-9 * (hi - lo).norm() + snap * longest);
+        let reach = snap * longest;
+        let mut candidates = boxes(1e-9 * (hi - lo).norm() + reach);
         if candidates.is_empty() {
             return;
         }
@@ -325,7 +354,9 @@ impl Work {
                     .or_insert_with(|| normal.dot(&self.positions[v as usize]) - offset);
             }
         }
-        // A node closer to the plane than `snap` of its shortest edge there is on it.
+        // A node closer to the plane than `snap` of its shortest edge there is on it (and
+        // within the candidates' reach, so both tetrahedra of a face on the plane are
+        // candidates).
         let mut shortest: HashMap<u32, f64> = HashMap::new();
         for &t in &candidates {
             let tet = self.tets[t as usize];
@@ -342,7 +373,12 @@ impl Work {
         }
         let mut on_plane: HashMap<u32, bool> = distance
             .iter()
-            .map(|(&v, &d)| (v, d.abs() < snap * shortest[&v]))
+            .map(|(&v, &d)| {
+                (
+                    v,
+                    d == 0.0 || (d.abs() < snap * shortest[&v] && d.abs() <= reach),
+                )
+            })
             .collect();
         // Crossing edges with their crossing inside the triangle; a crossing near an end puts
         // that end on the plane instead (repeat until no new end joins the plane).
@@ -753,8 +789,8 @@ fn outward_face(tet: &[u32; 4], opposite: usize, positions: &[Vec3]) -> [u32; 3]
 pub struct CutCheck {
     /// Relative change of the total volume.
     pub volume_change: f64,
-    /// Smallest tetrahedron volume over its parent's, signed (below or at zero: inverted or
-    /// flat).
+    /// Smallest tetrahedron volume over its parent's, signed, as cut
+    /// ([`CutMesh::smallest_volume_ratio`]).
     pub smallest_volume_ratio: f64,
     /// Smallest dihedral angle of any tetrahedron, degrees.
     pub smallest_dihedral: f64,
@@ -770,14 +806,10 @@ pub struct CutCheck {
 pub fn check(before: &TetMesh, after: &CutMesh) -> CutCheck {
     let m = &after.mesh;
     let p = m.positions();
-    let mut smallest_volume_ratio = f64::INFINITY;
+    let smallest_volume_ratio = after.smallest_volume_ratio;
     let mut smallest_dihedral = f64::INFINITY;
-    for (t, tet) in m.tets().iter().enumerate() {
+    for tet in m.tets() {
         let mut corners = tet.map(|i| p[i as usize]);
-        let parent =
-            before.tets()[after.tet_origin[t] as usize].map(|i| before.positions()[i as usize]);
-        let ratio = tet_signed_volume(&corners) / tet_signed_volume(&parent);
-        smallest_volume_ratio = smallest_volume_ratio.min(ratio);
         if tet_signed_volume(&corners) < 0.0 {
             corners.swap(0, 1);
         }

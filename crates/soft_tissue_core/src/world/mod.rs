@@ -396,8 +396,8 @@ impl SimBody {
         &self.name
     }
 
-    /// A number no other body of this process has (its contact surface's; a clone keeps
-    /// it), which errors carry ([`WorldError::body_id`]).
+    /// A number no other body of this process has (its contact surface's), which errors
+    /// carry ([`WorldError::body_id`]).
     pub fn id(&self) -> u64 {
         self.collider.id()
     }
