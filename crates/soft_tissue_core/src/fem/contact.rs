@@ -198,7 +198,14 @@ impl FemBody {
         // than the body: the contact rounds finish what this leaves).
         let alone = |k: u32| Matrix3::identity() * (h * h / mass[k as usize].max(1e-300));
         crate::linalg::compliance::assemble_blocks(
-            &c.cache, &c.slots, nodes, &c.lumped, scale, &rotations, &alone, out,
+            &c.cache,
+            &c.slots,
+            nodes,
+            &c.lumped,
+            scale,
+            Some(&rotations),
+            &alone,
+            out,
         );
         self.contact.rotations = rotations;
         Ok(())

@@ -183,8 +183,8 @@ pub fn without_columns(nodes: &[u32], slots: &[u32], out: &mut Vec<u32>) {
 }
 
 /// Writes the compliance blocks between `nodes` (row-major, `nodes.len()^2` blocks): `scale`
-/// times the blocks of `A^-1`, turned by `rotations[i] * block * rotations[j]^T` (the
-/// warped compliance of a corotational body; pass identities otherwise). `slots[i]` is the
+/// times the blocks of `A^-1`, turned by `rotations[i] * block * rotations[j]^T` when
+/// `rotations` is given (the warped compliance of a corotational body). `slots[i]` is the
 /// slot of node `i` in `cache`, or `u32::MAX` when it has no columns: then `lumped[a]` must
 /// hold `A^-1` applied to unit forces along axis `a` on every node without columns
 /// together, whose rows give those nodes their (lumped) diagonal blocks, and the blocks
@@ -198,7 +198,7 @@ pub fn assemble_blocks(
     nodes: &[u32],
     lumped: &[Vec<Vec3>; 3],
     scale: f64,
-    rotations: &[Matrix3<f64>],
+    rotations: Option<&[Matrix3<f64>]>,
     alone: &dyn Fn(u32) -> Matrix3<f64>,
     out: &mut [Matrix3<f64>],
 ) {
@@ -228,7 +228,10 @@ pub fn assemble_blocks(
             } else {
                 Matrix3::zeros()
             };
-            out[i * m + j] = rotations[i] * block * rotations[j].transpose();
+            out[i * m + j] = match rotations {
+                Some(r) => r[i] * block * r[j].transpose(),
+                None => block,
+            };
         }
     }
 }
@@ -323,10 +326,11 @@ mod tests {
             chol.solve_unit_nodes(&[4, 5], [x, y, z]).unwrap();
         }
         let rotations = [Matrix3::identity(); 4];
+        let rotations = Some(&rotations[..]);
         let mut out = [Matrix3::zeros(); 16];
         let alone = |_: u32| Matrix3::identity() * 1e9;
         assemble_blocks(
-            &cache, &slots, &nodes, &lumped, 2.0, &rotations, &alone, &mut out,
+            &cache, &slots, &nodes, &lumped, 2.0, rotations, &alone, &mut out,
         );
         let close = |a: Matrix3<f64>, b: Matrix3<f64>| (a - b).amax() <= 1e-10 * b.amax();
         for i in 0..4 {
@@ -361,7 +365,7 @@ mod tests {
             &[4],
             &lumped,
             1.0,
-            &rotations[..1],
+            None,
             &alone,
             &mut one,
         );

@@ -24,11 +24,10 @@ pub(super) struct MsdContact {
     slots: Vec<u32>,
     rhs: Vec<Vec3>,
     dv: Vec<Vec3>,
-    /// The request's nodes left without columns, the response to unit forces on all of
-    /// them per axis, and identity rotations (see [`crate::linalg::compliance`]).
+    /// The request's nodes left without columns, and the response to unit forces on all of
+    /// them per axis (see [`crate::linalg::compliance`]).
     deferred: Vec<u32>,
     lumped: [Vec<Vec3>; 3],
-    identities: Vec<Matrix3<f64>>,
 }
 
 impl MsdBody {
@@ -99,9 +98,6 @@ impl MsdBody {
             c.cache.forget();
             return Err(e.into());
         }
-        if c.identities.len() < m {
-            c.identities.resize(m, Matrix3::identity());
-        }
         let mass = &self.nodes.mass;
         let alone = |k: u32| Matrix3::identity() * (h * h / mass[k as usize]);
         crate::linalg::compliance::assemble_blocks(
@@ -110,7 +106,7 @@ impl MsdBody {
             nodes,
             &c.lumped,
             h * h,
-            &c.identities[..m],
+            None,
             &alone,
             out,
         );
