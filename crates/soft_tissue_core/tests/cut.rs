@@ -130,6 +130,29 @@ fn a_bar_cut_through_falls_in_two_with_its_volume() {
     }
 }
 
+/// A blade of two triangles cuts as one surface: the faces one triangle's bisections make
+/// on the other's part are separated too, so nothing holds the pieces together along the
+/// line between the triangles (wherever that line crosses the section).
+#[test]
+fn a_blade_of_two_triangles_cuts_through_along_their_shared_edge() {
+    let h = 0.1;
+    let before = bar((8, 3, 3), h);
+    for at in [0.45, 0.25, 0.63] {
+        for (y, z) in [
+            ((-0.1, 0.4), (-0.1, 0.4)),
+            ((-0.05, 0.31), (-0.23, 0.37)),
+            ((-0.3, 0.35), (-0.02, 0.6)),
+        ] {
+            let after = cut(&before, &plane_x(at, y, z), &CutOptions::default()).unwrap();
+            let c = check(&before, &after);
+            assert_eq!(c.pieces, 2, "x = {at}, {y:?} x {z:?}: {c:?}");
+            assert_eq!(c.non_manifold_edges, 0, "{c:?}");
+            let area = after.cut_area();
+            assert!((area - 0.18).abs() < 1e-9, "x = {at}: cut area {area}");
+        }
+    }
+}
+
 #[test]
 fn a_cut_half_way_opens_a_crack_in_one_piece() {
     let h = 0.1;

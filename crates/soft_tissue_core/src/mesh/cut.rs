@@ -173,9 +173,12 @@ pub struct CutMesh {
     pub node_origin: Vec<NodeOrigin>,
     /// Tetrahedron of the mesh before the cut that each tetrahedron lies in.
     pub tet_origin: Vec<u32>,
-    /// The boundary triangles the cut opened (both sides), oriented outward from their
-    /// tetrahedron.
+    /// The boundary triangles the cut opened (both sides; after [`recut`], those of the
+    /// earlier cuts too), oriented outward from their tetrahedron.
     pub cut_faces: Vec<[u32; 3]>,
+    /// Per tetrahedron, whether its face opposite each corner is a side of a cut (to pass
+    /// to the next [`recut`]).
+    pub sides: Vec<[bool; 4]>,
     /// Edges bisected.
     pub bisected: usize,
     /// Faces separated.
@@ -209,24 +212,22 @@ pub fn cut(
     blade: &[CutTriangle],
     options: &CutOptions,
 ) -> Result<CutMesh, CutError> {
+    recut(mesh, None, blade, options)
+}
+
+/// [`cut`] of a mesh that was cut before: `sides` marks, per tetrahedron, its faces that
+/// are sides of earlier cuts (a [`CutMesh::sides`]), so [`CutMesh::cut_faces`] names the
+/// sides of every cut so far. A `sides` of the wrong length is ignored.
+pub fn recut(
+    mesh: &TetMesh,
+    sides: Option<&[[bool; 4]]>,
+    blade: &[CutTriangle],
+    options: &CutOptions,
+) -> Result<CutMesh, CutError> {
     if !(MIN_SNAP..0.5).contains(&options.snap) {
         return Err(CutError::BadSnap(options.snap));
     }
-    for (index, t) in blade.iter().enumerate() {
-        if !t.corners.iter().all(|c| c.iter().all(|v| v.is_finite())) {
-            return Err(CutError::BadTriangle {
-                index,
-                reason: "a corner is not finite",
-            });
-        }
-        let [a, b, c] = t.corners;
-        if (b - a).cross(&(c - a)).norm() == 0.0 {
-            return Err(CutError::BadTriangle {
-                index,
-                reason: "it has no area",
-            });
-        }
-    }
+    check_blade(blade)?;
     let mut work = Work {
         positions: mesh.positions().to_vec(),
         tets: mesh.tets().to_vec(),
@@ -234,14 +235,34 @@ pub fn cut(
             .map(NodeOrigin::node)
             .collect(),
         tet_origin: (0..mesh.tet_count() as u32).collect(),
-        cut: vec![[false; 4]; mesh.tet_count()],
+        cut: match sides {
+            Some(s) if s.len() == mesh.tet_count() => s.to_vec(),
+            _ => vec![[false; 4]; mesh.tet_count()],
+        },
         bisected: 0,
         separated: 0,
         taken_back: 0,
     };
-    for t in blade {
-        work.cut_by(t, options.snap);
+    // Every triangle bisects first, then each separates: a face one triangle's
+    // bisections made on a coplanar neighbour's part of the blade is separated by that
+    // neighbour, so a blade of several triangles cuts as one surface.
+    // The faces of all the triangles separate together, so the front is the blade's
+    // outline, not the lines between its triangles.
+    let planes: Vec<Option<PlaneNodes>> = blade
+        .iter()
+        .map(|t| work.bisect_by(t, options.snap))
+        .collect();
+    let mut chosen: HashMap<[u32; 3], Vec<(u32, u8)>> = HashMap::new();
+    for (t, nodes) in blade.iter().zip(planes) {
+        if let Some(nodes) = nodes {
+            work.separate_by(t, nodes, &mut chosen);
+        }
     }
+    let mut faces: Vec<[u32; 3]> = chosen.keys().copied().collect();
+    faces.sort_unstable();
+    let corners = blade.iter().flat_map(|t| t.corners);
+    let centre = corners.fold(Vec3::zeros(), |s, c| s + c) / (3 * blade.len().max(1)) as f64;
+    work.separate(&faces, &chosen, centre);
     // Orientation against the parent, before the mesh's own checks (which would turn an
     // inverted tetrahedron over).
     let mut smallest_volume_ratio = f64::INFINITY;
@@ -262,11 +283,32 @@ pub fn cut(
         node_origin: work.node_origin,
         tet_origin: work.tet_origin,
         cut_faces,
+        sides: work.cut,
         bisected: work.bisected,
         separated: work.separated,
         taken_back: work.taken_back,
         smallest_volume_ratio,
     })
+}
+
+/// Refuses a blade triangle with a corner that is not finite or without area.
+pub fn check_blade(blade: &[CutTriangle]) -> Result<(), CutError> {
+    for (index, t) in blade.iter().enumerate() {
+        if !t.corners.iter().all(|c| c.iter().all(|v| v.is_finite())) {
+            return Err(CutError::BadTriangle {
+                index,
+                reason: "a corner is not finite",
+            });
+        }
+        let [a, b, c] = t.corners;
+        if (b - a).cross(&(c - a)).norm() == 0.0 {
+            return Err(CutError::BadTriangle {
+                index,
+                reason: "it has no area",
+            });
+        }
+    }
+    Ok(())
 }
 
 /// The mesh while it is cut.
@@ -281,6 +323,14 @@ struct Work {
     bisected: usize,
     separated: usize,
     taken_back: usize,
+}
+
+/// The nodes near a blade triangle: signed distances to its plane and which count as on
+/// it, and how far snapping reached.
+struct PlaneNodes {
+    distance: HashMap<u32, f64>,
+    on_plane: HashMap<u32, bool>,
+    reach: f64,
 }
 
 /// A node and which of its planned copies (0: the node itself).
@@ -312,7 +362,10 @@ fn inside(tri: &CutTriangle, p: &Vec3) -> bool {
 }
 
 impl Work {
-    fn cut_by(&mut self, tri: &CutTriangle, snap: f64) {
+    /// Bisects the edges crossing `tri` inside it (moves 1 and 2 of the module docs);
+    /// returns the nodes' distances to its plane and which count as on it, for
+    /// [`Work::separate_by`], or `None` when the triangle meets no tetrahedron.
+    fn bisect_by(&mut self, tri: &CutTriangle, snap: f64) -> Option<PlaneNodes> {
         let [a, b, c] = tri.corners;
         let normal = (b - a).cross(&(c - a)).normalize();
         let offset = normal.dot(&a);
@@ -343,7 +396,7 @@ impl Work {
         let reach = snap * longest;
         let mut candidates = boxes(1e-9 * (hi - lo).norm() + reach);
         if candidates.is_empty() {
-            return;
+            return None;
         }
         // Signed distances, and which nodes count as on the plane.
         let mut distance: HashMap<u32, f64> = HashMap::new();
@@ -477,6 +530,53 @@ impl Work {
                 candidates.push(self.tets.len() as u32 - 1);
             }
         }
+        Some(PlaneNodes {
+            distance,
+            on_plane,
+            reach,
+        })
+    }
+
+    /// Chooses the faces on `tri`'s plane inside it between tetrahedra on opposite sides
+    /// (move 3) into `chosen`, with their two tetrahedra, once every triangle of the blade
+    /// has bisected: a face made by a neighbouring triangle's bisections but lying in this
+    /// one is found here. Nodes made
+    /// since [`Work::bisect_by`] classified them count as on the plane within 1e-9 of the
+    /// triangle's size (a coplanar neighbour's).
+    fn separate_by(
+        &mut self,
+        tri: &CutTriangle,
+        nodes: PlaneNodes,
+        chosen: &mut HashMap<[u32; 3], Vec<(u32, u8)>>,
+    ) {
+        let PlaneNodes {
+            mut distance,
+            mut on_plane,
+            reach,
+        } = nodes;
+        let [a, b, c] = tri.corners;
+        let normal = (b - a).cross(&(c - a)).normalize();
+        let offset = normal.dot(&a);
+        let (lo, hi) = (a.inf(&b).inf(&c), a.sup(&b).sup(&c));
+        let pad = 1e-9 * (hi - lo).norm() + reach;
+        let candidates: Vec<u32> = (0..self.tets.len() as u32)
+            .filter(|&t| {
+                let p = self.tets[t as usize].map(|i| self.positions[i as usize]);
+                let tl = p[0].inf(&p[1]).inf(&p[2]).inf(&p[3]);
+                let th = p[0].sup(&p[1]).sup(&p[2]).sup(&p[3]);
+                (0..3).all(|k| tl[k] <= hi[k] + pad && th[k] >= lo[k] - pad)
+            })
+            .collect();
+        let size = (hi - lo).norm();
+        for &t in &candidates {
+            for &v in &self.tets[t as usize] {
+                if let std::collections::hash_map::Entry::Vacant(e) = distance.entry(v) {
+                    let d = normal.dot(&self.positions[v as usize]) - offset;
+                    e.insert(d);
+                    on_plane.insert(v, d.abs() <= 1e-9 * size);
+                }
+            }
+        }
         // Faces on the plane, inside the triangle, between tetrahedra on opposite sides.
         // A tetrahedron's side: that of its corners off the plane (one side once the
         // crossing edges are bisected); one with all four corners counted on the plane,
@@ -522,7 +622,9 @@ impl Work {
             .map(|(key, _)| *key)
             .collect();
         separate.sort_unstable();
-        self.separate(&separate, &faces, (a + b + c) / 3.0);
+        for f in &separate {
+            chosen.entry(*f).or_insert_with(|| faces[f].clone());
+        }
     }
 
     /// Separates `faces` (with their two tetrahedra in `holders`), taking back faces until
