@@ -190,6 +190,7 @@ fn run_plugin(
                 grab: false,
                 cautery_watts: 0.0,
                 jaws: 0.0,
+                cut: false,
                 friction: Default::default(),
             },
             tool_transform(script, 0.0),
@@ -208,6 +209,7 @@ fn run_plugin(
                     ScriptAction::Release => spec.grab = false,
                     ScriptAction::Cautery(w) => spec.cautery_watts = w,
                     ScriptAction::Jaws(w) => spec.jaws = w,
+                    ScriptAction::Cut(on) => spec.cut = on,
                 }
             }
         }

@@ -458,6 +458,9 @@ pub struct SoftTool {
     /// A grasper's jaw opening the jaws move toward, scene units (0 closes them; ignored by
     /// other tools).
     pub jaws: f64,
+    /// A blade cuts the bodies its edge sweeps through while this is on (ignored by other
+    /// tools).
+    pub cut: bool,
     /// The tool's surface friction (combined with the tissue's).
     pub friction: Friction,
 }
@@ -470,6 +473,20 @@ impl SoftTool {
             grab: false,
             cautery_watts: 0.0,
             jaws: 0.0,
+            cut: false,
+            friction: Friction::default(),
+        }
+    }
+
+    /// A scalpel: a blade edge of `length` (scene units) along the shaft from the tip,
+    /// not cutting.
+    pub fn blade(length: f64) -> Self {
+        SoftTool {
+            shape: ToolShape::Blade { length },
+            grab: false,
+            cautery_watts: 0.0,
+            jaws: 0.0,
+            cut: false,
             friction: Friction::default(),
         }
     }
@@ -481,6 +498,7 @@ impl SoftTool {
             grab: false,
             cautery_watts: 0.0,
             jaws: max_opening,
+            cut: false,
             friction: Friction::default(),
         }
     }

@@ -114,6 +114,16 @@ fn draw_tools(
                 gizmos.sphere(Isometry3d::from_translation(q), radius as f32, colour);
                 gizmos.line(p, q, colour);
             }
+            crate::core::contact::ToolShape::Blade { length } => {
+                // The edge, red while it cuts.
+                let cutting = state.as_ref().is_some_and(|s| s.tool().cutting());
+                let colour = if cutting {
+                    Color::srgb(0.95, 0.1, 0.1)
+                } else {
+                    colour
+                };
+                gizmos.line(p, p + pose.up() * length as f32, colour);
+            }
             crate::core::contact::ToolShape::Grasper { jaw, .. } => {
                 // The jaws where the simulation has them (the opening moves over steps).
                 let Some(state) = state else { continue };

@@ -117,6 +117,7 @@ pub(super) fn scripted_tool(
             ScriptAction::Release => tool.grab = false,
             ScriptAction::Cautery(w) => tool.cautery_watts = w,
             ScriptAction::Jaws(w) => tool.jaws = w,
+            ScriptAction::Cut(on) => tool.cut = on,
         }
     }
 }

@@ -214,6 +214,14 @@ pub(super) fn prepare_stage(
                 ),
             );
         }
+        if t.cutting() != spec.cut
+            && let Err(e) = t.set_cutting(spec.cut)
+        {
+            fail(
+                &mut status,
+                stage_error(SoftTissueStage::Prepare, "a blade's cut", Some(entity), e),
+            );
+        }
         if let Err(e) = t.set_cautery(spec.cautery_watts) {
             fail(
                 &mut status,

@@ -122,6 +122,7 @@ fn contacts_name_the_touched_body_while_another_is_rebuilt() {
                 grab: false,
                 cautery_watts: 0.0,
                 jaws: 0.0,
+                cut: false,
                 friction: Default::default(),
             },
             Transform::from_xyz(0.0, 0.66, 0.0),

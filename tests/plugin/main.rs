@@ -108,6 +108,7 @@ fn drive_tool(
             ScriptAction::Release => spec.grab = false,
             ScriptAction::Cautery(w) => spec.cautery_watts = *w,
             ScriptAction::Jaws(w) => spec.jaws = *w,
+            ScriptAction::Cut(on) => spec.cut = *on,
         }
     }
     // The rotation as the plugin reads it: from the global transform's matrix (its bits
@@ -127,6 +128,7 @@ fn spawn_tool(app: &mut App, script: &Script) -> Entity {
         grab: false,
         cautery_watts: 0.0,
         jaws: 0.0,
+        cut: false,
         friction: Default::default(),
     };
     app.world_mut()

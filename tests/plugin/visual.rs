@@ -278,6 +278,7 @@ fn a_non_manifold_mesh_simulates_and_draws_in_the_plugin() {
                 grab: false,
                 cautery_watts: 0.0,
                 jaws: 0.0,
+                cut: false,
                 friction: Default::default(),
             },
             Transform::from_translation(start),

@@ -359,6 +359,25 @@ impl HeatField {
         Ok(())
     }
 
+    /// Sets every node's damage integral (a field carried over from another mesh, say a
+    /// body before a cut); each must be finite (below zero counts as zero).
+    pub fn set_damage(&mut self, f: impl Fn(usize) -> f64) -> Result<(), HeatError> {
+        for i in 0..self.damage.len() {
+            let d = f(i);
+            if !d.is_finite() {
+                return Err(HeatError::NonFinite {
+                    what: "damage",
+                    node: i,
+                    value: d,
+                });
+            }
+            self.damage[i] = d.max(0.0);
+        }
+        self.changed = true;
+        self.version += 1;
+        Ok(())
+    }
+
     /// Arrhenius damage integral per node (dimensionless).
     pub fn damage(&self) -> &[f64] {
         &self.damage

@@ -12,6 +12,9 @@ use serde::{Deserialize, Serialize};
 /// Wall time of each stage of one step, microseconds.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct StageTimes {
+    /// The cut stage: the bodies cutting blades crossed since the last step, cut and
+    /// rebuilt (0 when no blade cuts).
+    pub cut_us: f64,
     /// `prepare`: tool velocities, surfaces gathered.
     pub prepare_us: f64,
     /// `detect_contacts`: who is touched at the start of the step.
@@ -32,7 +35,8 @@ pub struct StageTimes {
 
 impl StageTimes {
     /// Stage names, in the order of [`StageTimes::values`].
-    pub const NAMES: [&'static str; 7] = [
+    pub const NAMES: [&'static str; 8] = [
+        "cut",
         "prepare",
         "detect",
         "switch",
@@ -48,8 +52,9 @@ impl StageTimes {
     }
 
     /// The stages in the order of [`StageTimes::NAMES`].
-    pub fn values(&self) -> [f64; 7] {
+    pub fn values(&self) -> [f64; 8] {
         [
+            self.cut_us,
             self.prepare_us,
             self.detect_us,
             self.switch_us,
@@ -137,7 +142,7 @@ pub struct StageStats {
     /// The whole step.
     pub step: TimeStats,
     /// Each stage, in the order of [`StageTimes::NAMES`].
-    pub stages: [TimeStats; 7],
+    pub stages: [TimeStats; 8],
 }
 
 impl StageStats {
@@ -156,7 +161,7 @@ impl StageStats {
 #[derive(Debug, Clone, Default)]
 pub struct StageRecorder {
     whole: Vec<f64>,
-    stages: [Vec<f64>; 7],
+    stages: [Vec<f64>; 8],
     window: Option<usize>,
     next: usize,
 }

@@ -86,6 +86,14 @@ pub enum ToolShape {
         /// Widest opening, scene units.
         max_opening: f64,
     },
+    /// A scalpel's edge: the segment from the tool position along the tool axis for
+    /// `length`. While cutting is on ([`Tool::set_cutting`]) the surface it sweeps between
+    /// two steps cuts the bodies it crosses; it takes no part in contact (a sharp edge
+    /// parts tissue rather than pushing it).
+    Blade {
+        /// Edge length, scene units.
+        length: f64,
+    },
 }
 
 impl ToolShape {
@@ -94,6 +102,7 @@ impl ToolShape {
         match *self {
             ToolShape::Sphere { radius } | ToolShape::Capsule { radius, .. } => radius,
             ToolShape::Grasper { jaw, .. } => jaw.half_thickness(),
+            ToolShape::Blade { .. } => 0.0,
         }
     }
 
@@ -138,13 +147,15 @@ impl ToolShape {
                 }
                 positive("grasper max_opening (must be > 0)", max_opening)
             }
+            ToolShape::Blade { length } => positive("blade length (must be > 0)", length),
         }
     }
 
-    /// Number of rigid parts (1, or 2 for a grasper).
+    /// Number of rigid parts in contact (1, 2 for a grasper, none for a blade).
     pub fn parts(&self) -> usize {
         match self {
             ToolShape::Grasper { .. } => 2,
+            ToolShape::Blade { .. } => 0,
             _ => 1,
         }
     }
@@ -190,6 +201,8 @@ pub struct Tool {
     target_opening: f64,
     jaw_speed: f64,
     grip_limit: f64,
+    /// A blade's cutting is on.
+    cutting: bool,
 }
 
 impl Tool {
@@ -221,6 +234,7 @@ impl Tool {
             target_opening: open,
             jaw_speed: 2.0 * open,
             grip_limit: f64::INFINITY,
+            cutting: false,
         };
         t.last_parts = [t.part_pose(0), t.part_pose(1)];
         Ok(t)
@@ -446,7 +460,7 @@ impl Tool {
     pub fn core(&self) -> (Vec3, Vec3) {
         match self.shape {
             ToolShape::Sphere { .. } => (self.position, self.position),
-            ToolShape::Capsule { length, .. } => {
+            ToolShape::Capsule { length, .. } | ToolShape::Blade { length } => {
                 (self.position, self.position + self.axis() * length)
             }
             ToolShape::Grasper { jaw, .. } => {
@@ -463,6 +477,11 @@ impl Tool {
         match self.shape {
             ToolShape::Sphere { radius } => RigidShape::Sphere { radius },
             ToolShape::Capsule { radius, length } => RigidShape::Capsule { radius, length },
+            // No part of a blade is in contact; its edge as a capsule of no radius.
+            ToolShape::Blade { length } => RigidShape::Capsule {
+                radius: 0.0,
+                length,
+            },
             ToolShape::Grasper { jaw, .. } => {
                 let _ = k;
                 jaw.shape().0
@@ -541,6 +560,12 @@ impl Tool {
         self.last_parts = [self.part_pose(0), self.part_pose(1)];
     }
 
+    /// Replaces the grips, a pending grab kept (a cut moves the grips to the nodes of the
+    /// cut bodies).
+    pub fn set_grips(&mut self, grips: Vec<Grip>) {
+        self.grips = grips;
+    }
+
     /// Sets the grips (the contact stage's answer to a grab).
     pub fn take_grips(&mut self, grips: Vec<Grip>) {
         self.grab_requested = false;
@@ -563,6 +588,41 @@ impl Tool {
     /// Counts contacts.
     pub fn add_contacts(&mut self, n: u32) {
         self.contacts += n;
+    }
+
+    /// Turns a blade's cutting on or off (only a [`ToolShape::Blade`] cuts).
+    pub fn set_cutting(&mut self, on: bool) -> Result<(), ContactError> {
+        if !matches!(self.shape, ToolShape::Blade { .. }) && on {
+            return Err(ContactError::BadTool {
+                tool: self.name.clone(),
+                what: "cutting (only a blade cuts)",
+                value: 1.0,
+            });
+        }
+        self.cutting = on;
+        Ok(())
+    }
+
+    /// Whether the tool is a blade with cutting on.
+    pub fn cutting(&self) -> bool {
+        self.cutting
+    }
+
+    /// The edge a blade had at the start of the step and has now (each as its two ends),
+    /// when it has moved since the last step; `None` for other tools and before a first
+    /// step.
+    pub fn blade_sweep(&self) -> Option<[(Vec3, Vec3); 2]> {
+        let ToolShape::Blade { length } = self.shape else {
+            return None;
+        };
+        self.last_position?;
+        let edge = |p: &Pose| {
+            (
+                p.transform_point(&Point3::origin()).coords,
+                p.transform_point(&Point3::new(0.0, length, 0.0)).coords,
+            )
+        };
+        Some([edge(&self.last_parts[0]), edge(&self.part_pose(0))])
     }
 
     /// Back to idle at the origin (no grips, no cautery, a grasper open).

@@ -36,8 +36,8 @@ mod thread;
 pub use coupling::{ContactModel, CouplingParams};
 pub use priority::{DEFAULT_REALTIME_LEVEL, HapticPriority, PriorityOutcome, Scheduling};
 pub use recording::{
-    CAUTERY_BUTTON, GRAB_BUTTON, JAWS_BUTTON, MAX_RECORDING_SAMPLES, RecordedSample, Recording,
-    RecordingError,
+    CAUTERY_BUTTON, CUT_BUTTON, GRAB_BUTTON, JAWS_BUTTON, MAX_RECORDING_SAMPLES, RecordedSample,
+    Recording, RecordingError,
 };
 pub use thread::{
     DeviceMapping, HapticConfig, HapticRun, HapticShared, HapticThread, ToolSample, contact_model,

@@ -17,6 +17,9 @@ pub const CAUTERY_BUTTON: u32 = 2;
 /// Button bit: a grasper's jaws closed (released: open).
 pub const JAWS_BUTTON: u32 = 4;
 
+/// Button bit: a blade cuts (released: it does not).
+pub const CUT_BUTTON: u32 = 8;
+
 /// Most samples [`Recording::from_script`] makes (a day at 1 kHz is fewer).
 pub const MAX_RECORDING_SAMPLES: usize = 100_000_000;
 
@@ -205,6 +208,8 @@ impl Recording {
                     ScriptAction::Cautery(_) => buttons &= !CAUTERY_BUTTON,
                     ScriptAction::Jaws(w) if w <= 0.0 => buttons |= JAWS_BUTTON,
                     ScriptAction::Jaws(_) => buttons &= !JAWS_BUTTON,
+                    ScriptAction::Cut(true) => buttons |= CUT_BUTTON,
+                    ScriptAction::Cut(false) => buttons &= !CUT_BUTTON,
                 }
                 next_event += 1;
             }
@@ -275,6 +280,12 @@ impl Recording {
                     } else {
                         max_opening
                     }),
+                });
+            }
+            if let (true, ToolShape::Blade { .. }) = (changed & CUT_BUTTON != 0, tool) {
+                events.push(ScriptEvent {
+                    t: s.t,
+                    action: ScriptAction::Cut(s.buttons & CUT_BUTTON != 0),
                 });
             }
             last_buttons = s.buttons;

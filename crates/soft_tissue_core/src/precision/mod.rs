@@ -55,6 +55,7 @@ use crate::state::NodalBody;
 
 mod build;
 mod contact;
+mod cut;
 mod fit;
 mod method;
 mod shadow;
@@ -279,6 +280,9 @@ pub struct LeveledBody {
     held: bool,
     /// The cage's equilibrium is a resting shape, not its rest shape.
     rebased: bool,
+    /// Made by a cut under gravity (see [`LeveledBody::start_precise`]): the cage keeps the
+    /// shape the body comes to rest in, as for a free body.
+    rests_loaded: bool,
     asleep: bool,
     switches: u64,
     last_switch: Option<SwitchRecord>,
@@ -345,6 +349,7 @@ impl LeveledBody {
             slow_steps: 0,
             held: false,
             rebased: false,
+            rests_loaded: false,
             asleep: true,
             switches: 0,
             last_switch: None,
@@ -737,7 +742,11 @@ impl LeveledBody {
                     self.residual = residual;
                     // A free body at rest on its supports keeps what its cage misses as a
                     // detail (see `lower_fitted`): it may drop whatever the residual.
-                    if residual <= p.rest_residual * self.smallest || self.falls() || self.held {
+                    if residual <= p.rest_residual * self.smallest
+                        || self.falls()
+                        || self.held
+                        || self.rests_loaded
+                    {
                         switched = Some(self.lower_fitted(residual)?);
                     } else {
                         self.rest_count = 0;

@@ -141,7 +141,7 @@ impl LeveledBody {
         // cage (without gravity) keeps.
         // So does a body held in a pressed shape by its neighbours (see `set_held`); one that
         // rests free of them goes back to its rest shape.
-        if self.falls() || self.held {
+        if self.falls() || self.held || self.rests_loaded {
             self.cage.rebase_equilibrium(true);
             self.equilibrium.copy_from_slice(&self.fit_cage);
             self.rebased = true;

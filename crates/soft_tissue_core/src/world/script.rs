@@ -36,6 +36,8 @@ pub enum ScriptAction {
     /// Move a grasper's jaws toward this opening, scene units (0 closes them; beyond the
     /// widest opens them fully).
     Jaws(f64),
+    /// Turn a blade's cutting on or off (the surface its edge sweeps while on cuts).
+    Cut(bool),
 }
 
 impl ScriptAction {
@@ -46,6 +48,7 @@ impl ScriptAction {
             ScriptAction::Release => tool.release(),
             ScriptAction::Cautery(w) => tool.set_cautery(w)?,
             ScriptAction::Jaws(w) => tool.set_opening(w)?,
+            ScriptAction::Cut(on) => tool.set_cutting(on)?,
         }
         Ok(())
     }
@@ -168,6 +171,11 @@ impl Script {
                 if !(w.is_finite() && w >= 0.0) {
                     return Err(bad(format!("event {i}: jaw opening {w} must be >= 0")));
                 }
+            }
+            if let ScriptAction::Cut(true) = e.action
+                && !matches!(self.tool, ToolShape::Blade { .. })
+            {
+                return Err(bad(format!("event {i}: `Cut(true)` needs a blade tool")));
             }
             last = e.t;
         }

@@ -16,6 +16,10 @@ pub struct SoftTissueWorld {
     threads: crate::parallel::Threads,
     /// The error of the step that failed, until `resume` or `reset`.
     halted: Option<String>,
+    /// How blades cut.
+    cut_options: crate::mesh::cut::CutOptions,
+    /// Bodies as they were before their first cut, by index (`reset` puts them back).
+    uncut: Vec<(usize, SimBody)>,
 }
 
 impl SoftTissueWorld {
@@ -45,7 +49,84 @@ impl SoftTissueWorld {
             times: StageTimes::default(),
             threads: crate::parallel::Threads::new(crate::parallel::default_threads())?,
             halted: None,
+            cut_options: Default::default(),
+            uncut: Vec::new(),
         })
+    }
+
+    /// How blades cut (default [`crate::mesh::cut::CutOptions::default`]).
+    pub fn set_cut_options(
+        &mut self,
+        options: crate::mesh::cut::CutOptions,
+    ) -> Result<(), WorldError> {
+        if !(crate::mesh::cut::MIN_SNAP..0.5).contains(&options.snap) {
+            return Err(WorldError::Cut {
+                body: "world".into(),
+                reason: crate::mesh::cut::CutError::BadSnap(options.snap).to_string(),
+            });
+        }
+        self.cut_options = options;
+        Ok(())
+    }
+
+    /// Cuts body `index` along `blade` now (see [`SimBody::cut`]): pieces that came loose
+    /// are added as bodies, grips on the body follow its nodes. Returns the indices of the
+    /// new bodies (empty when nothing was separated).
+    pub fn cut_body(
+        &mut self,
+        index: usize,
+        blade: &[crate::mesh::cut::CutTriangle],
+    ) -> Result<Vec<usize>, WorldError> {
+        if index >= self.bodies.len() {
+            return Err(WorldError::Unknown {
+                kind: "body",
+                name: index.to_string(),
+            });
+        }
+        let Some(cut) = self.bodies[index].cut(blade, &self.cut_options)? else {
+            return Ok(Vec::new());
+        };
+        let first = self.bodies.len();
+        let super::cut::BladeCut {
+            pieces,
+            previous,
+            node_map,
+            ..
+        } = cut;
+        if !previous.loose && !self.uncut.iter().any(|(k, _)| *k == index) {
+            self.uncut.push((index, *previous));
+        }
+        let mut made = Vec::with_capacity(pieces.len());
+        for p in pieces {
+            made.push(self.bodies.len());
+            self.bodies.push(p);
+        }
+        super::cut::remap_grips(&mut self.tools, &self.bodies, index, &node_map, first);
+        Ok(made)
+    }
+
+    /// The cut stage: every blade with cutting on cuts the bodies its edge crossed since the
+    /// last step.
+    fn cut_stage(&mut self) -> Result<(), WorldError> {
+        for t in 0..self.tools.len() {
+            let tool = &self.tools[t];
+            if !tool.cutting() {
+                continue;
+            }
+            let Some([(a0, b0), (a1, b1)]) = tool.blade_sweep() else {
+                continue;
+            };
+            let blade = super::cut::swept_triangles(a0, b0, a1, b1);
+            if blade.is_empty() {
+                continue;
+            }
+            // Bodies made by this sweep are not cut by it again.
+            let count = self.bodies.len();
+            for i in 0..count {
+                self.cut_body(i, &blade)?;
+            }
+        }
+        Ok(())
     }
 
     /// Settings.
@@ -236,6 +317,8 @@ impl SoftTissueWorld {
             *t = Instant::now();
             e
         };
+        self.cut_stage()?;
+        self.times.cut_us = lap(&mut t);
         prepare(&mut self.bodies, &mut self.tools, dt);
         self.times.prepare_us = lap(&mut t);
         detect_contacts(&mut self.bodies, &mut self.tools, &c, &mut self.contacts);
@@ -266,6 +349,11 @@ impl SoftTissueWorld {
     /// tools idle at the origin, counters cleared. A run after `reset` repeats the first run
     /// bit for bit given the same inputs.
     pub fn reset(&mut self) -> Result<(), WorldError> {
+        // Cut bodies come back whole; pieces that came loose go.
+        for (k, b) in self.uncut.drain(..) {
+            self.bodies[k] = b;
+        }
+        self.bodies.retain(|b| !b.loose);
         for b in &mut self.bodies {
             b.reset()?;
         }

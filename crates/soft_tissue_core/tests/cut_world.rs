@@ -1,0 +1,322 @@
+//! Cutting bodies while they simulate: a blade tool's sweep cuts, pieces become bodies,
+//! and the state (positions, velocities, temperatures, damage, supports, masses, grips)
+//! carries over. Checked against free fall, conservation and linear fields.
+
+use std::sync::Arc;
+
+use soft_tissue_core::Vec3;
+use soft_tissue_core::boundary::Boundary;
+use soft_tissue_core::contact::{ContactConfig, Tool, ToolShape};
+use soft_tissue_core::heat::{HeatBoundary, HeatParams};
+use soft_tissue_core::material::{FemParams, MsdParams};
+use soft_tissue_core::mesh::cut::CutTriangle;
+use soft_tissue_core::mesh::generate::block;
+use soft_tissue_core::precision::{BodySettings, Level, PreciseMethod};
+use soft_tissue_core::world::{SimBody, SoftTissueWorld, WorldConfig, WorldError};
+
+const DT: f64 = 0.005;
+const G: f64 = 9.81;
+
+/// A bar 2 x 10 x 2 cm of soft tissue (1000 kg/m^3), fixed at its lowest layer (y = 0)
+/// with gravity along +y: it hangs from its support. `damping` is the rate (1/s) of the
+/// mass-proportional damping, which slows a rigid motion too.
+fn hanging_bar(method: PreciseMethod, damping: f64) -> SimBody {
+    let mesh = block(Vec3::zeros(), Vec3::new(0.02, 0.1, 0.02), [2, 10, 2]).unwrap();
+    let fem = FemParams {
+        young_modulus: 2.0e4,
+        poisson_ratio: 0.4,
+        mass: 1000.0 * mesh.volume(),
+        damping,
+    };
+    let msd = MsdParams {
+        stiffness: 200.0,
+        mass: 1000.0 * mesh.volume(),
+        // The MSD's damping is per node against the ground (a drag): the same rate.
+        damping: damping * 1000.0 * mesh.volume() / mesh.node_count() as f64,
+    };
+    let mut s = BodySettings::new(fem, msd, DT);
+    s.precise = method;
+    s.gravity = Vec3::new(0.0, G, 0.0);
+    s.boundary = Boundary::fixed_below(mesh.positions(), 1, 0.01);
+    SimBody::new("bar", Arc::new(mesh), s, None).unwrap()
+}
+
+fn world_with(body: SimBody) -> SoftTissueWorld {
+    let mut w = SoftTissueWorld::new(WorldConfig {
+        dt: DT,
+        contact: ContactConfig::for_scale(0.1),
+    })
+    .unwrap();
+    w.add_body(body).unwrap();
+    w
+}
+
+/// A scalpel edge along z across the bar at height `y`, moved across it in x over one step
+/// with cutting on; returns the step the cut happened in.
+fn sweep_blade(w: &mut SoftTissueWorld, y: f64) {
+    let mut blade = Tool::new("scalpel", ToolShape::Blade { length: 0.06 }).unwrap();
+    blade
+        .set_pose(Vec3::new(-0.01, y, -0.02), Vec3::z())
+        .unwrap();
+    let t = w.add_tool(blade);
+    w.step_fixed().unwrap();
+    w.tools_mut()[t].set_cutting(true).unwrap();
+    w.tools_mut()[t]
+        .set_pose(Vec3::new(0.04, y, -0.02), Vec3::z())
+        .unwrap();
+    w.step_fixed().unwrap();
+    w.tools_mut()[t].set_cutting(false).unwrap();
+}
+
+/// Mass-weighted centre of a body's nodes.
+fn centre(b: &SimBody) -> Vec3 {
+    let m = b.body().precise().masses();
+    let x = b.body().node_positions();
+    let total: f64 = m.iter().sum();
+    x.iter().zip(m).map(|(x, m)| x * *m).sum::<Vec3>() / total
+}
+
+fn total_mass(b: &SimBody) -> f64 {
+    b.body().precise().masses().iter().sum()
+}
+
+#[test]
+fn a_hanging_bar_cut_through_falls_in_two_the_lower_piece_at_g() {
+    for method in [
+        PreciseMethod::CorotationalFem,
+        PreciseMethod::LinearFem,
+        PreciseMethod::PrefactoredFem,
+        PreciseMethod::MsdImplicit,
+        PreciseMethod::MsdBdf2,
+    ] {
+        let body = hanging_bar(method, 0.0);
+        let mass = total_mass(&body);
+        let volume = body.mesh().volume();
+        let nodes = body.mesh().node_count();
+        let mut w = world_with(body);
+        sweep_blade(&mut w, 0.055);
+        assert_eq!(w.bodies().len(), 2, "{method:?}: the cut makes two bodies");
+        let (upper, lower) = (&w.bodies()[0], &w.bodies()[1]);
+        assert_eq!(upper.name(), "bar");
+        assert_eq!(lower.name(), "bar.1");
+        let pieces_volume = upper.mesh().volume() + lower.mesh().volume();
+        assert!(
+            ((pieces_volume - volume) / volume).abs() < 1e-9,
+            "{method:?}: volume {pieces_volume} of {volume}"
+        );
+        let pieces_mass = total_mass(upper) + total_mass(lower);
+        assert!(
+            ((pieces_mass - mass) / mass).abs() < 1e-9,
+            "{method:?}: mass {pieces_mass} of {mass}"
+        );
+        assert!(
+            lower
+                .body()
+                .precise()
+                .fixed()
+                .iter()
+                .all(|f| !f.iter().any(|&a| a)),
+            "{method:?}: the loose piece holds no support"
+        );
+        assert!(upper.body().precise().fixed().iter().any(|f| f[1]));
+        for b in w.bodies() {
+            let r = b.cut_record().unwrap();
+            assert!(r.closed, "{method:?}: {} has a closed surface", b.name());
+            assert!(
+                r.area > 0.9 * 0.02 * 0.02,
+                "{method:?}: cut area {}",
+                r.area
+            );
+            assert_eq!(b.body().level(), Level::Precise);
+        }
+        // Free fall of the loose piece: its centre accelerates at g (no damping; the
+        // internal forces sum to zero).
+        let n = 20;
+        let mut c = Vec::new();
+        for k in 0..=2 * n {
+            if k % n == 0 {
+                c.push(centre(&w.bodies()[1]));
+            }
+            if k < 2 * n {
+                w.step_fixed().unwrap();
+            }
+        }
+        let span = n as f64 * DT;
+        let a = (c[2] - 2.0 * c[1] + c[0]) / (span * span);
+        assert!(
+            (a.y - G).abs() < 0.02 * G && a.x.abs() < 0.02 * G && a.z.abs() < 0.02 * G,
+            "{method:?}: the loose piece accelerates at {a:?}, not g along +y"
+        );
+        // The piece on the support comes to rest and drops to its cage (with damping, which
+        // BDF2 otherwise all but lacks).
+        let mut w = world_with(hanging_bar(method, 5.0));
+        sweep_blade(&mut w, 0.055);
+        let mut rested = false;
+        for _ in 0..2000 {
+            w.step_fixed().unwrap();
+            if w.bodies()[0].body().level() == Level::Cage {
+                rested = true;
+                break;
+            }
+        }
+        assert!(
+            rested,
+            "{method:?}: the supported piece came to rest on its cage"
+        );
+        // `reset` restores the uncut body.
+        w.reset().unwrap();
+        assert_eq!(w.bodies().len(), 1);
+        assert_eq!(w.bodies()[0].mesh().node_count(), nodes);
+        assert!(w.bodies()[0].cut_record().is_none());
+    }
+}
+
+#[test]
+fn a_cut_carries_a_linear_temperature_and_damage_field_exactly() {
+    let mesh = block(Vec3::zeros(), Vec3::new(0.04, 0.02, 0.02), [4, 2, 2]).unwrap();
+    let fem = FemParams {
+        young_modulus: 1.0e4,
+        poisson_ratio: 0.45,
+        mass: 1000.0 * mesh.volume(),
+        damping: 1.0,
+    };
+    let s = BodySettings::new(
+        fem,
+        MsdParams {
+            stiffness: 100.0,
+            mass: fem.mass,
+            damping: 0.1,
+        },
+        DT,
+    );
+    let heat = HeatParams {
+        meters_per_unit: 1.0,
+        ..HeatParams::liver()
+    };
+    let mut body = SimBody::new(
+        "slab",
+        Arc::new(mesh),
+        s,
+        Some((heat, HeatBoundary::insulated())),
+    )
+    .unwrap();
+    let temperature = |p: &Vec3| 37.0 + 100.0 * p.x + 50.0 * p.y - 20.0 * p.z;
+    let damage = |p: &Vec3| 2.0 * p.x + p.z;
+    let rest = body.mesh().positions().to_vec();
+    let h = body.heat_mut().unwrap();
+    h.set_temperatures(|i| temperature(&rest[i])).unwrap();
+    h.set_damage(|i| damage(&rest[i])).unwrap();
+    // A slanted cut through the whole slab.
+    let blade = [
+        CutTriangle {
+            corners: [
+                Vec3::new(0.013, -0.01, -0.01),
+                Vec3::new(0.027, 0.03, -0.01),
+                Vec3::new(0.027, 0.03, 0.03),
+            ],
+        },
+        CutTriangle {
+            corners: [
+                Vec3::new(0.013, -0.01, -0.01),
+                Vec3::new(0.027, 0.03, 0.03),
+                Vec3::new(0.013, -0.01, 0.03),
+            ],
+        },
+    ];
+    let cut = body
+        .cut(&blade, &Default::default())
+        .unwrap()
+        .expect("the blade crosses the slab");
+    assert!(cut.separated > 0 && cut.bisected > 0);
+    assert_eq!(cut.pieces.len(), 1);
+    for b in std::iter::once(&body).chain(&cut.pieces) {
+        let h = b.heat().unwrap();
+        for (i, p) in b.mesh().positions().iter().enumerate() {
+            assert!((h.temperatures()[i] - temperature(p)).abs() < 1e-9);
+            assert!((h.damage()[i] - damage(p).max(0.0)).abs() < 1e-9);
+        }
+    }
+}
+
+#[test]
+fn a_grip_follows_the_node_it_held_into_its_piece() {
+    let body = hanging_bar(PreciseMethod::CorotationalFem, 1.0);
+    let mut w = world_with(body);
+    // A probe grabs the free end (y = 0.1 at rest, hanging a little further).
+    let tip = w.bodies()[0]
+        .body()
+        .node_positions()
+        .iter()
+        .copied()
+        .fold(Vec3::zeros(), |a, p| if p.y > a.y { p } else { a });
+    let mut probe = Tool::new("probe", ToolShape::Sphere { radius: 0.004 }).unwrap();
+    probe
+        .set_pose(tip + Vec3::new(0.0, 0.003, 0.0), Vec3::y())
+        .unwrap();
+    let p = w.add_tool(probe);
+    w.tools_mut()[p].grab();
+    w.step_fixed().unwrap();
+    let held = w.tools()[p].grips().len();
+    assert!(held > 0, "the probe holds the end");
+    sweep_blade(&mut w, 0.055);
+    assert_eq!(w.bodies().len(), 2);
+    let grips = w.tools()[p].grips();
+    assert_eq!(grips.len(), held, "every grip kept");
+    for g in grips {
+        assert_eq!(g.body, 1, "the grips moved to the loose piece");
+        let b = &w.bodies()[1];
+        assert_eq!(b.surface_nodes()[g.vertex as usize], g.node);
+    }
+    // Held by the probe, the loose piece does not fall.
+    for _ in 0..100 {
+        w.step_fixed().unwrap();
+    }
+    let lowest_free = w.bodies()[1]
+        .body()
+        .node_positions()
+        .iter()
+        .map(|p| p.y)
+        .fold(f64::INFINITY, f64::min);
+    assert!(
+        lowest_free < 0.07,
+        "the held piece hangs from the probe ({lowest_free})"
+    );
+}
+
+#[test]
+fn a_bad_blade_is_refused_by_name_and_the_body_is_unchanged() {
+    let body = hanging_bar(PreciseMethod::CorotationalFem, 1.0);
+    let nodes = body.mesh().node_count();
+    let mut w = world_with(body);
+    let nan = [CutTriangle {
+        corners: [
+            Vec3::new(f64::NAN, 0.05, 0.0),
+            Vec3::new(0.03, 0.05, 0.0),
+            Vec3::new(0.03, 0.05, 0.03),
+        ],
+    }];
+    match w.cut_body(0, &nan) {
+        Err(WorldError::Cut { body, reason }) => {
+            assert_eq!(body.name, "bar");
+            assert!(reason.contains("blade triangle 0"), "{reason}");
+        }
+        other => panic!("a NaN blade must be refused, got {other:?}"),
+    }
+    assert_eq!(w.bodies()[0].mesh().node_count(), nodes);
+    assert!(matches!(
+        w.cut_body(7, &nan),
+        Err(WorldError::Unknown { kind: "body", .. })
+    ));
+    // A blade away from the body changes nothing.
+    let away = [CutTriangle {
+        corners: [
+            Vec3::new(1.0, 1.0, 1.0),
+            Vec3::new(1.1, 1.0, 1.0),
+            Vec3::new(1.1, 1.1, 1.0),
+        ],
+    }];
+    assert!(w.cut_body(0, &away).unwrap().is_empty());
+    let mut t = Tool::new("probe", ToolShape::Sphere { radius: 0.01 }).unwrap();
+    assert!(t.set_cutting(true).is_err(), "only a blade cuts");
+    assert!(Tool::new("edge", ToolShape::Blade { length: -1.0 }).is_err());
+}
