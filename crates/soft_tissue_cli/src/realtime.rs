@@ -102,6 +102,11 @@ impl RunRecorder {
         self.contact_us += times.contact_total_us();
         self.solve_us += times.solvers_us();
         let mut any_precise = false;
+        // Pieces a cut made are recorded from the step they appear.
+        if self.bodies.len() < world.bodies().len() {
+            self.bodies
+                .resize(world.bodies().len(), BodyRecord::default());
+        }
         for (rec, b) in self.bodies.iter_mut().zip(world.bodies()) {
             let d = b.diagnostics();
             let cost = d.switch_us + d.step_us;

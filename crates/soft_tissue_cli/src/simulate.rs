@@ -167,6 +167,30 @@ pub(crate) fn drive_tool(
     Ok(())
 }
 
+/// What cuts did to body `i` (`None` if it was never cut): its cut faces and their area,
+/// the pieces its uncut body is in now, their volume change, the smallest dihedral angle
+/// of its tetrahedra, whether its surface is closed.
+fn cut_summary(world: &SoftTissueWorld, i: usize) -> Option<serde_json::Value> {
+    let b = &world.bodies()[i];
+    let r = b.cut_record()?;
+    let family: Vec<_> = world
+        .bodies()
+        .iter()
+        .filter(|o| o.cut_record().is_some_and(|c| c.origin == r.origin))
+        .collect();
+    let volume: f64 = family.iter().map(|o| o.mesh().volume()).sum();
+    Some(json!({
+        "origin": r.origin,
+        "cuts": r.cuts,
+        "cut_faces": r.surface_faces.len(),
+        "cut_area": r.area,
+        "pieces": family.len(),
+        "volume_change_pct": 100.0 * (volume - r.origin_volume) / r.origin_volume,
+        "smallest_dihedral_deg": r.smallest_dihedral_deg,
+        "closed": r.closed,
+    }))
+}
+
 pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     let mut scene = load_scene(&args.scene, &args.assets)?;
     let build_start = Instant::now();
@@ -228,6 +252,17 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
         world.step_fixed()?;
         let st = world.stage_times();
         recorder.record(&world);
+        // A cut may have added bodies (the pieces that came loose).
+        let nb = world.bodies().len();
+        if precise_steps.len() < nb {
+            precise_steps.resize(nb, 0);
+            body_us.resize(nb, 0.0);
+            worst_jump.resize(nb, 0.0);
+            worst_shadow.resize(nb, 0.0);
+            shadow_sum.resize(nb, (0.0, 0));
+            worst_penetration.resize(nb, 0.0);
+            most_contacts.resize(nb, 0);
+        }
         for (i, b) in world.bodies().iter().enumerate() {
             let d = b.diagnostics();
             if d.level == Level::Precise {
@@ -290,6 +325,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "t": t,
                 "step_us": st.total_us(),
                 "stages": {
+                    "cut_us": st.cut_us,
                     "prepare_us": st.prepare_us,
                     "detect_us": st.detect_us,
                     "switch_us": st.switch_us,
@@ -346,11 +382,13 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "max_penetration": worst_penetration[i],
                 "max_penetration_ratio": worst_penetration[i] / b.body().smallest_dimension(),
                 "max_contacts": most_contacts[i],
+                "cut": cut_summary(&world, i),
             })
         })
         .collect();
     let mean_stage = |name: &str| costs.stages.get(name).map_or(0.0, |t| t.mean_us);
     let stages = json!({
+        "cut_us": mean_stage("cut"),
         "prepare_us": mean_stage("prepare"),
         "detect_us": mean_stage("detect"),
         "switch_us": mean_stage("switch"),
@@ -368,7 +406,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "script": script.as_ref().map(|s| s.name.clone()),
                 "steps": args.steps,
                 "dt": dt,
-                "body_count": nb,
+                "body_count": world.bodies().len(),
                 "level": format!("{:?}", args.level).to_lowercase(),
                 "build_s": build_s,
                 "mean_step_us": costs.step.mean_us,
@@ -486,6 +524,21 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "warning: {}: {} of {} iterative solves stopped at the iteration cap ({} iterations), worst relative residual {:.2e}",
                 c.name, c.cg.not_converged, c.cg.solves, c.cg.max_iterations, c.cg.worst_residual
             );
+        }
+        for (i, b) in world.bodies().iter().enumerate().take(12) {
+            if let Some(c) = cut_summary(&world, i) {
+                println!(
+                    "{:<24} cut: {} cut faces, area {:.4e}, {} pieces of `{}` (volume change {:.2e} %), smallest dihedral {:.2} deg, surface {}",
+                    b.name(),
+                    c["cut_faces"],
+                    c["cut_area"].as_f64().unwrap_or(f64::NAN),
+                    c["pieces"],
+                    c["origin"].as_str().unwrap_or(""),
+                    c["volume_change_pct"].as_f64().unwrap_or(f64::NAN),
+                    c["smallest_dihedral_deg"].as_f64().unwrap_or(f64::NAN),
+                    if c["closed"] == true { "closed" } else { "OPEN" },
+                );
+            }
         }
         if args.shadow {
             println!(

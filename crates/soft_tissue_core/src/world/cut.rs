@@ -55,6 +55,66 @@ pub struct BladeCut {
     pub previous: Box<SimBody>,
 }
 
+/// The surface a blade has swept since its cutting turned on, as few triangles as its path
+/// allows: while the blade moves in one plane (a straight stroke) the whole stroke is one
+/// quadrilateral from where the stroke began to where the edge is now, so faces that lie
+/// across several steps' strips are cut once their last corner is reached (a strip of one
+/// step is far narrower than an element). A turn out of the plane starts a new stroke; the
+/// previous stroke stays in the surface.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Incision {
+    start: (Vec3, Vec3),
+    last: (Vec3, Vec3),
+    earlier: Vec<CutTriangle>,
+}
+
+impl Incision {
+    /// An incision whose blade edge is at `(tip, back)`.
+    pub fn new(edge: (Vec3, Vec3)) -> Self {
+        Incision {
+            start: edge,
+            last: edge,
+            earlier: Vec::new(),
+        }
+    }
+
+    /// The blade edge moved to `edge`: the triangles of the incision to cut with now (the
+    /// previous stroke's and this stroke's).
+    pub fn advance(&mut self, edge: (Vec3, Vec3)) -> Vec<CutTriangle> {
+        let (a0, b0) = self.start;
+        let stroke = swept_triangles(a0, b0, self.last.0, self.last.1);
+        if !stroke.is_empty() && !self.in_plane(edge) {
+            self.earlier = stroke;
+            self.start = self.last;
+        }
+        self.last = edge;
+        let (a0, b0) = self.start;
+        let mut out = self.earlier.clone();
+        out.extend(swept_triangles(a0, b0, edge.0, edge.1));
+        out
+    }
+
+    /// Whether `edge` lies in the plane of the stroke so far (within 1e-6 of its size).
+    fn in_plane(&self, edge: (Vec3, Vec3)) -> bool {
+        let (a0, b0) = self.start;
+        let (a1, b1) = self.last;
+        let along = b0 - a0;
+        let n = [a1 - a0, b1 - a0]
+            .iter()
+            .map(|d| along.cross(d))
+            .max_by(|x, y| x.norm().total_cmp(&y.norm()))
+            .unwrap_or_else(Vec3::zeros);
+        let size = along.norm().max((a1 - a0).norm());
+        if !(n.norm() > 1e-12 * size * size) {
+            return true;
+        }
+        let n = n.normalize();
+        [edge.0, edge.1]
+            .iter()
+            .all(|p| n.dot(&(p - a0)).abs() <= 1e-6 * size)
+    }
+}
+
 /// The two triangles a segment `(a0, b0)` sweeps moving to `(a1, b1)`; those without area
 /// (a blade that did not move, or slid along itself) are left out.
 pub fn swept_triangles(a0: Vec3, b0: Vec3, a1: Vec3, b1: Vec3) -> Vec<CutTriangle> {

@@ -97,7 +97,7 @@ pub enum ScriptError {
     },
     /// No built-in script by that name.
     #[error(
-        "no built-in script `{0}` (poke-a, push-a-into-b, poke-liver, cauterize-liver, poke, poke:BODY, grasp-spleen, grasp:BODY)"
+        "no built-in script `{0}` (poke-a, push-a-into-b, poke-liver, cauterize-liver, poke, poke:BODY, grasp-spleen, grasp:BODY, cut-liver, cut:BODY)"
     )]
     Unknown(String),
     /// The scene lacks a body the built-in script needs.
@@ -263,8 +263,15 @@ impl Script {
     ///   horizontal extent, closes to half of it from 1 s, lifts by a third of the
     ///   body's height (`grasp-spleen`: 0.05 scene units, 5 cm in a scene in metres) from 2 s
     ///   to 3 s, holds until 4.5 s, and opens.
+    /// - `cut-liver` and `cut:BODY` (any scene): a scalpel (a blade edge pointing up from
+    ///   its tip) goes into the body (the liver, or the one named) from beside it, its tip
+    ///   40 % of the body's height below its top, and cuts across its whole length along x
+    ///   from 0.5 s to 2 s (an incision that does not go through: the body stays one piece),
+    ///   then stops cutting and leaves upward.
     pub fn builtin(name: &str, world: &SoftTissueWorld) -> Result<Script, ScriptError> {
         match name {
+            "cut-liver" => cut_script(world, name, "Liver"),
+            cut if cut.starts_with("cut:") => cut_script(world, name, &cut["cut:".len()..]),
             "poke-a" => {
                 // From the front (-z), so A is pushed along z, past B rather than into it.
                 let a = body_box(world, name, "Model A")?;
@@ -474,6 +481,39 @@ fn body_box(world: &SoftTissueWorld, script: &str, body: &str) -> Result<BodyBox
         hi,
         center: (lo + hi) / 2.0,
         extent: hi - lo,
+    })
+}
+
+/// See [`Script::builtin`]'s `cut:BODY`.
+fn cut_script(world: &SoftTissueWorld, name: &str, body: &str) -> Result<Script, ScriptError> {
+    let b = body_box(world, name, body)?;
+    let margin = 0.1 * b.extent.x;
+    let tip_y = b.hi.y - 0.4 * b.extent.y;
+    let start = Vec3::new(b.lo.x - margin, tip_y, b.center.z);
+    let end = Vec3::new(b.hi.x + margin, tip_y, b.center.z);
+    let away = end + Vec3::y() * 1.2 * b.extent.y;
+    let w = |t: f64, p: Vec3| Waypoint {
+        t,
+        position: p.into(),
+        axis: Vec3::y().into(),
+        roll_deg: 0.0,
+    };
+    Ok(Script {
+        name: name.into(),
+        tool: ToolShape::Blade {
+            length: 0.8 * b.extent.y,
+        },
+        waypoints: vec![w(0.0, start), w(0.5, start), w(2.0, end), w(2.5, away)],
+        events: vec![
+            ScriptEvent {
+                t: 0.5,
+                action: ScriptAction::Cut(true),
+            },
+            ScriptEvent {
+                t: 2.0,
+                action: ScriptAction::Cut(false),
+            },
+        ],
     })
 }
 

@@ -20,6 +20,8 @@ pub struct SoftTissueWorld {
     cut_options: crate::mesh::cut::CutOptions,
     /// Bodies as they were before their first cut, by index (`reset` puts them back).
     uncut: Vec<(usize, SimBody)>,
+    /// Each tool's incision while it cuts.
+    incisions: Vec<Option<super::cut::Incision>>,
 }
 
 impl SoftTissueWorld {
@@ -51,6 +53,7 @@ impl SoftTissueWorld {
             halted: None,
             cut_options: Default::default(),
             uncut: Vec::new(),
+            incisions: Vec::new(),
         })
     }
 
@@ -108,15 +111,17 @@ impl SoftTissueWorld {
     /// The cut stage: every blade with cutting on cuts the bodies its edge crossed since the
     /// last step.
     fn cut_stage(&mut self) -> Result<(), WorldError> {
+        self.incisions.resize(self.tools.len(), None);
         for t in 0..self.tools.len() {
             let tool = &self.tools[t];
-            if !tool.cutting() {
-                continue;
-            }
-            let Some([(a0, b0), (a1, b1)]) = tool.blade_sweep() else {
+            let sweep = tool.blade_sweep().filter(|_| tool.cutting());
+            let Some([from, to]) = sweep else {
+                self.incisions[t] = None;
                 continue;
             };
-            let blade = super::cut::swept_triangles(a0, b0, a1, b1);
+            let blade = self.incisions[t]
+                .get_or_insert_with(|| super::cut::Incision::new(from))
+                .advance(to);
             if blade.is_empty() {
                 continue;
             }
@@ -354,6 +359,7 @@ impl SoftTissueWorld {
             self.bodies[k] = b;
         }
         self.bodies.retain(|b| !b.loose);
+        self.incisions.clear();
         for b in &mut self.bodies {
             b.reset()?;
         }
