@@ -300,6 +300,10 @@ pub struct SoftBodyDiagnostics {
     /// FEM, implicit MSD) stopped at its iteration cap above its tolerance and went on with
     /// its last iterate.
     pub unconverged_solves: u64,
+    /// Surface triangles that are sides of cuts (drawn as the inside of the tissue).
+    pub cut_faces: u32,
+    /// Their area at rest, scene units squared.
+    pub cut_area: f64,
 }
 
 /// What the body is drawn with, when not its simulation surface: a finer visual mesh whose
@@ -391,6 +395,9 @@ pub struct SimulatedBody {
     pub(crate) to_local: Option<bevy::math::Affine3A>,
     /// What it was built from, beyond what changes in place.
     pub(crate) built_from: crate::physics::BuiltFrom,
+    /// Counts the changes of its mesh (cuts, a reset that undoes them): the rendered mesh
+    /// is made again when it changes.
+    pub(crate) shape: u64,
 }
 
 impl SimulatedBody {
@@ -439,6 +446,26 @@ impl SimulatedBody {
             }
         }
     }
+}
+
+/// A piece that came loose from a cut body: an entity of its own, with the cut body's
+/// components (material, heat, tuning, render material...) cloned, its own [`SoftBody`]
+/// mesh (the piece's), and [`SimulatedBody`] in the state it was cut in. A
+/// [`ResetSimulation`](crate::physics::ResetSimulation) despawns it.
+#[derive(Component, Reflect, Clone, Copy, Debug, PartialEq, Eq)]
+#[reflect(Component)]
+pub struct CutPiece {
+    /// The entity it was cut from.
+    pub from: Entity,
+}
+
+/// A body as it was before its first cut, kept on the entity so a
+/// [`ResetSimulation`](crate::physics::ResetSimulation) puts it back.
+#[derive(Component)]
+pub struct UncutBody {
+    pub(crate) body: Option<Box<soft_tissue_core::world::SimBody>>,
+    pub(crate) mesh: Handle<crate::assets::TetMeshAsset>,
+    pub(crate) built_from: crate::physics::BuiltFrom,
 }
 
 /// A kinematic tool driven by its entity's `Transform` (position: translation; the tool
@@ -634,6 +661,8 @@ pub struct ToolState {
     pub(crate) tool: Tool,
     pub(crate) order: u64,
     pub(crate) grabbing: bool,
+    /// A blade's incision while it cuts.
+    pub(crate) incision: Option<soft_tissue_core::world::Incision>,
 }
 
 impl ToolState {

@@ -1,7 +1,8 @@
 //! Haptic tools (feature `haptics`): a [`HapticTool`] on a [`SoftTool`] entity runs the core's
 //! 1 kHz haptic thread ([`soft_tissue_core::haptics`]) with a device of your choice. At the
 //! start of every physics step the tool is put where the thread's tool proxy is and its
-//! buttons set grab (first button) and cautery (second); after the step the tissue's local
+//! buttons set grab (first button; with a blade it cuts instead) and cautery (second); after
+//! the step the tissue's local
 //! contact model is handed back to the thread, which renders the force between steps.
 //! Removing the component (or despawning the entity) stops the thread and leaves the device
 //! with zero force. The thread asks for real-time scheduling ([`HapticConfig::priority`]);
@@ -32,6 +33,7 @@ use soft_tissue_core::haptics::{
 
 use crate::components::{SoftTool, ToolState};
 use crate::physics::{SoftTissueContacts, SoftTissueSchedule, SoftTissueStatus, SoftTissueSystems};
+use soft_tissue_core::contact::ToolShape;
 
 pub use soft_tissue_core::haptics::{CAUTERY_BUTTON, GRAB_BUTTON};
 
@@ -122,9 +124,15 @@ fn drive_tools(mut tools: Query<(&mut HapticTool, &mut Transform, &mut SoftTool)
         if p.is_finite() && pose.translation != p {
             pose.translation = p;
         }
-        let grab = s.buttons & GRAB_BUTTON != 0;
+        // The first button grabs, or with a blade cuts.
+        let pressed = s.buttons & GRAB_BUTTON != 0;
+        let blade = matches!(tool.shape, ToolShape::Blade { .. });
+        let (grab, cut) = (pressed && !blade, pressed && blade);
         if tool.grab != grab {
             tool.grab = grab;
+        }
+        if tool.cut != cut {
+            tool.cut = cut;
         }
         let watts = if s.buttons & CAUTERY_BUTTON != 0 {
             haptic.cautery_watts

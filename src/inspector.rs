@@ -1,7 +1,7 @@
 //! The inspector (feature `inspector`, bevy_egui): every body (by its `Name`, else its mesh's
 //! file name: see [`body_label`]) with its level, precise method
 //! (switchable), Young's modulus (editable: the body's [`TissueMaterial`]), step time, switches, last jump, temperature range, shadow error and
-//! unconverged solves; the simulation's rate, the last step's time and the median, 99th
+//! unconverged solves, cut area and pieces; the simulation's rate, the last step's time and the median, 99th
 //! percentile and largest of the whole step and of each stage over the last steps, the error
 //! of a failed step, pause / single step / reset, the simulation's speed; and a live plot of each body's step time
 //! over the last seconds, like the paper's figures.
@@ -97,6 +97,7 @@ fn inspector_panel(
         &SoftBodyDiagnostics,
         Option<&Temperature>,
     )>,
+    pieces: Query<&CutPiece>,
     mut tools: Query<(Entity, Option<&Name>, &mut SoftTool, &ToolReaction)>,
     mut reset: MessageWriter<ResetSimulation>,
 ) -> Result {
@@ -170,7 +171,7 @@ fn inspector_panel(
             egui::Grid::new("bodies").striped(true).show(ui, |ui| {
                 for h in [
                     "body", "level", "method", "E", "mu", "step us", "contacts", "pen. %",
-                    "switches", "jump %", "C", "cage %", "unconv.",
+                    "switches", "jump %", "C", "cage %", "unconv.", "cut area", "pieces",
                 ] {
                     ui.strong(h);
                 }
@@ -240,6 +241,20 @@ fn inspector_panel(
                     } else {
                         ui.label("0");
                     }
+                    // Cuts: the area of this body's cut sides, and the pieces of the body it
+                    // came from (itself and those cut loose from it).
+                    if diag.cut_faces > 0 {
+                        ui.label(format!("{:.3e}", diag.cut_area));
+                    } else {
+                        ui.label("-");
+                    }
+                    let from = pieces.get(e).map_or(e, |p| p.from);
+                    let count = pieces.iter().filter(|p| p.from == from).count();
+                    ui.label(if count > 0 {
+                        format!("{}", count + 1)
+                    } else {
+                        "-".into()
+                    });
                     ui.end_row();
                 }
             });

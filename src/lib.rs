@@ -99,7 +99,10 @@ pub use physics::{
     SoftTissueSchedule, SoftTissueStage, SoftTissueStatus, SoftTissueStep, SoftTissueSystems,
     SoftTissueThreads,
 };
-pub use render::{EmbeddedVisual, SoftBodyMesh, SoftTissueMeshPlugin, SoftTissueMeshSystems};
+pub use render::{
+    EmbeddedVisual, INSIDE_COLOUR, RenderedSurface, SoftBodyMesh, SoftTissueMeshPlugin,
+    SoftTissueMeshSystems,
+};
 
 /// What a game needs in one `use`.
 pub mod prelude {

@@ -213,29 +213,111 @@ fn to_local(sim: &SimulatedBody, positions: &mut [[f32; 3]]) {
     }
 }
 
-/// The simulation surface as a render mesh.
-fn surface_mesh(sim: &SimulatedBody) -> Mesh {
+/// The colour of the inside of the tissue (the sides of a cut): a deep red, multiplying
+/// the material's base colour.
+pub const INSIDE_COLOUR: [f32; 4] = [0.62, 0.14, 0.16, 1.0];
+
+/// How a body's rendered mesh is made from its simulation surface: for a cut body, the
+/// sides of the cuts get vertices of their own (so they can be coloured as the inside of
+/// the tissue and keep their own normals), which `sources` maps back to the surface
+/// vertices; `shape` is the body's mesh the rendered mesh was made for.
+#[derive(Component, Default, Debug)]
+pub struct RenderedSurface {
+    shape: u64,
+    /// Surface vertex of each rendered vertex (empty: the rendered vertices are the
+    /// surface vertices).
+    sources: Vec<u32>,
+    /// Rendered triangles (empty: the surface triangles).
+    triangles: Vec<[u32; 3]>,
+    /// The first rendered vertex of a cut side.
+    inside_from: usize,
+}
+
+impl RenderedSurface {
+    /// Rendered vertices that belong to the sides of cuts.
+    pub fn inside_vertices(&self) -> std::ops::Range<usize> {
+        self.inside_from.min(self.sources.len())..self.sources.len()
+    }
+}
+
+/// The rendered surface of `sim` (see [`RenderedSurface`]).
+fn rendered_surface(sim: &SimulatedBody) -> RenderedSurface {
     let b = sim.body();
-    let mut positions = b.surface_positions().to_vec();
-    to_local(sim, &mut positions);
+    let Some(cut) = b.cut_record().filter(|c| !c.surface_faces.is_empty()) else {
+        return RenderedSurface {
+            shape: sim.shape,
+            ..Default::default()
+        };
+    };
+    let n = b.surface_positions().len();
+    let mut sources: Vec<u32> = (0..n as u32).collect();
+    let mut copy = vec![u32::MAX; n];
+    let mut triangles = b.surface_triangles().to_vec();
+    for &f in &cut.surface_faces {
+        let t = &mut triangles[f as usize];
+        for v in t.iter_mut() {
+            let c = &mut copy[*v as usize];
+            if *c == u32::MAX {
+                *c = sources.len() as u32;
+                sources.push(*v);
+            }
+            *v = *c;
+        }
+    }
+    RenderedSurface {
+        shape: sim.shape,
+        sources,
+        triangles,
+        inside_from: n,
+    }
+}
+
+/// The rendered positions of `sim` into `out` (through `r`'s sources).
+fn rendered_positions(sim: &SimulatedBody, r: &RenderedSurface, out: &mut Vec<[f32; 3]>) {
+    let surface = sim.body().surface_positions();
+    out.clear();
+    if r.sources.is_empty() {
+        out.extend_from_slice(surface);
+    } else {
+        out.extend(r.sources.iter().map(|&v| surface[v as usize]));
+    }
+    to_local(sim, out);
+}
+
+/// The simulation surface as a render mesh, and how it was made.
+fn surface_mesh(sim: &SimulatedBody) -> (Mesh, RenderedSurface) {
+    let b = sim.body();
+    let r = rendered_surface(sim);
+    let mut positions = Vec::new();
+    rendered_positions(sim, &r, &mut positions);
+    let triangles = if r.triangles.is_empty() {
+        b.surface_triangles()
+    } else {
+        &r.triangles
+    };
     let mut n = Vec::new();
-    normals(&positions, b.surface_triangles(), &mut n);
+    normals(&positions, triangles, &mut n);
     let mut mesh = Mesh::new(
         PrimitiveTopology::TriangleList,
         RenderAssetUsages::default(),
     );
+    let count = positions.len();
     mesh.insert_attribute(Mesh::ATTRIBUTE_POSITION, positions);
     mesh.insert_attribute(Mesh::ATTRIBUTE_NORMAL, n);
-    if b.heat().is_some() {
-        mesh.insert_attribute(
-            Mesh::ATTRIBUTE_COLOR,
-            vec![tissue_colour(37.0, 0.0); b.surface_positions().len()],
-        );
+    if b.heat().is_some() || !r.sources.is_empty() {
+        let skin = if b.heat().is_some() {
+            tissue_colour(37.0, 0.0)
+        } else {
+            [1.0; 4]
+        };
+        let mut colours = vec![skin; count];
+        for c in &mut colours[r.inside_vertices()] {
+            *c = INSIDE_COLOUR;
+        }
+        mesh.insert_attribute(Mesh::ATTRIBUTE_COLOR, colours);
     }
-    mesh.insert_indices(Indices::U32(
-        b.surface_triangles().iter().flatten().copied().collect(),
-    ));
-    mesh
+    mesh.insert_indices(Indices::U32(triangles.iter().flatten().copied().collect()));
+    (mesh, r)
 }
 
 #[allow(clippy::type_complexity)]
@@ -262,7 +344,11 @@ fn create_meshes(
             match visual_mesh(visual, sim, &meshes, &name) {
                 Ok(None) => continue,
                 Ok(Some((mesh, embedded))) => {
-                    e.insert((Mesh3d(meshes.add(mesh)), embedded, SoftBodyMesh));
+                    let rendered = RenderedSurface {
+                        shape: sim.shape,
+                        ..Default::default()
+                    };
+                    e.insert((Mesh3d(meshes.add(mesh)), embedded, rendered, SoftBodyMesh));
                     continue;
                 }
                 Err(why) => {
@@ -271,7 +357,8 @@ fn create_meshes(
                 }
             }
         }
-        e.insert((Mesh3d(meshes.add(surface_mesh(sim))), SoftBodyMesh));
+        let (mesh, rendered) = surface_mesh(sim);
+        e.insert((Mesh3d(meshes.add(mesh)), rendered, SoftBodyMesh));
     }
 }
 
@@ -286,11 +373,14 @@ struct Scratch {
 
 #[allow(clippy::type_complexity)]
 fn upload_meshes(
+    mut commands: Commands,
     mut meshes: ResMut<Assets<Mesh>>,
     mut bodies: Query<
         (
+            Entity,
             &mut SimulatedBody,
             &Mesh3d,
+            &mut RenderedSurface,
             Option<&Temperature>,
             Option<&EmbeddedVisual>,
         ),
@@ -298,7 +388,7 @@ fn upload_meshes(
     >,
     mut s: Local<Scratch>,
 ) {
-    for (mut sim, handle, temp, visual) in &mut bodies {
+    for (entity, mut sim, handle, mut rendered, temp, visual) in &mut bodies {
         if !sim.dirty {
             continue;
         }
@@ -306,6 +396,18 @@ fn upload_meshes(
         let Some(mut mesh) = meshes.get_mut(&handle.0) else {
             continue;
         };
+        // A cut (or a reset that undid one) changed the body's mesh: the rendered mesh is
+        // made again, from the simulation surface (an embedded visual mesh no longer fits).
+        if rendered.shape != sim.shape {
+            if visual.is_some() {
+                info!("body {entity} was cut: drawn with its simulation surface from now on");
+                commands.entity(entity).remove::<EmbeddedVisual>();
+            }
+            let (m, r) = surface_mesh(&sim);
+            *mesh = m;
+            *rendered = r;
+            continue;
+        }
         let b = sim.body();
         let Scratch {
             positions,
@@ -344,20 +446,42 @@ fn upload_meshes(
             }
             continue;
         }
-        let surface: &[[f32; 3]] = if sim.to_local.is_some() {
-            positions.clear();
-            positions.extend_from_slice(b.surface_positions());
-            to_local(&sim, positions);
+        let triangles = if rendered.triangles.is_empty() {
+            b.surface_triangles()
+        } else {
+            &rendered.triangles
+        };
+        let surface: &[[f32; 3]] = if sim.to_local.is_some() || !rendered.sources.is_empty() {
+            rendered_positions(&sim, &rendered, positions);
             positions
         } else {
             b.surface_positions()
         };
-        normals(surface, b.surface_triangles(), normal);
+        normals(surface, triangles, normal);
         // Written in place: the attribute buffers keep their allocation.
         write3(&mut mesh, Mesh::ATTRIBUTE_POSITION, surface);
         write3(&mut mesh, Mesh::ATTRIBUTE_NORMAL, normal);
         if let Some(t) = temp {
-            write_colours(&mut mesh, &t.surface, &t.damage);
+            if rendered.sources.is_empty() {
+                write_colours(&mut mesh, &t.surface, &t.damage);
+            } else {
+                // The skin by its temperature, the cut sides as the inside.
+                celsius.clear();
+                damage.clear();
+                for &v in &rendered.sources {
+                    celsius.push(t.surface.get(v as usize).copied().unwrap_or(37.0));
+                    damage.push(t.damage.get(v as usize).copied().unwrap_or(0.0));
+                }
+                write_colours(&mut mesh, celsius, damage);
+                if let Some(VertexAttributeValues::Float32x4(c)) =
+                    mesh.attribute_mut(Mesh::ATTRIBUTE_COLOR)
+                    && c.len() == rendered.sources.len()
+                {
+                    for c in &mut c[rendered.inside_vertices()] {
+                        *c = INSIDE_COLOUR;
+                    }
+                }
+            }
         }
     }
 }

@@ -1,4 +1,5 @@
-//! The keys: C (cautery), P (pause), N (step), R (reset), F12 (screenshot).
+//! The keys: C (cautery), X (scalpel: the left button cuts), P (pause), N (step), R (reset),
+//! F12 (screenshot).
 
 use std::path::PathBuf;
 
@@ -46,6 +47,26 @@ pub(super) fn keys(
                 0.0
             };
         }
+    }
+    if keys.just_pressed(KeyCode::KeyX)
+        && driver.script.is_none()
+        && let Ok(mut t) = tools.get_mut(driver.tool)
+    {
+        // The probe becomes a scalpel whose edge stands up from the tip (six of its
+        // radii long), and back.
+        t.shape = match t.shape {
+            ToolShape::Sphere { radius } => {
+                driver.probe_radius = radius;
+                ToolShape::Blade {
+                    length: 6.0 * radius,
+                }
+            }
+            _ => ToolShape::Sphere {
+                radius: driver.probe_radius,
+            },
+        };
+        t.cut = false;
+        info!("tool: {:?}", t.shape);
     }
     if keys.just_pressed(KeyCode::KeyP) {
         status.paused = !status.paused;

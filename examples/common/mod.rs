@@ -269,6 +269,7 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
             shot_requested: false,
             key_shots: 0,
             touching: false,
+            probe_radius: radius,
         });
     });
     app.insert_resource(BodyLook { colours, smooth });

@@ -26,6 +26,8 @@ pub(super) struct ToolDriver {
     pub(super) key_shots: u32,
     /// Whether the tool touched something at the last frame (screenshot-mode log).
     pub(super) touching: bool,
+    /// The probe's radius while the tool is a scalpel (X).
+    pub(super) probe_radius: f64,
 }
 
 /// The virtual haptic device the mouse moves (not in the scripted screenshot mode).
@@ -93,7 +95,10 @@ pub(super) fn mouse_tool(
     if let Some(p) = target {
         pose.translation = p;
     }
-    tool.grab = grab;
+    // The left button grabs with the probe, cuts with the scalpel.
+    let blade = matches!(tool.shape, ToolShape::Blade { .. });
+    tool.grab = grab && !blade;
+    tool.cut = grab && blade;
 }
 
 pub(super) fn scripted_tool(

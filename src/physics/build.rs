@@ -125,7 +125,7 @@ pub(super) fn build_bodies(
         (Without<SimulatedBody>, Without<SoftBodyError>),
     >,
     poses: TransformHelper,
-    mut next: Local<u64>,
+    mut next: ResMut<NextBodyOrder>,
 ) {
     let Some(dt) = status.dt else {
         return;
@@ -196,13 +196,14 @@ pub(super) fn build_bodies(
                     .then(|| placement.affine().inverse());
                 e.insert(SimulatedBody {
                     body,
-                    order: *next,
+                    order: next.0,
                     dirty: true,
                     placement,
                     to_local,
                     built_from: BuiltFrom::of(spec, tuning, dt, &config),
+                    shape: 0,
                 });
-                *next += 1;
+                next.0 += 1;
             }
             Err(error) => {
                 error!("{error}; the body is not simulated");
@@ -322,6 +323,7 @@ pub(super) fn build_tools(
                     tool,
                     order: *next,
                     grabbing: false,
+                    incision: None,
                 });
                 *next += 1;
             }

@@ -26,6 +26,7 @@ use crate::messages::{BodyTouched, LevelChanged};
 
 mod build;
 mod contacts;
+mod cut;
 mod resources;
 mod stages;
 
@@ -33,6 +34,7 @@ pub(crate) use build::BuiltFrom;
 pub use build::SoftBodyError;
 use build::*;
 pub use contacts::{ContactPartner, SoftContact, SoftTissueContacts};
+use cut::*;
 pub use resources::*;
 use stages::*;
 
@@ -107,6 +109,7 @@ impl Plugin for SoftTissuePhysicsPlugin {
             .init_resource::<SoftTissueStatus>()
             .init_resource::<SoftTissueContacts>()
             .init_resource::<SoftTissueObstacles>()
+            .init_resource::<NextBodyOrder>()
             .insert_resource(Time::<SoftPhysics>::default())
             .add_message::<LevelChanged>()
             .add_message::<BodyTouched>()
@@ -124,6 +127,7 @@ impl Plugin for SoftTissuePhysicsPlugin {
             .register_type::<SoftBodyDiagnostics>()
             .register_type::<ShadowSimulation>()
             .register_type::<SoftTool>()
+            .register_type::<CutPiece>()
             .register_type::<ToolReaction>();
         let mut schedule = Schedule::new(SoftTissueSchedule);
         schedule.set_executor(SingleThreadedExecutor::new());
@@ -163,6 +167,7 @@ impl Plugin for SoftTissuePhysicsPlugin {
                     build_bodies,
                     build_tools,
                     build_obstacles,
+                    cut_stage,
                     prepare_stage,
                 )
                     .chain()

@@ -113,6 +113,8 @@ pub enum SoftTissueStage {
     Reset,
     /// Applying the components' changes before the step ([`SoftTissueSystems::Prepare`]).
     Prepare,
+    /// Cutting the bodies a blade's incision crosses (in [`SoftTissueSystems::Prepare`]).
+    Cut,
     /// Raising and lowering bodies ([`SoftTissueSystems::SwitchPrecision`]).
     SwitchPrecision,
     /// The solvers' free step ([`SoftTissueSystems::StepSolvers`]).
@@ -184,3 +186,8 @@ impl SoftTissueObstacles {
         self.entities.get(index as usize).copied()
     }
 }
+
+/// The build order the next body gets (bodies are stepped in build order; a cut's pieces
+/// come after every body built before them).
+#[derive(Resource, Default, Debug)]
+pub(crate) struct NextBodyOrder(pub(crate) u64);

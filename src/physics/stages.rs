@@ -6,9 +6,17 @@ use super::*;
 /// A reset when asked for: every body and tool back to its initial state, counters and the
 /// error cleared. Runs before the step, also while the simulation is paused or stopped by an
 /// error.
+#[allow(clippy::type_complexity)]
 pub(super) fn reset_simulation(
+    mut commands: Commands,
     mut requests: MessageReader<ResetSimulation>,
-    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut bodies: Query<(
+        Entity,
+        &mut SimulatedBody,
+        Option<&mut SoftBody>,
+        Option<&mut UncutBody>,
+        Has<CutPiece>,
+    )>,
     mut tools: Query<&mut ToolState>,
     mut contacts: ResMut<SoftTissueContacts>,
     mut status: ResMut<SoftTissueStatus>,
@@ -19,7 +27,26 @@ pub(super) fn reset_simulation(
     status.steps = 0;
     status.error = None;
     status.recent.clear();
-    for (e, mut b) in &mut bodies {
+    for (e, mut b, spec, uncut, piece) in &mut bodies {
+        // Pieces cut loose go; a cut body comes back whole.
+        if piece {
+            commands.entity(e).despawn();
+            continue;
+        }
+        if let Some(mut uncut) = uncut
+            && let Some(whole) = uncut.body.take()
+        {
+            b.body = *whole;
+            b.built_from = uncut.built_from;
+            b.shape += 1;
+            if let Some(mut spec) = spec {
+                spec.bypass_change_detection().mesh = uncut.mesh.clone();
+            }
+            commands
+                .entity(e)
+                .remove::<UncutBody>()
+                .insert(GreenCage::default());
+        }
         if let Err(err) = b.body.reset() {
             fail(
                 &mut status,
@@ -31,6 +58,7 @@ pub(super) fn reset_simulation(
     for mut tool in &mut tools {
         tool.tool.reset();
         tool.grabbing = false;
+        tool.incision = None;
     }
     contacts.clear();
 }
@@ -179,6 +207,23 @@ pub(super) fn prepare_stage(
         let Some((position, rotation)) = tool_pose(&poses, entity) else {
             continue;
         };
+        // A new shape: the tool is made again where it is (its grips let go).
+        if state.tool.shape() != spec.shape {
+            match Tool::new(state.tool.name().to_owned(), spec.shape) {
+                Ok(t) => {
+                    state.tool = t;
+                    state.grabbing = false;
+                    state.incision = None;
+                }
+                Err(e) => {
+                    fail(
+                        &mut status,
+                        stage_error(SoftTissueStage::Prepare, "a tool's shape", Some(entity), e),
+                    );
+                    continue;
+                }
+            }
+        }
         let t = &mut state.tool;
         if let Err(e) = t.set_pose_rotation(position, rotation) {
             fail(
@@ -511,6 +556,8 @@ pub(super) fn writeback_stage(
             max_displacement: d.max_displacement,
             shadow_error_ratio: d.shadow.map(|e| e.max_ratio),
             unconverged_solves: d.unconverged_solves,
+            cut_faces: b.cut_record().map_or(0, |c| c.surface_faces.len() as u32),
+            cut_area: b.cut_record().map_or(0.0, |c| c.area),
         });
         let cg = d.cg;
         if let (Some(mut f), Some(fb)) = (fem, lb.fem()) {

@@ -6,6 +6,7 @@
 
 mod assets;
 mod contact;
+mod cut;
 mod inputs;
 mod steps;
 mod visual;

@@ -536,7 +536,11 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                     c["origin"].as_str().unwrap_or(""),
                     c["volume_change_pct"].as_f64().unwrap_or(f64::NAN),
                     c["smallest_dihedral_deg"].as_f64().unwrap_or(f64::NAN),
-                    if c["closed"] == true { "closed" } else { "OPEN" },
+                    if c["closed"] == true {
+                        "closed"
+                    } else {
+                        "OPEN"
+                    },
                 );
             }
         }

@@ -14,7 +14,7 @@
 
 use super::*;
 use crate::boundary::Boundary;
-use crate::mesh::cut::{CutOptions, CutTriangle, NodeOrigin, recut};
+use crate::mesh::cut::{CutOptions, CutTriangle, NodeOrigin, recut_within};
 use crate::mesh::pieces::pieces;
 
 /// What a body made by cuts knows of them.
@@ -26,8 +26,8 @@ pub struct CutRecord {
     pub origin_volume: f64,
     /// Cuts that changed this body or the bodies it came from.
     pub cuts: u32,
-    /// Per tetrahedron, which faces are sides of a cut (what the next cut carries on).
-    pub(crate) sides: Vec<[bool; 4]>,
+    /// What the next cut carries on (the sides of the cuts, the nodes a blade passed).
+    pub(crate) history: crate::mesh::cut::CutHistory,
     /// Surface triangles (indices into [`SimBody::surface_triangles`]) that are sides of a
     /// cut: the inside of the tissue, to draw as such.
     pub surface_faces: Vec<u32>,
@@ -55,43 +55,59 @@ pub struct BladeCut {
     pub previous: Box<SimBody>,
 }
 
-/// The surface a blade has swept since its cutting turned on, as few triangles as its path
-/// allows: while the blade moves in one plane (a straight stroke) the whole stroke is one
-/// quadrilateral from where the stroke began to where the edge is now, so faces that lie
-/// across several steps' strips are cut once their last corner is reached (a strip of one
-/// step is far narrower than an element). A turn out of the plane starts a new stroke; the
-/// previous stroke stays in the surface.
+/// The surface a blade has swept since its cutting turned on. Each step's strip (from the
+/// edge's last place to its place now) bisects what it crosses; while the blade moves in
+/// one plane (a straight stroke) the whole stroke, one quadrilateral from where it began to
+/// where the edge is now, is where faces on that plane are separated, so a face wider than
+/// one step's strip (a strip is far narrower than an element) is cut once the strip that
+/// completes it has passed. A turn out of the plane starts a new stroke.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Incision {
+    id: u64,
     start: (Vec3, Vec3),
     last: (Vec3, Vec3),
-    earlier: Vec<CutTriangle>,
+    /// The edge where the last cut that separated something left it.
+    pending: (Vec3, Vec3),
 }
 
 impl Incision {
     /// An incision whose blade edge is at `(tip, back)`.
     pub fn new(edge: (Vec3, Vec3)) -> Self {
+        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
         Incision {
+            id: NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
             start: edge,
             last: edge,
-            earlier: Vec::new(),
+            pending: edge,
         }
     }
 
-    /// The blade edge moved to `edge`: the triangles of the incision to cut with now (the
-    /// previous stroke's and this stroke's).
-    pub fn advance(&mut self, edge: (Vec3, Vec3)) -> Vec<CutTriangle> {
+    /// The blade edge moved to `edge`: what to cut with now, as `(strip, region)`: the
+    /// strip swept since the last cut that separated something (which bisects: a cut that
+    /// separates nothing is not kept, so its bisections are made again, where the tissue
+    /// is now) and the stroke so far (where faces on the strip's plane are separated; see
+    /// [`crate::mesh::cut::recut_within`]).
+    pub fn advance(&mut self, edge: (Vec3, Vec3)) -> (Vec<CutTriangle>, Vec<CutTriangle>) {
         let (a0, b0) = self.start;
         let stroke = swept_triangles(a0, b0, self.last.0, self.last.1);
         if !stroke.is_empty() && !self.in_plane(edge) {
-            self.earlier = stroke;
             self.start = self.last;
         }
+        let strip = swept_triangles(self.pending.0, self.pending.1, edge.0, edge.1);
         self.last = edge;
         let (a0, b0) = self.start;
-        let mut out = self.earlier.clone();
-        out.extend(swept_triangles(a0, b0, edge.0, edge.1));
-        out
+        (strip, swept_triangles(a0, b0, edge.0, edge.1))
+    }
+
+    /// A number no other incision of this process has (what marks the nodes it passed).
+    pub fn id(&self) -> u64 {
+        self.id
+    }
+
+    /// The cut of the last [`Incision::advance`] separated something and was kept: the
+    /// next strip starts at the edge's place now.
+    pub fn kept(&mut self) {
+        self.pending = self.last;
     }
 
     /// Whether `edge` lies in the plane of the stroke so far (within 1e-6 of its size).
@@ -105,7 +121,8 @@ impl Incision {
             .max_by(|x, y| x.norm().total_cmp(&y.norm()))
             .unwrap_or_else(Vec3::zeros);
         let size = along.norm().max((a1 - a0).norm());
-        if !(n.norm() > 1e-12 * size * size) {
+        // No plane yet (the edge has not moved across itself), or none to speak of.
+        if n.norm() <= 1e-12 * size * size || !n.norm().is_finite() {
             return true;
         }
         let n = n.normalize();
@@ -147,11 +164,25 @@ impl SimBody {
         blade: &[CutTriangle],
         options: &CutOptions,
     ) -> Result<Option<BladeCut>, WorldError> {
+        self.cut_within(blade, &[], 0, options)
+    }
+
+    /// [`SimBody::cut`] by the newest strip `blade` of incision `incision` ([`Incision::id`])
+    /// whose stroke so far is `region` (see [`crate::mesh::cut::recut_within`]).
+    pub fn cut_within(
+        &mut self,
+        blade: &[CutTriangle],
+        region: &[CutTriangle],
+        incision: u64,
+        options: &CutOptions,
+    ) -> Result<Option<BladeCut>, WorldError> {
         let err = |b: &SimBody, reason: String| WorldError::Cut {
             body: b.label(),
             reason,
         };
-        crate::mesh::cut::check_blade(blade).map_err(|e| err(self, e.to_string()))?;
+        crate::mesh::cut::check_blade(blade)
+            .and_then(|_| crate::mesh::cut::check_blade(region))
+            .map_err(|e| err(self, e.to_string()))?;
         if blade.is_empty() || !self.blade_reaches(blade) {
             return Ok(None);
         }
@@ -168,13 +199,17 @@ impl SimBody {
             .iter()
             .any(|w| matches!(w, crate::mesh::MeshWarning::Reoriented { .. }))
         {
-            return Err(err(
-                self,
-                "some tetrahedra are inverted in the shape the body is in".into(),
-            ));
+            // Where its elements are turned inside out the body has no shape to cut along;
+            // the blade passes it by this step.
+            log::warn!(
+                "body `{}`: not cut this step: some tetrahedra are inverted in the shape it is in",
+                self.name
+            );
+            return Ok(None);
         }
-        let sides = self.cut.as_ref().map(|c| c.sides.as_slice());
-        let cut = recut(&now, sides, blade, options).map_err(|e| err(self, e.to_string()))?;
+        let history = self.cut.as_ref().map(|c| &c.history);
+        let cut = recut_within(&now, history, blade, region, incision, options)
+            .map_err(|e| err(self, e.to_string()))?;
         if cut.separated == 0 {
             return Ok(None);
         }
@@ -289,14 +324,25 @@ impl SimBody {
                 })?;
             }
             body.friction = self.friction;
-            let sides: Vec<[bool; 4]> = part.tets.iter().map(|&t| cut.sides[t as usize]).collect();
+            let history = crate::mesh::cut::CutHistory {
+                sides: part
+                    .tets
+                    .iter()
+                    .map(|&t| cut.history.sides[t as usize])
+                    .collect(),
+                on_blade: part
+                    .nodes
+                    .iter()
+                    .map(|&n| cut.history.on_blade[n as usize])
+                    .collect(),
+            };
             body.cut = Some(CutRecord {
                 origin: origin.0.clone(),
                 origin_volume: origin.1,
                 cuts: origin.2 + 1,
                 ..CutRecord::default()
             });
-            body.finish_cut_record(sides);
+            body.finish_cut_record(history);
             body.collider.gather(body.body.node_positions());
             body.start.copy_from_slice(body.collider.positions());
             body.write_surface()?;
@@ -347,7 +393,8 @@ impl SimBody {
     }
 
     /// Fills the record's per-face and per-body figures from `sides`.
-    fn finish_cut_record(&mut self, sides: Vec<[bool; 4]>) {
+    fn finish_cut_record(&mut self, history: crate::mesh::cut::CutHistory) {
+        let sides = &history.sides;
         let surface = self.mesh.surface();
         let p = self.mesh.positions();
         let mut faces = Vec::new();
@@ -368,7 +415,7 @@ impl SimBody {
         }
         let closed = surface_closed(surface.triangles());
         if let Some(r) = self.cut.as_mut() {
-            r.sides = sides;
+            r.history = history;
             r.surface_faces = faces;
             r.area = area;
             r.smallest_dihedral_deg = smallest;

@@ -4,9 +4,12 @@
 //! of bodies so the Bevy plugin calls the same code on its components:
 //!
 //! ```text
-//! prepare -> detect_contacts -> switch_precision -> step_solvers -> solve_contacts -> writeback
+//! cut -> prepare -> detect_contacts -> switch_precision -> step_solvers -> solve_contacts -> writeback
 //! ```
 //!
+//! - cut: every blade with cutting on cuts the bodies its incision crosses
+//!   ([`SimBody::cut_within`]); pieces that come loose are added as bodies (see
+//!   `docs/cutting.md`).
 //! - [`prepare`]: tool velocities from their poses, body surfaces and bounds gathered.
 //! - [`detect_contacts`]: broad phase, tool and body narrow phases on the positions at the
 //!   start of the step (with the margins, so a body is raised before anything reaches it),
@@ -29,7 +32,7 @@ mod script;
 mod soft_world;
 
 pub use body::{SETTLE_STEPS, SimBody};
-pub use cut::{BladeCut, CutRecord, remap_grips, swept_triangles};
+pub use cut::{BladeCut, CutRecord, Incision, remap_grips, swept_triangles};
 pub use soft_world::SoftTissueWorld;
 
 pub use crate::contact::{ContactState, ContactStats, detect_contacts, solve_contacts};

@@ -80,13 +80,27 @@ impl SoftTissueWorld {
         index: usize,
         blade: &[crate::mesh::cut::CutTriangle],
     ) -> Result<Vec<usize>, WorldError> {
+        self.cut_body_within(index, blade, &[], 0)
+    }
+
+    /// [`SoftTissueWorld::cut_body`] by incision `incision`'s newest strip `blade`, its
+    /// stroke so far `region` (see [`SimBody::cut_within`]).
+    pub fn cut_body_within(
+        &mut self,
+        index: usize,
+        blade: &[crate::mesh::cut::CutTriangle],
+        region: &[crate::mesh::cut::CutTriangle],
+        incision: u64,
+    ) -> Result<Vec<usize>, WorldError> {
         if index >= self.bodies.len() {
             return Err(WorldError::Unknown {
                 kind: "body",
                 name: index.to_string(),
             });
         }
-        let Some(cut) = self.bodies[index].cut(blade, &self.cut_options)? else {
+        let Some(cut) =
+            self.bodies[index].cut_within(blade, region, incision, &self.cut_options)?
+        else {
             return Ok(Vec::new());
         };
         let first = self.bodies.len();
@@ -119,16 +133,22 @@ impl SoftTissueWorld {
                 self.incisions[t] = None;
                 continue;
             };
-            let blade = self.incisions[t]
-                .get_or_insert_with(|| super::cut::Incision::new(from))
-                .advance(to);
-            if blade.is_empty() {
+            let incision = self.incisions[t].get_or_insert_with(|| super::cut::Incision::new(from));
+            let id = incision.id();
+            let (strip, stroke) = incision.advance(to);
+            if strip.is_empty() {
                 continue;
             }
             // Bodies made by this sweep are not cut by it again.
             let count = self.bodies.len();
+            let mut kept = false;
             for i in 0..count {
-                self.cut_body(i, &blade)?;
+                let before = self.bodies[i].id();
+                self.cut_body_within(i, &strip, &stroke, id)?;
+                kept |= self.bodies[i].id() != before;
+            }
+            if kept && let Some(inc) = self.incisions[t].as_mut() {
+                inc.kept();
             }
         }
         Ok(())

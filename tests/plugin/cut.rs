@@ -1,0 +1,124 @@
+//! Cutting in the plugin: a blade entity cuts a body through; the piece that comes loose is
+//! an entity of its own, stepped exactly as the core world steps it; the rendered mesh is
+//! made again with the cut sides as vertices of their own; a reset despawns the piece and
+//! puts the whole body back.
+
+use super::*;
+use bevy_soft_tissue::core::contact::{Tool, ToolShape};
+use bevy_soft_tissue::core::world::{ScriptEvent, Waypoint};
+use bevy_soft_tissue::{CutPiece, RenderedSurface, ResetSimulation, SoftBodyDiagnostics};
+
+/// A scalpel whose edge stands vertical through the whole body `name`, moved along z
+/// through its middle from 0.2 s to 0.8 s with cutting on: the body is cut in two halves
+/// that both keep their part of its support.
+fn through_cut(world: &SoftTissueWorld, name: &str) -> Script {
+    let b = &world.bodies()[world.body_index(name).unwrap()];
+    let (lo, hi) = b.collider().bounds();
+    let x = 0.5 * (lo.x + hi.x) + 0.03 * (hi.x - lo.x);
+    let height = hi.y - lo.y;
+    let margin = 0.25 * (hi.z - lo.z);
+    let w = |t: f64, z: f64| Waypoint {
+        t,
+        position: [x, lo.y - 0.2 * height, z],
+        axis: [0.0, 1.0, 0.0],
+        roll_deg: 0.0,
+    };
+    Script {
+        name: "through".into(),
+        tool: ToolShape::Blade {
+            length: 1.4 * height,
+        },
+        waypoints: vec![
+            w(0.0, lo.z - margin),
+            w(0.2, lo.z - margin),
+            w(0.8, hi.z + margin),
+        ],
+        events: vec![
+            ScriptEvent {
+                t: 0.2,
+                action: ScriptAction::Cut(true),
+            },
+            ScriptEvent {
+                t: 0.8,
+                action: ScriptAction::Cut(false),
+            },
+        ],
+    }
+}
+
+#[test]
+fn a_blade_cuts_a_body_in_two_like_the_core_world_and_a_reset_makes_it_whole() {
+    let (mut app, bodies, mut world) = scene_app(CYLINDERS);
+    let script = through_cut(&world, "Model A");
+    let dt = world.config().dt;
+    let tool = spawn_tool(&mut app, &script);
+    let ti = world.add_tool(Tool::new("blade", script.tool).unwrap());
+    let start = tool_transform(&script, 0.0);
+    let (_, rotation, translation) = GlobalTransform::from(start).to_scale_rotation_translation();
+    world.tools_mut()[ti]
+        .set_pose_rotation(
+            bevy_soft_tissue::convert::to_core(translation),
+            bevy_soft_tissue::convert::to_core_rotation(rotation),
+        )
+        .unwrap();
+    app.update();
+    world.step_fixed().unwrap();
+    let a = bodies[0];
+    let nodes = world.bodies()[0].mesh().node_count();
+    let mut piece = None;
+    for k in 1..=50 {
+        let (p, r, actions) = drive_tool(&mut app, tool, &script, k, dt);
+        app.update();
+        let t = &mut world.tools_mut()[ti];
+        t.set_pose_rotation(p, r).unwrap();
+        for act in actions {
+            act.apply(t).unwrap();
+        }
+        world.step_fixed().unwrap();
+        if piece.is_none() {
+            let mut q = app.world_mut().query::<(Entity, &CutPiece)>();
+            piece = q.iter(app.world()).next().map(|(e, c)| {
+                assert_eq!(c.from, a);
+                e
+            });
+        }
+        // Every body, the pieces included, as the core world has it.
+        let mut entities = bodies.clone();
+        entities.extend(piece);
+        assert_eq!(world.bodies().len(), entities.len(), "step {k}");
+        for (e, b) in entities.iter().zip(world.bodies()) {
+            let plugin = app.world().get::<SimulatedBody>(*e).unwrap().body();
+            assert_eq!(plugin.name(), b.name());
+            assert_eq!(
+                plugin.surface_positions(),
+                b.surface_positions(),
+                "{} differs at step {k}",
+                b.name()
+            );
+        }
+    }
+    let piece = piece.expect("the cut made a piece");
+    assert_eq!(
+        app.world().get::<Name>(piece).unwrap().as_str(),
+        "Model A.1"
+    );
+    assert!(app.world().get::<SoftBody>(piece).is_some());
+    let diag = app.world().get::<SoftBodyDiagnostics>(a).unwrap();
+    assert!(diag.cut_faces > 0 && diag.cut_area > 0.0, "{diag:?}");
+    // The rendered mesh was made again: the cut sides have vertices of their own.
+    app.update();
+    for e in [a, piece] {
+        let rendered = app.world().get::<RenderedSurface>(e).unwrap();
+        assert!(!rendered.inside_vertices().is_empty());
+        let handle = app.world().get::<Mesh3d>(e).unwrap().0.clone();
+        let p = positions(&app, &handle);
+        assert_eq!(p.len(), rendered.inside_vertices().end);
+    }
+    // A reset: the piece goes, the body is whole again, at rest.
+    app.world_mut().write_message(ResetSimulation);
+    app.update();
+    assert!(app.world().get_entity(piece).is_err(), "the piece is gone");
+    let sim = app.world().get::<SimulatedBody>(a).unwrap();
+    assert_eq!(sim.body().mesh().node_count(), nodes);
+    assert!(sim.body().cut_record().is_none());
+}
