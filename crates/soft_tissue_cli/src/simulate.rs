@@ -244,6 +244,9 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     let mut worst_penetration = vec![0.0f64; nb];
     let mut most_contacts = vec![0u32; nb];
     let mut contact_rounds = (0u64, 0u32, 0u64, 0u32);
+    // Each cut that changed a body: (mesh change, bodies built), microseconds.
+    let mut seen: Vec<u64> = world.bodies().iter().map(|b| b.id()).collect();
+    let mut cut_costs: Vec<(f64, f64)> = Vec::new();
     for k in 0..args.steps {
         let t = (k + 1) as f64 * dt;
         if let (Some(s), Some(ti)) = (&script, tool) {
@@ -252,7 +255,19 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
         world.step_fixed()?;
         let st = world.stage_times();
         recorder.record(&world);
-        // A cut may have added bodies (the pieces that came loose).
+        // A cut may have changed bodies and added some (the pieces that came loose).
+        if st.cut_us > 0.0 {
+            let mut this_step: Vec<(f64, f64)> = Vec::new();
+            for b in world.bodies() {
+                if let (false, Some(r)) = (seen.contains(&b.id()), b.cut_record()) {
+                    seen.push(b.id());
+                    if !this_step.contains(&(r.mesh_us, r.build_us)) {
+                        this_step.push((r.mesh_us, r.build_us));
+                    }
+                }
+            }
+            cut_costs.extend(this_step);
+        }
         let nb = world.bodies().len();
         if precise_steps.len() < nb {
             precise_steps.resize(nb, 0);
@@ -424,6 +439,13 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "contact_rows_max": contact_rounds.3,
                 "steps_over_1ms": costs.steps_over_1ms,
                 "steps_over_10ms": costs.steps_over_10ms,
+                "cuts": cut_costs.len(),
+                "cut_mesh_us": soft_tissue_core::timing::TimeStats::of(
+                    &cut_costs.iter().map(|c| c.0).collect::<Vec<_>>()
+                ),
+                "cut_build_us": soft_tissue_core::timing::TimeStats::of(
+                    &cut_costs.iter().map(|c| c.1).collect::<Vec<_>>()
+                ),
                 "state_hash": format!("{:016x}", world.state_hash()),
                 "threads": world.threads().count(),
                 "bodies": bodies,
@@ -523,6 +545,16 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
             println!(
                 "warning: {}: {} of {} iterative solves stopped at the iteration cap ({} iterations), worst relative residual {:.2e}",
                 c.name, c.cg.not_converged, c.cg.solves, c.cg.max_iterations, c.cg.worst_residual
+            );
+        }
+        if !cut_costs.is_empty() {
+            let mesh: Vec<f64> = cut_costs.iter().map(|c| c.0).collect();
+            let build: Vec<f64> = cut_costs.iter().map(|c| c.1).collect();
+            println!(
+                "cuts that changed a body: {}; per cut, median / p99 / max us: mesh change {}, bodies built {}",
+                cut_costs.len(),
+                triple(&soft_tissue_core::timing::TimeStats::of(&mesh)),
+                triple(&soft_tissue_core::timing::TimeStats::of(&build)),
             );
         }
         for (i, b) in world.bodies().iter().enumerate().take(12) {

@@ -37,6 +37,12 @@ pub struct CutRecord {
     pub smallest_dihedral_deg: f64,
     /// Whether this body's surface is closed: every edge in exactly two triangles.
     pub closed: bool,
+    /// Wall time of the last cut that made this body, microseconds: the change of the
+    /// mesh (its state, the cut, the pieces) and the build of the bodies (solvers, heat,
+    /// contact surface, cage) of all its pieces.
+    pub mesh_us: f64,
+    /// See [`CutRecord::mesh_us`].
+    pub build_us: f64,
 }
 
 /// The cut of one body by one blade sweep.
@@ -186,6 +192,7 @@ impl SimBody {
         if blade.is_empty() || !self.blade_reaches(blade) {
             return Ok(None);
         }
+        let started = std::time::Instant::now();
         let (x, v) = self.body.node_state().map_err(|e| self.precision_err(e))?;
         let tets: Vec<[usize; 4]> = self
             .mesh
@@ -230,6 +237,7 @@ impl SimBody {
             (t, d)
         });
         let parts = pieces(&cut.mesh).map_err(|e| err(self, e.to_string()))?;
+        let mut build_us = 0.0;
         let settings = self.body.settings().clone();
         let old_volumes = lumped_volumes(&self.mesh);
         let held = held_axes(&settings.boundary, self.mesh.node_count());
@@ -304,7 +312,9 @@ impl SimBody {
             } else {
                 format!("{}.{}", self.name, self.pieces_made + slot)
             };
+            let building = std::time::Instant::now();
             let mut body = SimBody::build(name, Arc::new(mesh), piece_settings, heat, false)?;
+            build_us += building.elapsed().as_secs_f64() * 1e6;
             let xp: Vec<Vec3> = part.nodes.iter().map(|&n| x_all[n as usize]).collect();
             let vp: Vec<Vec3> = part.nodes.iter().map(|&n| v_all[n as usize]).collect();
             body.body
@@ -355,6 +365,13 @@ impl SimBody {
                 }
             }
             built.push(body);
+        }
+        let whole_us = started.elapsed().as_secs_f64() * 1e6;
+        for b in &mut built {
+            if let Some(r) = b.cut.as_mut() {
+                r.mesh_us = whole_us - build_us;
+                r.build_us = build_us;
+            }
         }
         let mut built = built.into_iter();
         let kept = built.next().expect("a cut leaves at least one piece");
