@@ -459,6 +459,27 @@ pub struct CutPiece {
     pub from: Entity,
 }
 
+/// The share of its uncut body's volume, and so of its mass, a cut body or a piece of one
+/// has: the plugin gives it that share of its [`TissueMaterial`]'s masses (an MSD's damping
+/// stays per node), when it changes the material and when it builds the body again.
+#[derive(Component, Reflect, Clone, Copy, Debug, PartialEq)]
+#[reflect(Component)]
+pub struct CutShare(pub f64);
+
+impl CutShare {
+    /// `material` with this share of its masses.
+    pub fn of(share: Option<&CutShare>, material: &TissueMaterial) -> TissueMaterial {
+        let mut m = *material;
+        if let Some(s) = share {
+            m.fem.mass *= s.0;
+            if let MsdMaterial::Own { params, .. } = &mut m.msd {
+                params.mass *= s.0;
+            }
+        }
+        m
+    }
+}
+
 /// A body as it was before its first cut, kept on the entity so a
 /// [`ResetSimulation`](crate::physics::ResetSimulation) puts it back.
 #[derive(Component)]

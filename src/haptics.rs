@@ -35,7 +35,7 @@ use crate::components::{SoftTool, ToolState};
 use crate::physics::{SoftTissueContacts, SoftTissueSchedule, SoftTissueStatus, SoftTissueSystems};
 use soft_tissue_core::contact::ToolShape;
 
-pub use soft_tissue_core::haptics::{CAUTERY_BUTTON, GRAB_BUTTON};
+pub use soft_tissue_core::haptics::{CAUTERY_BUTTON, CUT_BUTTON, GRAB_BUTTON};
 
 /// Drives [`HapticTool`] entities in the simulation's schedule ([`SoftTissueSchedule`]).
 #[derive(Default)]
@@ -127,7 +127,10 @@ fn drive_tools(mut tools: Query<(&mut HapticTool, &mut Transform, &mut SoftTool)
         // The first button grabs, or with a blade cuts.
         let pressed = s.buttons & GRAB_BUTTON != 0;
         let blade = matches!(tool.shape, ToolShape::Blade { .. });
-        let (grab, cut) = (pressed && !blade, pressed && blade);
+        let (grab, cut) = (
+            pressed && !blade,
+            blade && (pressed || s.buttons & CUT_BUTTON != 0),
+        );
         if tool.grab != grab {
             tool.grab = grab;
         }

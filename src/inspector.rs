@@ -248,8 +248,15 @@ fn inspector_panel(
                     } else {
                         ui.label("-");
                     }
-                    let from = pieces.get(e).map_or(e, |p| p.from);
-                    let count = pieces.iter().filter(|p| p.from == from).count();
+                    // The uncut body: follow the pieces back to it.
+                    let root = |mut x: Entity| {
+                        while let Ok(p) = pieces.get(x) {
+                            x = p.from;
+                        }
+                        x
+                    };
+                    let from = root(e);
+                    let count = pieces.iter().filter(|p| root(p.from) == from).count();
                     ui.label(if count > 0 {
                         format!("{}", count + 1)
                     } else {

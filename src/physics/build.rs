@@ -121,6 +121,7 @@ pub(super) fn build_bodies(
             Option<&Name>,
             Has<ShadowSimulation>,
             Option<&PinnedLevel>,
+            Option<&CutShare>,
         ),
         (Without<SimulatedBody>, Without<SoftBodyError>),
     >,
@@ -130,7 +131,9 @@ pub(super) fn build_bodies(
     let Some(dt) = status.dt else {
         return;
     };
-    for (entity, spec, material, heat, tuning, name, shadow, pin) in &new {
+    for (entity, spec, material, heat, tuning, name, shadow, pin, share) in &new {
+        // A cut body or piece built again: its share of the masses.
+        let material = &CutShare::of(share, material);
         let Some(asset) = meshes.get(&spec.mesh) else {
             continue;
         };

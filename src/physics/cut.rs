@@ -6,12 +6,13 @@
 use super::*;
 use soft_tissue_core::mesh::cut::{CutOptions, CutTriangle};
 use soft_tissue_core::scenario::Anchor;
-use soft_tissue_core::world::{Incision, remap_grips};
+use soft_tissue_core::world::{BladeOutcome, Incision, remap_grips};
 
 use crate::render::{EmbeddedVisual, SoftBodyMesh};
 
-/// `mesh` (world coordinates) in the frame of an entity placed at `placement`.
-fn in_local_frame(mesh: &TetMesh, placement: &GlobalTransform) -> Result<TetMesh, String> {
+/// `mesh` (world coordinates) in the frame of an entity placed at `placement` (the mesh as
+/// it is where that map fails, which it does only for a placement that is not invertible).
+fn local_mesh(mesh: &Arc<TetMesh>, placement: &GlobalTransform) -> Arc<TetMesh> {
     let m = placement.to_matrix().as_dmat4().inverse();
     let positions = mesh
         .positions()
@@ -22,7 +23,13 @@ fn in_local_frame(mesh: &TetMesh, placement: &GlobalTransform) -> Result<TetMesh
         })
         .collect();
     let tets = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
-    TetMesh::new(positions, tets).map_err(|e| e.to_string())
+    match TetMesh::new(positions, tets) {
+        Ok(m) => Arc::new(m),
+        Err(e) => {
+            warn!("a cut body's mesh kept in world coordinates: {e}");
+            mesh.clone()
+        }
+    }
 }
 
 #[allow(clippy::type_complexity, clippy::too_many_arguments)]
@@ -102,36 +109,29 @@ pub(super) fn cut_stage(
         GlobalTransform,
         Option<Affine>,
     )> = Vec::new();
-    for (blade, id, strip, stroke) in &blades {
-        let mut kept = false;
+    // Stops at the first failure, but the pieces cut before it are still spawned (their
+    // bodies' kept parts were already replaced).
+    'blades: for (blade, id, strip, stroke) in &blades {
+        let mut pending = false;
         for i in 0..existing {
             let (entity, spec, sim, has_uncut, is_piece) = &mut list[i];
             let cut = match sim.body.cut_within(strip, stroke, *id, &options) {
-                Ok(Some(c)) => c,
-                Ok(None) => continue,
+                Ok(BladeOutcome::Cut(c)) => *c,
+                Ok(BladeOutcome::Crossed) => {
+                    pending = true;
+                    continue;
+                }
+                Ok(BladeOutcome::Missed) => continue,
                 Err(e) => {
                     fail(
                         &mut status,
                         stage_error(SoftTissueStage::Cut, "cutting", Some(*entity), e),
                     );
-                    return;
+                    break 'blades;
                 }
             };
-            kept = true;
             let sim = &mut **sim;
             let placement = sim.placement;
-            // The kept piece's mesh becomes the entity's, in its frame (what a rebuild would
-            // build again), without a change the prepare stage would rebuild it for.
-            let local = match in_local_frame(sim.body.mesh(), &placement) {
-                Ok(m) => m,
-                Err(e) => {
-                    fail(
-                        &mut status,
-                        stage_error(SoftTissueStage::Cut, "placing a cut body", Some(*entity), e),
-                    );
-                    return;
-                }
-            };
             if !*has_uncut && !*is_piece {
                 commands.entity(*entity).insert(UncutBody {
                     body: Some(cut.previous),
@@ -140,30 +140,26 @@ pub(super) fn cut_stage(
                 });
                 *has_uncut = true;
             }
-            let handle = assets.add(TetMeshAsset(Arc::new(local)));
+            // The kept piece's mesh becomes the entity's, in its frame (what a rebuild would
+            // build again, with its share of the masses), without a change the prepare
+            // stage would rebuild it for.
+            let share = sim.body.cut_record().map_or(1.0, |r| r.share(&sim.body));
+            let handle = assets.add(TetMeshAsset(local_mesh(sim.body.mesh(), &placement)));
             sim.built_from.mesh = handle.id();
             spec.bypass_change_detection().mesh = handle;
             sim.shape += 1;
             sim.dirty = true;
             // Its cage is new: the component takes its triangles again.
-            commands.entity(*entity).insert(GreenCage::default());
+            commands
+                .entity(*entity)
+                .insert((GreenCage::default(), CutShare(share)));
             let first = existing + made.len();
             for piece in cut.pieces {
-                let mesh = match in_local_frame(piece.mesh(), &placement) {
-                    Ok(m) => m,
-                    Err(e) => {
-                        fail(
-                            &mut status,
-                            stage_error(SoftTissueStage::Cut, "placing a piece", Some(*entity), e),
-                        );
-                        return;
-                    }
-                };
-                let held = piece.body().is_free();
-                let handle = assets.add(TetMeshAsset(Arc::new(mesh)));
+                let handle = assets.add(TetMeshAsset(local_mesh(piece.mesh(), &placement)));
                 let mut piece_spec = (**spec).clone();
                 piece_spec.mesh = handle.clone();
-                if held {
+                // A piece holding none of the body's support is free.
+                if piece.body().is_free() {
                     piece_spec.anchor = Anchor::None;
                 }
                 let mut built_from = sim.built_from;
@@ -189,7 +185,8 @@ pub(super) fn cut_stage(
                 remap_grips(&mut one, &lookup, i, &cut.node_map, first);
             }
         }
-        if kept
+        // A strip that crossed a body without separating anything stays pending.
+        if !pending
             && let Ok((_, _, mut state)) = tools.get_mut(*blade)
             && let Some(inc) = state.incision.as_mut()
         {
@@ -215,8 +212,10 @@ pub(super) fn cut_stage(
                 Temperature,
             )>();
         });
+        let share = body.cut_record().map_or(1.0, |r| r.share(&body));
         e.insert((
             spec,
+            CutShare(share),
             SimulatedBody {
                 body,
                 order,

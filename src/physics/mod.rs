@@ -128,6 +128,7 @@ impl Plugin for SoftTissuePhysicsPlugin {
             .register_type::<ShadowSimulation>()
             .register_type::<SoftTool>()
             .register_type::<CutPiece>()
+            .register_type::<CutShare>()
             .register_type::<ToolReaction>();
         let mut schedule = Schedule::new(SoftTissueSchedule);
         schedule.set_executor(SingleThreadedExecutor::new());

@@ -44,7 +44,7 @@ pub(super) fn reset_simulation(
             }
             commands
                 .entity(e)
-                .remove::<UncutBody>()
+                .remove::<(UncutBody, CutShare)>()
                 .insert(GreenCage::default());
         }
         if let Err(err) = b.body.reset() {
@@ -83,6 +83,7 @@ pub(super) fn prepare_stage(
             Option<&SoftBodyTuning>,
             Option<&PinnedLevel>,
             Has<ShadowSimulation>,
+            Option<&CutShare>,
         ),
         &mut SimulatedBody,
     )>,
@@ -97,7 +98,7 @@ pub(super) fn prepare_stage(
     // Bodies queued for a rebuild: gone before the next stage runs, so not among this step's
     // bodies (their indices would shift the contact indices of the bodies after them).
     let mut rebuilt: SmallVec<[Entity; 4]> = SmallVec::new();
-    for (entity, (spec, material, heat, tuning, pin, shadow), mut sim) in &mut bodies {
+    for (entity, (spec, material, heat, tuning, pin, shadow, share), mut sim) in &mut bodies {
         let now = BuiltFrom::of(&spec, tuning, dt, &config);
         // Computed from the transforms now (the entity's or a parent's may have been written
         // since the last propagation).
@@ -137,8 +138,10 @@ pub(super) fn prepare_stage(
             }
         }
         if material.is_changed() {
-            let (msd, springs) = material.msd_params(b.mesh().node_count());
-            if let Err(e) = b.set_materials(material.fem, msd, springs) {
+            // A cut body's share of the masses.
+            let m = CutShare::of(share, &material);
+            let (msd, springs) = m.msd_params(b.mesh().node_count());
+            if let Err(e) = b.set_materials(m.fem, msd, springs) {
                 fail(
                     &mut status,
                     stage_error(

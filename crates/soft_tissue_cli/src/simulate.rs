@@ -256,7 +256,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
         let st = world.stage_times();
         recorder.record(&world);
         // A cut may have changed bodies and added some (the pieces that came loose).
-        if st.cut_us > 0.0 {
+        {
             let mut this_step: Vec<(f64, f64)> = Vec::new();
             for b in world.bodies() {
                 if let (false, Some(r)) = (seen.contains(&b.id()), b.cut_record()) {

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct StageTimes {
     /// The cut stage: the bodies cutting blades crossed since the last step, cut and
-    /// rebuilt (0 when no blade cuts).
+    /// rebuilt (next to nothing when no blade cuts).
     pub cut_us: f64,
     /// `prepare`: tool velocities, surfaces gathered.
     pub prepare_us: f64,

@@ -446,3 +446,43 @@ fn cutting_is_bit_identical_on_one_and_two_threads_and_after_a_reset() {
     }
     assert!(hashes.iter().all(|h| *h == hashes[0]), "{hashes:x?}");
 }
+
+/// A blade that nicks the bar (crossing it without separating anything), withdraws and
+/// goes around it with cutting still on cuts nothing it did not pass through: the strips
+/// swept step by step bisect, not a straight sweep from the nick to where the blade is.
+#[test]
+fn a_blade_that_nicks_and_goes_around_cuts_nothing_it_did_not_pass() {
+    let mut w = world_with(hanging_bar(PreciseMethod::CorotationalFem, 1.0));
+    let y = 0.055;
+    let t = w.add_tool(Tool::new("scalpel", ToolShape::Blade { length: 0.06 }).unwrap());
+    let go = |w: &mut SoftTissueWorld, x: f64, z: f64| {
+        w.tools_mut()[t]
+            .set_pose(Vec3::new(x, y, z), Vec3::z())
+            .unwrap();
+        w.step_fixed().unwrap();
+    };
+    go(&mut w, -0.01, -0.02);
+    w.tools_mut()[t].set_cutting(true).unwrap();
+    // In by 3 mm (an element is 1 cm) and out again.
+    for x in [-0.005, 0.0, 0.003, 0.0, -0.01] {
+        go(&mut w, x, -0.02);
+    }
+    // Slide along the edge away from the bar, pass it beyond its side, slide back.
+    for (x, z) in [
+        (-0.01, -0.1),
+        (0.01, -0.1),
+        (0.03, -0.1),
+        (0.05, -0.1),
+        (0.05, -0.02),
+    ] {
+        go(&mut w, x, z);
+    }
+    assert_eq!(w.bodies().len(), 1, "nothing came loose");
+    let faces = w.bodies()[0]
+        .cut_record()
+        .map_or(0, |r| r.surface_faces.len());
+    assert!(
+        faces <= 8,
+        "at most the nick's faces are cut ({faces} cut faces)"
+    );
+}

@@ -608,9 +608,9 @@ impl Tool {
         self.cutting
     }
 
-    /// The edge a blade had at the start of the step and has now (each as its two ends),
-    /// when it has moved since the last step; `None` for other tools and before a first
-    /// step.
+    /// The edge a blade had at the start of the step and has now (each as its two ends);
+    /// `None` for other tools and before a first step (the two are equal when it did not
+    /// move).
     pub fn blade_sweep(&self) -> Option<[(Vec3, Vec3); 2]> {
         let ToolShape::Blade { length } = self.shape else {
             return None;

@@ -249,7 +249,17 @@ impl Recording {
                 });
             }
             let changed = s.buttons ^ last_buttons;
-            if changed & GRAB_BUTTON != 0 {
+            // A blade cuts with the first button (as the plugin's haptic tool does) or the
+            // cut button; it grabs nothing.
+            let blade = matches!(tool, ToolShape::Blade { .. });
+            let cutting = |b: u32| b & (GRAB_BUTTON | CUT_BUTTON) != 0;
+            if blade && cutting(s.buttons) != cutting(last_buttons) {
+                events.push(ScriptEvent {
+                    t: s.t,
+                    action: ScriptAction::Cut(cutting(s.buttons)),
+                });
+            }
+            if changed & GRAB_BUTTON != 0 && !blade {
                 events.push(ScriptEvent {
                     t: s.t,
                     action: if s.buttons & GRAB_BUTTON != 0 {
@@ -280,12 +290,6 @@ impl Recording {
                     } else {
                         max_opening
                     }),
-                });
-            }
-            if let (true, ToolShape::Blade { .. }) = (changed & CUT_BUTTON != 0, tool) {
-                events.push(ScriptEvent {
-                    t: s.t,
-                    action: ScriptAction::Cut(s.buttons & CUT_BUTTON != 0),
                 });
             }
             last_buttons = s.buttons;

@@ -536,6 +536,11 @@ impl LeveledBody {
         }
     }
 
+    /// See [`LeveledBody::set_precise_cg_must_converge`].
+    pub fn cg_must_converge(&self) -> bool {
+        self.cg_must_converge
+    }
+
     /// The iterative solve of the last precise step, for the methods that have one
     /// (corotational FEM, implicit MSD).
     pub fn precise_cg(&self) -> Option<CgStats> {

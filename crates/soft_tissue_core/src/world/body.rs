@@ -276,8 +276,8 @@ impl SimBody {
     }
 
     /// Changes the body's materials at run time (see [`LeveledBody::set_materials`]: no
-    /// jump, the precise solver built again). The masses are the whole body's: a piece of
-    /// a cut body takes its share by volume.
+    /// jump, the precise solver built again). The parameters are this body's: for a piece
+    /// of a cut body, its share of the masses (see [`CutRecord::share`](super::CutRecord::share)).
     pub fn set_materials(
         &mut self,
         fem: crate::material::FemParams,
@@ -285,14 +285,6 @@ impl SimBody {
         springs: crate::msd::SpringStiffness,
     ) -> Result<(), WorldError> {
         let mesh = self.mesh.clone();
-        // A piece of a cut body has its share (by volume) of the masses given for the
-        // whole body.
-        let (mut fem, mut msd) = (fem, msd);
-        if let Some(c) = &self.cut {
-            let share = mesh.volume() / c.origin_volume;
-            fem.mass *= share;
-            msd.mass *= share;
-        }
         self.body
             .set_materials(&mesh, fem, msd, springs)
             .map_err(|e| self.precision_err(e))?;

@@ -45,6 +45,19 @@ pub struct CutRecord {
     pub build_us: f64,
 }
 
+/// What one blade sweep did to one body ([`SimBody::cut_within`]).
+#[derive(Debug)]
+pub enum BladeOutcome {
+    /// The blade reached nothing of the body, or the body could not be cut where it is
+    /// now (a warning says why): nothing to do again.
+    Missed,
+    /// The blade crossed the body but separated nothing yet: the body is unchanged, and the
+    /// incision's next strip bisects this part again, where the tissue then is.
+    Crossed,
+    /// The body was cut.
+    Cut(Box<BladeCut>),
+}
+
 /// The cut of one body by one blade sweep.
 #[derive(Debug)]
 pub struct BladeCut {
@@ -72,9 +85,14 @@ pub struct Incision {
     id: u64,
     start: (Vec3, Vec3),
     last: (Vec3, Vec3),
-    /// The edge where the last cut that separated something left it.
-    pending: (Vec3, Vec3),
+    /// The strips swept since the last cut that separated something (or crossed nothing),
+    /// step by step: the path the blade took, not a straight line.
+    pending: Vec<CutTriangle>,
 }
+
+/// Most strips an incision keeps pending (a blade that crosses a body for this many steps
+/// without separating anything drops the oldest).
+const MAX_PENDING: usize = 64;
 
 impl Incision {
     /// An incision whose blade edge is at `(tip, back)`.
@@ -84,25 +102,32 @@ impl Incision {
             id: NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
             start: edge,
             last: edge,
-            pending: edge,
+            pending: Vec::new(),
         }
     }
 
-    /// The blade edge moved to `edge`: what to cut with now, as `(strip, region)`: the
-    /// strip swept since the last cut that separated something (which bisects: a cut that
-    /// separates nothing is not kept, so its bisections are made again, where the tissue
-    /// is now) and the stroke so far (where faces on the strip's plane are separated; see
-    /// [`crate::mesh::cut::recut_within`]).
+    /// The blade edge moved to `edge`: what to cut with now, as `(strips, region)`: the
+    /// strips swept step by step since the last cut that separated something (which bisect:
+    /// a cut that separates nothing is not kept, so its bisections are made again, where
+    /// the tissue is now) and the stroke so far (where faces on the strips' plane are
+    /// separated; see [`crate::mesh::cut::recut_within`]).
     pub fn advance(&mut self, edge: (Vec3, Vec3)) -> (Vec<CutTriangle>, Vec<CutTriangle>) {
         let (a0, b0) = self.start;
         let stroke = swept_triangles(a0, b0, self.last.0, self.last.1);
         if !stroke.is_empty() && !self.in_plane(edge) {
+            // A new stroke (the pending strips stay: they are the path the blade took).
             self.start = self.last;
         }
-        let strip = swept_triangles(self.pending.0, self.pending.1, edge.0, edge.1);
+        self.pending
+            .extend(swept_triangles(self.last.0, self.last.1, edge.0, edge.1));
+        let over = self.pending.len().saturating_sub(2 * MAX_PENDING);
+        self.pending.drain(..over);
         self.last = edge;
         let (a0, b0) = self.start;
-        (strip, swept_triangles(a0, b0, edge.0, edge.1))
+        (
+            self.pending.clone(),
+            swept_triangles(a0, b0, edge.0, edge.1),
+        )
     }
 
     /// A number no other incision of this process has (what marks the nodes it passed).
@@ -110,10 +135,12 @@ impl Incision {
         self.id
     }
 
-    /// The cut of the last [`Incision::advance`] separated something and was kept: the
-    /// next strip starts at the edge's place now.
+    /// The cut of the last [`Incision::advance`] separated something and was kept, or its
+    /// strip crossed nothing: the next strip starts at the edge's place now. (Only a strip
+    /// that crossed a body without separating anything stays pending, so the next one
+    /// bisects its part again where the tissue then is.)
     pub fn kept(&mut self) {
-        self.pending = self.last;
+        self.pending.clear();
     }
 
     /// Whether `edge` lies in the plane of the stroke so far (within 1e-6 of its size).
@@ -153,6 +180,14 @@ pub fn swept_triangles(a0: Vec3, b0: Vec3, a1: Vec3, b1: Vec3) -> Vec<CutTriangl
     out
 }
 
+impl CutRecord {
+    /// The share of the uncut body's volume, and so of its mass, this body has (its rest
+    /// volume over the uncut body's).
+    pub fn share(&self, body: &SimBody) -> f64 {
+        body.mesh.volume() / self.origin_volume
+    }
+}
+
 impl SimBody {
     /// The cuts this body came from, if any.
     pub fn cut_record(&self) -> Option<&CutRecord> {
@@ -170,7 +205,10 @@ impl SimBody {
         blade: &[CutTriangle],
         options: &CutOptions,
     ) -> Result<Option<BladeCut>, WorldError> {
-        self.cut_within(blade, &[], 0, options)
+        Ok(match self.cut_within(blade, &[], 0, options)? {
+            BladeOutcome::Cut(c) => Some(*c),
+            _ => None,
+        })
     }
 
     /// [`SimBody::cut`] by the newest strip `blade` of incision `incision` ([`Incision::id`])
@@ -181,7 +219,7 @@ impl SimBody {
         region: &[CutTriangle],
         incision: u64,
         options: &CutOptions,
-    ) -> Result<Option<BladeCut>, WorldError> {
+    ) -> Result<BladeOutcome, WorldError> {
         let err = |b: &SimBody, reason: String| WorldError::Cut {
             body: b.label(),
             reason,
@@ -190,8 +228,14 @@ impl SimBody {
             .and_then(|_| crate::mesh::cut::check_blade(region))
             .map_err(|e| err(self, e.to_string()))?;
         if blade.is_empty() || !self.blade_reaches(blade) {
-            return Ok(None);
+            return Ok(BladeOutcome::Missed);
         }
+        // From here a failure is the shape's, not the blade's: the body is passed by this
+        // step, as it is (a warning names why).
+        let skip = |b: &SimBody, why: String| {
+            log::warn!("body `{}`: not cut this step: {why}", b.name);
+            Ok(BladeOutcome::Missed)
+        };
         let started = std::time::Instant::now();
         let (x, v) = self.body.node_state().map_err(|e| self.precision_err(e))?;
         let tets: Vec<[usize; 4]> = self
@@ -200,25 +244,32 @@ impl SimBody {
             .iter()
             .map(|t| t.map(|i| i as usize))
             .collect();
-        let now = TetMesh::new(x.clone(), tets).map_err(|e| err(self, e.to_string()))?;
+        let now = match TetMesh::new(x.clone(), tets) {
+            Ok(m) => m,
+            Err(e) => return skip(self, format!("its shape now: {e}")),
+        };
         if now
             .warnings()
             .iter()
             .any(|w| matches!(w, crate::mesh::MeshWarning::Reoriented { .. }))
         {
-            // Where its elements are turned inside out the body has no shape to cut along;
-            // the blade passes it by this step.
-            log::warn!(
-                "body `{}`: not cut this step: some tetrahedra are inverted in the shape it is in",
-                self.name
+            // Where its elements are turned inside out the body has no shape to cut along.
+            return skip(
+                self,
+                "some tetrahedra are inverted in the shape it is in".into(),
             );
-            return Ok(None);
         }
         let history = self.cut.as_ref().map(|c| &c.history);
-        let cut = recut_within(&now, history, blade, region, incision, options)
-            .map_err(|e| err(self, e.to_string()))?;
+        let cut = match recut_within(&now, history, blade, region, incision, options) {
+            Ok(c) => c,
+            Err(e) => return skip(self, e.to_string()),
+        };
         if cut.separated == 0 {
-            return Ok(None);
+            return Ok(if cut.bisected > 0 {
+                BladeOutcome::Crossed
+            } else {
+                BladeOutcome::Missed
+            });
         }
         // Every field of the body before, carried to the new nodes.
         let origins = &cut.node_origin;
@@ -236,7 +287,10 @@ impl SimBody {
             let d: Vec<f64> = origins.iter().map(|o| o.interpolate(h.damage())).collect();
             (t, d)
         });
-        let parts = pieces(&cut.mesh).map_err(|e| err(self, e.to_string()))?;
+        let parts = match pieces(&cut.mesh) {
+            Ok(p) => p,
+            Err(e) => return skip(self, format!("its pieces: {e}")),
+        };
         let mut build_us = 0.0;
         let settings = self.body.settings().clone();
         let old_volumes = lumped_volumes(&self.mesh);
@@ -272,16 +326,16 @@ impl SimBody {
                 .iter()
                 .map(|t| t.map(|i| i as usize))
                 .collect();
-            let mesh = TetMesh::new(rest, corners).map_err(|e| err(self, e.to_string()))?;
+            let mesh = match TetMesh::new(rest, corners) {
+                Ok(m) => m,
+                Err(e) => return skip(self, format!("a piece's rest shape: {e}")),
+            };
             if mesh
                 .warnings()
                 .iter()
                 .any(|w| matches!(w, crate::mesh::MeshWarning::Reoriented { .. }))
             {
-                return Err(err(
-                    self,
-                    "a piece's rest tetrahedron would be inverted".into(),
-                ));
+                return skip(self, "a piece's rest tetrahedron would be inverted".into());
             }
             let new_volumes = lumped_volumes(&mesh);
             let mut piece_settings = settings.clone();
@@ -290,6 +344,11 @@ impl SimBody {
             piece_settings.fem.mass *= share;
             piece_settings.msd.mass *= share;
             piece_settings.cage_msd.mass *= share;
+            // The MSD's damping is per node: the same damping rate on nodes of the piece's
+            // mass (its share of the mass over its nodes, against the body's per node).
+            let per_node = share * self.mesh.node_count() as f64 / mesh.node_count() as f64;
+            piece_settings.msd.damping *= per_node;
+            piece_settings.cage_msd.damping *= share;
             piece_settings.boundary = carried_boundary(
                 &settings.boundary,
                 &held,
@@ -313,7 +372,10 @@ impl SimBody {
                 format!("{}.{}", self.name, self.pieces_made + slot)
             };
             let building = std::time::Instant::now();
-            let mut body = SimBody::build(name, Arc::new(mesh), piece_settings, heat, false)?;
+            let mut body = match SimBody::build(name, Arc::new(mesh), piece_settings, heat, false) {
+                Ok(b) => b,
+                Err(e) => return skip(self, format!("building a piece: {e}")),
+            };
             build_us += building.elapsed().as_secs_f64() * 1e6;
             let xp: Vec<Vec3> = part.nodes.iter().map(|&n| x_all[n as usize]).collect();
             let vp: Vec<Vec3> = part.nodes.iter().map(|&n| v_all[n as usize]).collect();
@@ -334,6 +396,12 @@ impl SimBody {
                 })?;
             }
             body.friction = self.friction;
+            // What was set at run time beyond the settings.
+            body.body
+                .set_precise_cg_must_converge(self.body.cg_must_converge());
+            if self.body.has_shadow() {
+                body.set_shadow(true)?;
+            }
             let history = crate::mesh::cut::CutHistory {
                 sides: part
                     .tets
@@ -384,13 +452,13 @@ impl SimBody {
         for p in &mut pieces {
             p.loose = true;
         }
-        Ok(Some(BladeCut {
+        Ok(BladeOutcome::Cut(Box::new(BladeCut {
             separated: cut.separated,
             bisected: cut.bisected,
             pieces,
             node_map,
             previous,
-        }))
+        })))
     }
 
     /// Whether the blade's bounds meet the body's (a cheap test before the cut).

@@ -32,7 +32,7 @@ mod script;
 mod soft_world;
 
 pub use body::{SETTLE_STEPS, SimBody};
-pub use cut::{BladeCut, CutRecord, Incision, remap_grips, swept_triangles};
+pub use cut::{BladeCut, BladeOutcome, CutRecord, Incision, remap_grips, swept_triangles};
 pub use soft_world::SoftTissueWorld;
 
 pub use crate::contact::{ContactState, ContactStats, detect_contacts, solve_contacts};

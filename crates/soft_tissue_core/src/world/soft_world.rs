@@ -98,11 +98,16 @@ impl SoftTissueWorld {
                 name: index.to_string(),
             });
         }
-        let Some(cut) =
-            self.bodies[index].cut_within(blade, region, incision, &self.cut_options)?
-        else {
-            return Ok(Vec::new());
+        let cut = match self.bodies[index].cut_within(blade, region, incision, &self.cut_options)? {
+            super::cut::BladeOutcome::Cut(c) => *c,
+            _ => return Ok(Vec::new()),
         };
+        Ok(self.add_cut(index, cut))
+    }
+
+    /// Adds the pieces of body `index`'s cut as bodies (names made unique), keeps the body
+    /// as it was before its first cut for `reset`, moves grips; returns the new indices.
+    fn add_cut(&mut self, index: usize, cut: super::cut::BladeCut) -> Vec<usize> {
         let first = self.bodies.len();
         let super::cut::BladeCut {
             pieces,
@@ -114,18 +119,27 @@ impl SoftTissueWorld {
             self.uncut.push((index, *previous));
         }
         let mut made = Vec::with_capacity(pieces.len());
-        for p in pieces {
+        for mut p in pieces {
+            // A name no other body has (a user's body may already be called `NAME.k`).
+            let base = p.name.clone();
+            let mut k = 1;
+            while self.bodies.iter().any(|b| b.name == p.name) {
+                p.name = format!("{base}.{k}");
+                k += 1;
+            }
             made.push(self.bodies.len());
             self.bodies.push(p);
         }
         super::cut::remap_grips(&mut self.tools, &self.bodies, index, &node_map, first);
-        Ok(made)
+        made
     }
 
     /// The cut stage: every blade with cutting on cuts the bodies its edge crossed since the
     /// last step.
     fn cut_stage(&mut self) -> Result<(), WorldError> {
         self.incisions.resize(self.tools.len(), None);
+        // Bodies made by this stage are not cut again in it.
+        let count = self.bodies.len();
         for t in 0..self.tools.len() {
             let tool = &self.tools[t];
             let sweep = tool.blade_sweep().filter(|_| tool.cutting());
@@ -139,15 +153,19 @@ impl SoftTissueWorld {
             if strip.is_empty() {
                 continue;
             }
-            // Bodies made by this sweep are not cut by it again.
-            let count = self.bodies.len();
-            let mut kept = false;
+            let mut pending = false;
             for i in 0..count {
-                let before = self.bodies[i].id();
-                self.cut_body_within(i, &strip, &stroke, id)?;
-                kept |= self.bodies[i].id() != before;
+                let outcome = self.bodies[i].cut_within(&strip, &stroke, id, &self.cut_options)?;
+                match outcome {
+                    super::cut::BladeOutcome::Missed => {}
+                    super::cut::BladeOutcome::Crossed => pending = true,
+                    super::cut::BladeOutcome::Cut(c) => {
+                        self.add_cut(i, *c);
+                    }
+                }
             }
-            if kept && let Some(inc) = self.incisions[t].as_mut() {
+            // A strip that crossed a body without separating anything stays pending.
+            if !pending && let Some(inc) = self.incisions[t].as_mut() {
                 inc.kept();
             }
         }

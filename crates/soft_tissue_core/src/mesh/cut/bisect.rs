@@ -102,10 +102,10 @@ impl Work {
         let mut on_plane: HashMap<u32, bool> = distance
             .iter()
             .map(|(&v, &d)| {
-                let snapped = d.abs() < snap * shortest[&v]
-                    || on_side.binary_search(&v).is_ok()
-                    || self.on_incision(v);
-                (v, d == 0.0 || (snapped && d.abs() <= reach))
+                let snapped = d.abs() < snap * shortest[&v] || on_side.binary_search(&v).is_ok();
+                // A node this incision passed is on its plane wherever it moved since.
+                let on = d == 0.0 || self.on_incision(v) || (snapped && d.abs() <= reach);
+                (v, on)
             })
             .collect();
         // Crossing edges with their crossing inside the triangle; a crossing near an end puts
