@@ -32,7 +32,11 @@ fn placed(mesh: &Arc<TetMesh>, placement: &GlobalTransform) -> Result<Arc<TetMes
     if placement.affine() == bevy::math::Affine3A::IDENTITY {
         return Ok(mesh.clone());
     }
-    let m = placement.to_matrix().as_dmat4();
+    mapped(mesh, placement.to_matrix().as_dmat4())
+}
+
+/// The mesh with every node mapped by `m`.
+pub(super) fn mapped(mesh: &TetMesh, m: bevy::math::DMat4) -> Result<Arc<TetMesh>, String> {
     let positions = mesh
         .positions()
         .iter()

@@ -13,18 +13,8 @@ use crate::render::{EmbeddedVisual, SoftBodyMesh};
 /// `mesh` (world coordinates) in the frame of an entity placed at `placement` (the mesh as
 /// it is where that map fails, which it does only for a placement that is not invertible).
 fn local_mesh(mesh: &Arc<TetMesh>, placement: &GlobalTransform) -> Arc<TetMesh> {
-    let m = placement.to_matrix().as_dmat4().inverse();
-    let positions = mesh
-        .positions()
-        .iter()
-        .map(|p| {
-            let q = m.transform_point3(bevy::math::DVec3::new(p.x, p.y, p.z));
-            soft_tissue_core::Vec3::new(q.x, q.y, q.z)
-        })
-        .collect();
-    let tets = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
-    match TetMesh::new(positions, tets) {
-        Ok(m) => Arc::new(m),
+    match mapped(mesh, placement.to_matrix().as_dmat4().inverse()) {
+        Ok(m) => m,
         Err(e) => {
             warn!("a cut body's mesh kept in world coordinates: {e}");
             mesh.clone()

@@ -4,7 +4,7 @@
 //! puts the whole body back.
 
 use super::*;
-use bevy_soft_tissue::core::contact::{Tool, ToolShape};
+use bevy_soft_tissue::core::contact::ToolShape;
 use bevy_soft_tissue::core::world::{ScriptEvent, Waypoint};
 use bevy_soft_tissue::{CutPiece, RenderedSurface, ResetSimulation, SoftBodyDiagnostics};
 
@@ -52,15 +52,7 @@ fn a_blade_cuts_a_body_in_two_like_the_core_world_and_a_reset_makes_it_whole() {
     let script = through_cut(&world, "Model A");
     let dt = world.config().dt;
     let tool = spawn_tool(&mut app, &script);
-    let ti = world.add_tool(Tool::new("blade", script.tool).unwrap());
-    let start = tool_transform(&script, 0.0);
-    let (_, rotation, translation) = GlobalTransform::from(start).to_scale_rotation_translation();
-    world.tools_mut()[ti]
-        .set_pose_rotation(
-            bevy_soft_tissue::convert::to_core(translation),
-            bevy_soft_tissue::convert::to_core_rotation(rotation),
-        )
-        .unwrap();
+    let ti = add_core_tool(&mut world, &script);
     app.update();
     world.step_fixed().unwrap();
     let a = bodies[0];

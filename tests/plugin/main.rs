@@ -122,6 +122,22 @@ fn drive_tool(
     )
 }
 
+/// A core tool of the script's shape in `world`, at the script's start as the plugin reads
+/// a tool entity's pose there (see [`spawn_tool`]); returns its index.
+fn add_core_tool(world: &mut SoftTissueWorld, script: &Script) -> usize {
+    let ti =
+        world.add_tool(bevy_soft_tissue::core::contact::Tool::new("tool", script.tool).unwrap());
+    let start = tool_transform(script, 0.0);
+    let (_, rotation, translation) = GlobalTransform::from(start).to_scale_rotation_translation();
+    world.tools_mut()[ti]
+        .set_pose_rotation(
+            bevy_soft_tissue::convert::to_core(translation),
+            bevy_soft_tissue::convert::to_core_rotation(rotation),
+        )
+        .unwrap();
+    ti
+}
+
 /// A tool entity with the script's shape, at the script's start.
 fn spawn_tool(app: &mut App, script: &Script) -> Entity {
     let tool = SoftTool {

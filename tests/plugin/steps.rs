@@ -79,16 +79,7 @@ fn the_plugin_and_the_core_world_give_the_same_states() {
     let script = Script::builtin("push-a-into-b", &world).unwrap();
     let dt = world.config().dt;
     let tool = spawn_tool(&mut app, &script);
-    let ti =
-        world.add_tool(bevy_soft_tissue::core::contact::Tool::new("tool", script.tool).unwrap());
-    let start = tool_transform(&script, 0.0);
-    let (_, rotation, translation) = GlobalTransform::from(start).to_scale_rotation_translation();
-    world.tools_mut()[ti]
-        .set_pose_rotation(
-            bevy_soft_tissue::convert::to_core(translation),
-            bevy_soft_tissue::convert::to_core_rotation(rotation),
-        )
-        .unwrap();
+    let ti = add_core_tool(&mut world, &script);
     // The first update builds the bodies (and steps once with the tool at its start).
     app.update();
     world.step_fixed().unwrap();

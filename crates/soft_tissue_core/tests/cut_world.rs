@@ -68,6 +68,24 @@ fn sweep_blade(w: &mut SoftTissueWorld, y: f64) {
     w.tools_mut()[t].set_cutting(false).unwrap();
 }
 
+/// Blade tool `t` moved across the hanging bar at mid-height over 30 steps (1.7 mm a step),
+/// cutting.
+fn stroke_through_bar(w: &mut SoftTissueWorld, t: usize) {
+    let y = 0.055;
+    w.tools_mut()[t]
+        .set_pose(Vec3::new(-0.01, y, -0.02), Vec3::z())
+        .unwrap();
+    w.step_fixed().unwrap();
+    w.tools_mut()[t].set_cutting(true).unwrap();
+    for k in 1..=30 {
+        let x = -0.01 + 0.05 * k as f64 / 30.0;
+        w.tools_mut()[t]
+            .set_pose(Vec3::new(x, y, -0.02), Vec3::z())
+            .unwrap();
+        w.step_fixed().unwrap();
+    }
+}
+
 /// Mass-weighted centre of a body's nodes.
 fn centre(b: &SimBody) -> Vec3 {
     let m = b.body().precise().masses();
@@ -378,23 +396,9 @@ fn an_incision_grown_over_steps_through_moving_tissue_cuts_as_one_stroke() {
 /// step, narrower than an element) cuts it in two, the whole section.
 #[test]
 fn a_blade_moved_through_a_hanging_bar_step_by_step_cuts_it_in_two() {
-    let body = hanging_bar(PreciseMethod::CorotationalFem, 1.0);
-    let mut w = world_with(body);
-    let y = 0.055;
-    let mut blade = Tool::new("scalpel", ToolShape::Blade { length: 0.06 }).unwrap();
-    blade
-        .set_pose(Vec3::new(-0.01, y, -0.02), Vec3::z())
-        .unwrap();
-    let t = w.add_tool(blade);
-    w.step_fixed().unwrap();
-    w.tools_mut()[t].set_cutting(true).unwrap();
-    for k in 1..=30 {
-        let x = -0.01 + 0.05 * k as f64 / 30.0;
-        w.tools_mut()[t]
-            .set_pose(Vec3::new(x, y, -0.02), Vec3::z())
-            .unwrap();
-        w.step_fixed().unwrap();
-    }
+    let mut w = world_with(hanging_bar(PreciseMethod::CorotationalFem, 1.0));
+    let t = w.add_tool(Tool::new("scalpel", ToolShape::Blade { length: 0.06 }).unwrap());
+    stroke_through_bar(&mut w, t);
     assert_eq!(w.bodies().len(), 2);
     for b in w.bodies() {
         let r = b.cut_record().unwrap();
@@ -414,19 +418,7 @@ fn a_blade_moved_through_a_hanging_bar_step_by_step_cuts_it_in_two() {
 #[test]
 fn cutting_is_bit_identical_on_one_and_two_threads_and_after_a_reset() {
     let run = |w: &mut SoftTissueWorld, t: usize| {
-        let y = 0.055;
-        w.tools_mut()[t]
-            .set_pose(Vec3::new(-0.01, y, -0.02), Vec3::z())
-            .unwrap();
-        w.step_fixed().unwrap();
-        w.tools_mut()[t].set_cutting(true).unwrap();
-        for k in 1..=30 {
-            let x = -0.01 + 0.05 * k as f64 / 30.0;
-            w.tools_mut()[t]
-                .set_pose(Vec3::new(x, y, -0.02), Vec3::z())
-                .unwrap();
-            w.step_fixed().unwrap();
-        }
+        stroke_through_bar(w, t);
         w.tools_mut()[t].set_cutting(false).unwrap();
         for _ in 0..100 {
             w.step_fixed().unwrap();
