@@ -31,6 +31,7 @@ pub(super) fn cut_stage(
         &mut SimulatedBody,
         Has<UncutBody>,
         Has<CutPiece>,
+        Option<&CutShare>,
     )>,
     mut tools: Query<(Entity, &SoftTool, &mut ToolState)>,
     poses: TransformHelper,
@@ -88,11 +89,12 @@ pub(super) fn cut_stage(
         return;
     }
     let mut list: Vec<_> = bodies.iter_mut().collect();
-    list.sort_unstable_by_key(|(_, _, b, _, _)| b.order);
+    list.sort_unstable_by_key(|(_, _, b, _, _, _)| b.order);
     let existing = list.len();
     let options = CutOptions::default();
     let mut made: Vec<(
         Entity,
+        f64,
         SimBody,
         SoftBody,
         BuiltFrom,
@@ -102,13 +104,13 @@ pub(super) fn cut_stage(
     // Stops at the first failure, but the pieces cut before it are still spawned (their
     // bodies' kept parts were already replaced).
     'blades: for (blade, id, strip, stroke) in &blades {
-        let mut pending = false;
+        let (mut crossed, mut cut_any) = (false, false);
         for i in 0..existing {
-            let (entity, spec, sim, has_uncut, is_piece) = &mut list[i];
+            let (entity, spec, sim, has_uncut, is_piece, share) = &mut list[i];
             let cut = match sim.body.cut_within(strip, stroke, *id, &options) {
                 Ok(BladeOutcome::Cut(c)) => *c,
                 Ok(BladeOutcome::Crossed) => {
-                    pending = true;
+                    crossed = true;
                     continue;
                 }
                 Ok(BladeOutcome::Missed) => continue,
@@ -120,8 +122,12 @@ pub(super) fn cut_stage(
                     break 'blades;
                 }
             };
+            cut_any = true;
             let sim = &mut **sim;
             let placement = sim.placement;
+            // Each part's share of the uncut body's mass: the share the body had (a body
+            // built again after a cut keeps it only in `CutShare`) by volume.
+            let per_volume = share.map_or(1.0, |s| s.0) / cut.previous.mesh().volume();
             if !*has_uncut && !*is_piece {
                 commands.entity(*entity).insert(UncutBody {
                     body: Some(cut.previous),
@@ -133,7 +139,7 @@ pub(super) fn cut_stage(
             // The kept piece's mesh becomes the entity's, in its frame (what a rebuild would
             // build again, with its share of the masses), without a change the prepare
             // stage would rebuild it for.
-            let share = sim.body.cut_record().map_or(1.0, |r| r.share(&sim.body));
+            let share = per_volume * sim.body.mesh().volume();
             let handle = assets.add(TetMeshAsset(local_mesh(sim.body.mesh(), &placement)));
             sim.built_from.mesh = handle.id();
             spec.bypass_change_detection().mesh = handle;
@@ -157,6 +163,7 @@ pub(super) fn cut_stage(
                 built_from.anchor = piece_spec.anchor;
                 made.push((
                     *entity,
+                    per_volume * piece.mesh().volume(),
                     piece,
                     piece_spec,
                     built_from,
@@ -167,23 +174,24 @@ pub(super) fn cut_stage(
             // Grips on the body follow its nodes, into the pieces too.
             let lookup: Vec<&SimBody> = list
                 .iter()
-                .map(|(_, _, b, _, _)| &b.body)
-                .chain(made.iter().map(|m| &m.1))
+                .map(|(_, _, b, _, _, _)| &b.body)
+                .chain(made.iter().map(|m| &m.2))
                 .collect();
             for (_, _, mut state) in &mut tools {
                 let mut one = [&mut state.tool];
                 remap_grips(&mut one, &lookup, i, &cut.node_map, first);
             }
         }
-        // A strip that crossed a body without separating anything stays pending.
-        if !pending
+        // Strips that crossed a body without separating anything stay pending, unless they
+        // cut another (they would cut that one again, wherever it moved).
+        if (cut_any || !crossed)
             && let Ok((_, _, mut state)) = tools.get_mut(*blade)
             && let Some(inc) = state.incision.as_mut()
         {
             inc.kept();
         }
     }
-    for (from, body, spec, built_from, placement, to_local) in made {
+    for (from, share, body, spec, built_from, placement, to_local) in made {
         let name = Name::new(body.name().to_owned());
         let heat = body.heat().is_some();
         let order = next.0;
@@ -202,7 +210,6 @@ pub(super) fn cut_stage(
                 Temperature,
             )>();
         });
-        let share = body.cut_record().map_or(1.0, |r| r.share(&body));
         e.insert((
             spec,
             CutShare(share),

@@ -137,7 +137,9 @@ pub(super) fn prepare_stage(
                 ),
             }
         }
-        if material.is_changed() {
+        // A piece of a cut body comes with a cloned material, added with it: its masses
+        // were given by the cut.
+        if material.is_changed() && !(material.is_added() && share.is_some()) {
             // A cut body's share of the masses.
             let m = CutShare::of(share, &material);
             let (msd, springs) = m.msd_params(b.mesh().node_count());

@@ -80,6 +80,9 @@ fn fuzz(name: &str, mesh: &TetMesh, strokes: usize, steps: usize, seed: u64) -> 
                 history = Some(after.history);
                 incision.kept();
                 kept += 1;
+            } else if after.bisected == 0 {
+                // The worlds' rule: only a strip that crossed stays pending.
+                incision.kept();
             }
             // The tissue moves between the steps: a small smooth swirl.
             let amp = 1e-3 * d * unit();

@@ -372,10 +372,13 @@ fn an_incision_grown_over_steps_through_moving_tissue_cuts_as_one_stroke() {
                 &Default::default(),
             )
             .unwrap();
+            // The worlds' rule: a strip that crossed without separating stays pending.
             if c.separated > 0 {
                 separated += c.separated;
                 mesh = c.mesh;
                 history = Some(c.history);
+                incision.kept();
+            } else if c.bisected == 0 {
                 incision.kept();
             }
             // The tissue moves between the steps: a stretch along y.

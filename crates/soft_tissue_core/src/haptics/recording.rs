@@ -198,10 +198,13 @@ impl Recording {
         };
         let mut buttons = 0u32;
         let mut next_event = 0;
+        // A blade grabs nothing (its first button cuts when played on a device).
+        let blade = matches!(script.tool, ToolShape::Blade { .. });
         for k in 0..n {
             let t = k as f64 / rate_hz;
             while next_event < script.events.len() && script.events[next_event].t <= t {
                 match script.events[next_event].action {
+                    ScriptAction::Grab | ScriptAction::Release if blade => {}
                     ScriptAction::Grab => buttons |= GRAB_BUTTON,
                     ScriptAction::Release => buttons &= !GRAB_BUTTON,
                     ScriptAction::Cautery(w) if w > 0.0 => buttons |= CAUTERY_BUTTON,

@@ -75,11 +75,13 @@ pub struct BladeCut {
 }
 
 /// The surface a blade has swept since its cutting turned on. Each step's strip (from the
-/// edge's last place to its place now) bisects what it crosses; while the blade moves in
-/// one plane (a straight stroke) the whole stroke, one quadrilateral from where it began to
-/// where the edge is now, is where faces on that plane are separated, so a face wider than
-/// one step's strip (a strip is far narrower than an element) is cut once the strip that
-/// completes it has passed. A turn out of the plane starts a new stroke.
+/// edge's last place to its place now) is kept until a cut that separates something (or a
+/// step whose strips cross nothing), and the strips kept bisect what they cross, where the
+/// tissue is now: the path the blade took, step by step. While the blade moves in one plane
+/// (a straight stroke) the whole stroke, one quadrilateral from where it began to where the
+/// edge is now, is where faces on that plane are separated, so a face wider than one step's
+/// strip (a strip is far narrower than an element) is cut once the strip that completes it
+/// has passed. A turn out of the plane starts a new stroke.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Incision {
     id: u64,
@@ -211,7 +213,7 @@ impl SimBody {
         })
     }
 
-    /// [`SimBody::cut`] by the newest strip `blade` of incision `incision` ([`Incision::id`])
+    /// [`SimBody::cut`] by the pending strips `blade` of incision `incision` ([`Incision::id`])
     /// whose stroke so far is `region` (see [`crate::mesh::cut::recut_within`]).
     pub fn cut_within(
         &mut self,

@@ -153,19 +153,23 @@ impl SoftTissueWorld {
             if strip.is_empty() {
                 continue;
             }
-            let mut pending = false;
+            let (mut crossed, mut cut) = (false, false);
             for i in 0..count {
                 let outcome = self.bodies[i].cut_within(&strip, &stroke, id, &self.cut_options)?;
                 match outcome {
                     super::cut::BladeOutcome::Missed => {}
-                    super::cut::BladeOutcome::Crossed => pending = true,
+                    super::cut::BladeOutcome::Crossed => crossed = true,
                     super::cut::BladeOutcome::Cut(c) => {
+                        cut = true;
                         self.add_cut(i, *c);
                     }
                 }
             }
-            // A strip that crossed a body without separating anything stays pending.
-            if !pending && let Some(inc) = self.incisions[t].as_mut() {
+            // Strips that crossed a body without separating anything stay pending, unless
+            // they cut another (they would cut that one again, wherever it moved).
+            if (cut || !crossed)
+                && let Some(inc) = self.incisions[t].as_mut()
+            {
                 inc.kept();
             }
         }

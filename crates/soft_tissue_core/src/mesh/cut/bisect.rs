@@ -103,8 +103,10 @@ impl Work {
             .iter()
             .map(|(&v, &d)| {
                 let snapped = d.abs() < snap * shortest[&v] || on_side.binary_search(&v).is_ok();
-                // A node this incision passed is on its plane wherever it moved since.
-                let on = d == 0.0 || self.on_incision(v) || (snapped && d.abs() <= reach);
+                // A node this incision passed is on its plane wherever it moved since, within
+                // an element (not the marks of another strip of a curved path).
+                let passed = self.on_incision(v) && d.abs() <= longest;
+                let on = d == 0.0 || passed || (snapped && d.abs() <= reach);
                 (v, on)
             })
             .collect();

@@ -293,14 +293,16 @@ pub fn recut_within(
     // neighbour, so a blade of several triangles cuts as one surface.
     // The faces of all the triangles separate together, so the front is the blade's
     // outline, not the lines between its triangles.
-    // The region bisects too, within two elements of the strip: an edge the tissue's
+    // The region bisects too, within two elements of the newest strip: an edge the tissue's
     // motion carried across the plane just behind the blade, after its strip passed, is
     // cut there (an edge from a node the incision passed does not cross: that node counts
     // as on the plane). Farther back the tissue is no longer where the blade was (a piece
     // falling through the plane is not cut by it).
     let all: Vec<CutTriangle> = blade.iter().chain(region).copied().collect();
     let element = mesh.bbox().diagonal() / (mesh.tet_count().max(1) as f64).cbrt();
-    let near = blade
+    // The newest strip: the last two triangles of the blade (its strips are in order).
+    let newest = &blade[blade.len().saturating_sub(2)..];
+    let near = newest
         .iter()
         .flat_map(|t| t.corners)
         .fold(None, |b: Option<(Vec3, Vec3)>, p| {
