@@ -62,12 +62,29 @@ pub fn extract_rotation(
     max_iterations
 }
 
+/// Whether `s` is symmetric (the iteration converged) and positive definite (its leading
+/// minors are > 0).
+fn stretch_is_positive_definite(s: &Matrix3<f64>) -> bool {
+    if (s - s.transpose()).norm() > 1e-9 * s.norm() {
+        return false;
+    }
+    let m = (s + s.transpose()) * 0.5;
+    let a = m[(0, 0)];
+    let b = m[(0, 0)] * m[(1, 1)] - m[(0, 1)] * m[(1, 0)];
+    a > 0.0 && b > 0.0 && m.determinant() > 0.0
+}
+
 /// The rotation of `f` from a cold start, iterated to convergence (for tests and one-off
 /// evaluations; steps use the warm-started [`extract_rotation`]).
 pub fn rotation_of(f: &Matrix3<f64>) -> Matrix3<f64> {
     let mut q = UnitQuaternion::identity();
     let mut r = Matrix3::identity();
     extract_rotation(f, &mut q, &mut r, 200, 1e-15);
+    // Where `R^T F` is positive definite, `R` is the rotation of the polar decomposition,
+    // the best there is (the usual case: a mildly deformed element).
+    if stretch_is_positive_definite(&(q.to_rotation_matrix().matrix().transpose() * f)) {
+        return *q.to_rotation_matrix().matrix();
+    }
     // A cold start may sit on a saddle (a half turn away); a second start from the found
     // rotation composed with each half turn picks the best.
     let mut best = q;
