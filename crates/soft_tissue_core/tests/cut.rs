@@ -229,7 +229,10 @@ fn a_cut_that_misses_changes_nothing_and_bad_blades_are_refused() {
     let e = cut(
         &before,
         &plane_x(0.1, (0.0, 1.0), (0.0, 1.0)),
-        &CutOptions { snap: 0.7 },
+        &CutOptions {
+            snap: 0.7,
+            ..Default::default()
+        },
     )
     .unwrap_err();
     assert!(e.to_string().contains("snap"), "{e}");
@@ -237,7 +240,10 @@ fn a_cut_that_misses_changes_nothing_and_bad_blades_are_refused() {
         let r = cut(
             &before,
             &plane_x(0.1, (0.0, 1.0), (0.0, 1.0)),
-            &CutOptions { snap },
+            &CutOptions {
+                snap,
+                ..Default::default()
+            },
         );
         assert!(r.is_err(), "snap {snap} accepted");
     }
@@ -253,6 +259,7 @@ fn a_blade_through_nodes_exactly_cuts_along_them() {
         &plane_x(0.2, (-0.1, 0.3), (-0.1, 0.3)),
         &CutOptions {
             snap: soft_tissue_core::mesh::cut::MIN_SNAP,
+            ..Default::default()
         },
     )
     .unwrap();

@@ -42,7 +42,8 @@ fn fuzz(name: &str, mesh: &TetMesh, strokes: usize, steps: usize, seed: u64) -> 
             let turn = Vec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5) * 0.3 * unit();
             heading = (heading + turn).normalize();
             tip += heading * speed;
-            let (strip, stroke) = incision.advance((tip, tip + along * length));
+            let stroke = incision.advance((tip, tip + along * length));
+            let (strip, mark) = incision.pending(0);
             if strip.is_empty() {
                 continue;
             }
@@ -78,11 +79,11 @@ fn fuzz(name: &str, mesh: &TetMesh, strokes: usize, steps: usize, seed: u64) -> 
                 );
                 mesh = after.mesh;
                 history = Some(after.history);
-                incision.kept();
+                incision.consumed(0, mark);
                 kept += 1;
             } else if after.bisected == 0 {
                 // The worlds' rule: only a strip that crossed stays pending.
-                incision.kept();
+                incision.consumed(0, mark);
             }
             // The tissue moves between the steps: a small smooth swirl.
             let amp = 1e-3 * d * unit();

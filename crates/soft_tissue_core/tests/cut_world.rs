@@ -9,7 +9,7 @@ use soft_tissue_core::boundary::Boundary;
 use soft_tissue_core::contact::{ContactConfig, Tool, ToolShape};
 use soft_tissue_core::heat::{HeatBoundary, HeatParams};
 use soft_tissue_core::material::{FemParams, MsdParams};
-use soft_tissue_core::mesh::cut::CutTriangle;
+use soft_tissue_core::mesh::cut::{CutOptions, CutTriangle};
 use soft_tissue_core::mesh::generate::block;
 use soft_tissue_core::precision::{BodySettings, Level, PreciseMethod};
 use soft_tissue_core::world::{SimBody, SoftTissueWorld, WorldConfig, WorldError};
@@ -362,7 +362,8 @@ fn an_incision_grown_over_steps_through_moving_tissue_cuts_as_one_stroke() {
         let mut incision = Incision::new(edge(-0.01));
         let mut separated = 0;
         for k in 1..=30 {
-            let (strip, stroke) = incision.advance(edge(-0.01 + 0.05 * k as f64 / 30.0));
+            let stroke = incision.advance(edge(-0.01 + 0.05 * k as f64 / 30.0));
+            let (strip, mark) = incision.pending(0);
             let c = recut_within(
                 &mesh,
                 history.as_ref(),
@@ -377,9 +378,9 @@ fn an_incision_grown_over_steps_through_moving_tissue_cuts_as_one_stroke() {
                 separated += c.separated;
                 mesh = c.mesh;
                 history = Some(c.history);
-                incision.kept();
+                incision.consumed(0, mark);
             } else if c.bisected == 0 {
-                incision.kept();
+                incision.consumed(0, mark);
             }
             // The tissue moves between the steps: a stretch along y.
             let moved = mesh
@@ -417,7 +418,8 @@ fn a_blade_moved_through_a_hanging_bar_step_by_step_cuts_it_in_two() {
 }
 
 /// The state after a blade cut a body (all its pieces) every step, on one thread and on
-/// two, and again after a reset: bit for bit the same.
+/// two, and again after a reset: bit for bit the same; also with the cuts prepared on
+/// threads of their own (whenever those threads ran, the cut lands at its step).
 #[test]
 fn cutting_is_bit_identical_on_one_and_two_threads_and_after_a_reset() {
     let run = |w: &mut SoftTissueWorld, t: usize| {
@@ -429,17 +431,117 @@ fn cutting_is_bit_identical_on_one_and_two_threads_and_after_a_reset() {
         assert_eq!(w.bodies().len(), 2);
         w.state_hash()
     };
-    let mut hashes = Vec::new();
-    for threads in [1, 2] {
-        let mut w = world_with(hanging_bar(PreciseMethod::CorotationalFem, 1.0));
-        w.set_threads(threads).unwrap();
-        let t = w.add_tool(Tool::new("scalpel", ToolShape::Blade { length: 0.06 }).unwrap());
-        hashes.push(run(&mut w, t));
-        w.reset().unwrap();
-        assert_eq!(w.bodies().len(), 1);
-        hashes.push(run(&mut w, t));
+    for background_steps in [0, 3] {
+        let mut hashes = Vec::new();
+        for threads in [1, 2] {
+            let mut w = world_with(hanging_bar(PreciseMethod::CorotationalFem, 1.0));
+            w.set_threads(threads).unwrap();
+            w.set_cut_options(CutOptions {
+                background_steps,
+                ..CutOptions::default()
+            })
+            .unwrap();
+            let t = w.add_tool(Tool::new("scalpel", ToolShape::Blade { length: 0.06 }).unwrap());
+            hashes.push(run(&mut w, t));
+            w.reset().unwrap();
+            assert_eq!(w.bodies().len(), 1);
+            hashes.push(run(&mut w, t));
+        }
+        assert!(
+            hashes.iter().all(|h| *h == hashes[0]),
+            "background {background_steps}: {hashes:x?}"
+        );
     }
-    assert!(hashes.iter().all(|h| *h == hashes[0]), "{hashes:x?}");
+}
+
+/// A cut prepared in the background lands exactly `background_steps` steps after the
+/// blade crossed the body; meanwhile the body steps on uncut. It then holds the state of
+/// the step it landed in (the bar, set moving once the cut began, is cut where it moved
+/// to), and the loose piece falls at g, with the mass and volume of the body.
+#[test]
+fn a_cut_prepared_in_the_background_lands_steps_later_in_the_state_then() {
+    let body = hanging_bar(PreciseMethod::CorotationalFem, 0.0);
+    let (mass, volume) = (total_mass(&body), body.mesh().volume());
+    let mut w = world_with(body);
+    w.set_cut_options(CutOptions {
+        background_steps: 4,
+        ..CutOptions::default()
+    })
+    .unwrap();
+    sweep_blade(&mut w, 0.055);
+    // Once the cut began, the bar is set moving sideways (a bar at rest would hand the same
+    // state at any step).
+    let v = 0.2;
+    for vel in w.bodies_mut()[0]
+        .body_mut()
+        .precise_mut()
+        .velocities_mut()
+        .iter_mut()
+    {
+        vel.x = v;
+    }
+    // The sweep's step began the cut; three steps after it, it is still one body.
+    for k in 1..4 {
+        w.step_fixed().unwrap();
+        assert_eq!(w.bodies().len(), 1, "landed early, {k} steps after");
+    }
+    let before: Vec<(Vec3, Vec3)> = {
+        let b = &w.bodies()[0];
+        b.mesh()
+            .positions()
+            .iter()
+            .copied()
+            .zip(b.body().node_positions().iter().copied())
+            .collect()
+    };
+    w.step_fixed().unwrap();
+    assert_eq!(w.bodies().len(), 2, "landed 4 steps after the sweep");
+    // The pieces hold the state of the step the cut landed in: each node of the loose piece
+    // that was a node of the bar moved by one step from where it was, not by four.
+    let lower = &w.bodies()[1];
+    let mut matched = 0;
+    for (rest, now) in lower
+        .mesh()
+        .positions()
+        .iter()
+        .zip(lower.body().node_positions())
+    {
+        if let Some((_, was)) = before.iter().find(|(r, _)| r == rest) {
+            matched += 1;
+            assert!(
+                (now - was).norm() < 1.5 * v * DT,
+                "a node moved {} in the landing step (one step at {v} is {})",
+                (now - was).norm(),
+                v * DT
+            );
+        }
+    }
+    assert!(
+        matched > 10,
+        "{matched} nodes of the bar found in the loose piece"
+    );
+    let (upper, lower) = (&w.bodies()[0], &w.bodies()[1]);
+    let m = total_mass(upper) + total_mass(lower);
+    let v = upper.mesh().volume() + lower.mesh().volume();
+    assert!(((m - mass) / mass).abs() < 1e-9 && ((v - volume) / volume).abs() < 1e-9);
+    let r = lower.cut_record().unwrap();
+    assert!(r.closed && r.mesh_us > 0.0 && r.build_us > 0.0, "{r:?}");
+    let n = 20;
+    let mut c = Vec::new();
+    for k in 0..=2 * n {
+        if k % n == 0 {
+            c.push(centre(&w.bodies()[1]));
+        }
+        if k < 2 * n {
+            w.step_fixed().unwrap();
+        }
+    }
+    let span = n as f64 * DT;
+    let a = (c[2] - 2.0 * c[1] + c[0]) / (span * span);
+    assert!(
+        (a.y - G).abs() < 0.02 * G && a.x.abs() < 0.02 * G && a.z.abs() < 0.02 * G,
+        "the loose piece accelerates at {a:?}, not g along +y"
+    );
 }
 
 /// A blade that nicks the bar (crossing it without separating anything), withdraws and

@@ -29,7 +29,7 @@ pub mod coupling;
 pub mod exchange;
 #[cfg(feature = "haply")]
 pub mod haply;
-mod priority;
+pub(crate) mod priority;
 mod recording;
 mod thread;
 

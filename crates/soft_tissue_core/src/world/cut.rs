@@ -1,21 +1,22 @@
-//! Cutting a simulated body (see `docs/cutting.md`).
+//! Cutting a simulated body (see `docs/cutting.md`): the blade's incision and what a cut
+//! leaves (`cut_job.rs` makes the cut).
 //!
-//! The blade cuts the body **where it is now**: the mesh in its current (deformed) shape is
-//! cut by [`crate::mesh::cut::recut`], so the wound follows the blade through the tissue as
-//! it lies. Every new node is a point of one tetrahedron before (its [`NodeOrigin`]
+//! The blade cuts the body **where it is when the cut begins**: the mesh in that (deformed)
+//! shape is cut by [`crate::mesh::cut::recut`], so the wound follows the blade through the
+//! tissue as it lies. Every new node is a point of one tetrahedron before (its [`NodeOrigin`]
 //! weights); the deformation is linear in each tetrahedron, so the same weights give its
-//! rest position, velocity, temperature and damage exactly. The body is then rebuilt on
-//! the cut rest mesh: the precise solver (its factor or preconditioner, springs and
-//! masses), the heat field, the contact surface and a cage of the new rest shape; it
-//! starts at its precise level in the state it was cut in, and drops to its cage once at
-//! rest as any body does (held precise until rest: the shape a cut body rests in is not
-//! known until it rests, and its cage keeps that shape). Each piece that came loose
-//! becomes a body of its own.
+//! rest position, and, when the cut lands (in the same step, or steps later when it was
+//! prepared in the background), its position, velocity, temperature and damage of that
+//! step exactly. The body is rebuilt on the cut rest mesh: the precise solver (its factor
+//! or preconditioner, springs and masses), the heat field, the contact surface and a cage
+//! of the new rest shape; it starts at its precise level in the state of the step the cut
+//! lands in, and drops to its cage once at rest as any body does (held precise until
+//! rest: the shape a cut body rests in is not known until it rests, and its cage keeps that
+//! shape). Each piece that came loose becomes a body of its own.
 
 use super::*;
 use crate::boundary::Boundary;
-use crate::mesh::cut::{CutOptions, CutTriangle, NodeOrigin, recut_within};
-use crate::mesh::pieces::pieces;
+use crate::mesh::cut::{CutTriangle, NodeOrigin};
 
 /// What a body made by cuts knows of them.
 #[derive(Debug, Clone, Default)]
@@ -39,10 +40,15 @@ pub struct CutRecord {
     pub closed: bool,
     /// Wall time of the last cut that made this body, microseconds: the change of the
     /// mesh (its state, the cut, the pieces) and the build of the bodies (solvers, heat,
-    /// contact surface, cage) of all its pieces.
+    /// contact surface, cage) of all its pieces. Where the cut was prepared on a thread
+    /// of its own ([`crate::mesh::cut::CutOptions::background_steps`]) that thread spent them, not a step.
     pub mesh_us: f64,
     /// See [`CutRecord::mesh_us`].
     pub build_us: f64,
+    /// What the step the cut landed in spent on it, microseconds: waiting for the thread
+    /// that prepared it (0 when it was ready, or when it was prepared in the step) and
+    /// handing the body's state now to its pieces.
+    pub land_us: f64,
 }
 
 /// What one blade sweep did to one body ([`SimBody::cut_within`]).
@@ -75,21 +81,29 @@ pub struct BladeCut {
 }
 
 /// The surface a blade has swept since its cutting turned on. Each step's strip (from the
-/// edge's last place to its place now) is kept until a cut that separates something (or a
-/// step whose strips cross nothing), and the strips kept bisect what they cross, where the
-/// tissue is now: the path the blade took, step by step. While the blade moves in one plane
-/// (a straight stroke) the whole stroke, one quadrilateral from where it began to where the
+/// edge's last place to its place now) stays pending for each body until a cut of that body
+/// separates something or finds nothing to cut (a strip that crossed the body without
+/// separating anything stays, so it bisects its part again where the tissue then is): the
+/// path the blade took, step by step, per body. While the blade moves in one plane (a
+/// straight stroke) the whole stroke, one quadrilateral from where it began to where the
 /// edge is now, is where faces on that plane are separated, so a face wider than one step's
 /// strip (a strip is far narrower than an element) is cut once the strip that completes it
 /// has passed. A turn out of the plane starts a new stroke.
+///
+/// Bodies are told apart by a key of the caller's (the world's body index, the plugin's
+/// entity). A body first seen has every strip still kept pending; a cut's pieces start with
+/// none of the strips that cut them ([`Incision::consumed`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Incision {
     id: u64,
     start: (Vec3, Vec3),
     last: (Vec3, Vec3),
-    /// The strips swept since the last cut that separated something (or crossed nothing),
-    /// step by step: the path the blade took, not a straight line.
-    pending: Vec<CutTriangle>,
+    /// The strips swept so far, oldest first (at most `2 MAX_PENDING` triangles); the
+    /// first has number `first`.
+    strips: Vec<CutTriangle>,
+    first: u64,
+    /// Per body key, the number of the first strip still pending for it.
+    from: Vec<(u64, u64)>,
 }
 
 /// Most strips an incision keeps pending (a blade that crosses a body for this many steps
@@ -104,45 +118,73 @@ impl Incision {
             id: NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
             start: edge,
             last: edge,
-            pending: Vec::new(),
+            strips: Vec::new(),
+            first: 0,
+            from: Vec::new(),
         }
     }
 
-    /// The blade edge moved to `edge`: what to cut with now, as `(strips, region)`: the
-    /// strips swept step by step since the last cut that separated something (which bisect:
-    /// a cut that separates nothing is not kept, so its bisections are made again, where
-    /// the tissue is now) and the stroke so far (where faces on the strips' plane are
-    /// separated; see [`crate::mesh::cut::recut_within`]).
-    pub fn advance(&mut self, edge: (Vec3, Vec3)) -> (Vec<CutTriangle>, Vec<CutTriangle>) {
+    /// The blade edge moved to `edge`: its strip is added, and the stroke so far is
+    /// returned (where faces on the strips' plane are separated; see
+    /// [`crate::mesh::cut::recut_within`]). What each body is cut with is
+    /// [`Incision::pending`].
+    pub fn advance(&mut self, edge: (Vec3, Vec3)) -> Vec<CutTriangle> {
         let (a0, b0) = self.start;
         let stroke = swept_triangles(a0, b0, self.last.0, self.last.1);
         if !stroke.is_empty() && !self.in_plane(edge) {
             // A new stroke (the pending strips stay: they are the path the blade took).
             self.start = self.last;
         }
-        self.pending
+        self.strips
             .extend(swept_triangles(self.last.0, self.last.1, edge.0, edge.1));
-        let over = self.pending.len().saturating_sub(2 * MAX_PENDING);
-        self.pending.drain(..over);
+        let over = self.strips.len().saturating_sub(2 * MAX_PENDING);
+        self.strips.drain(..over);
+        self.first += over as u64;
         self.last = edge;
         let (a0, b0) = self.start;
-        (
-            self.pending.clone(),
-            swept_triangles(a0, b0, edge.0, edge.1),
-        )
+        swept_triangles(a0, b0, edge.0, edge.1)
+    }
+
+    /// The strips pending for body `key` (swept step by step since its last cut that
+    /// separated something or found nothing to cut), and the mark to hand to
+    /// [`Incision::consumed`] once a cut with them is done.
+    pub fn pending(&self, key: u64) -> (Vec<CutTriangle>, u64) {
+        let end = self.first + self.strips.len() as u64;
+        let from = self.first_pending(key).max(self.first);
+        (self.strips[(from - self.first) as usize..].to_vec(), end)
+    }
+
+    /// A cut of body `key` with the strips [`Incision::pending`] gave with `mark`
+    /// separated something (the body and each of its new pieces are consumed) or found
+    /// nothing to cut: those strips are no longer pending for it (a strip that crossed
+    /// without separating anything is kept instead: it cuts again where the tissue then is).
+    pub fn consumed(&mut self, key: u64, mark: u64) {
+        match self.from.iter_mut().find(|(k, _)| *k == key) {
+            Some((_, from)) => *from = (*from).max(mark),
+            None => self.from.push((key, mark)),
+        }
+    }
+
+    /// Body `child` was made by a cut of body `parent` (a piece that came loose): the strips
+    /// pending for it are the parent's (not every strip kept, as for a body first seen).
+    pub fn inherit(&mut self, parent: u64, child: u64) {
+        let from = self.first_pending(parent);
+        match self.from.iter_mut().find(|(k, _)| *k == child) {
+            Some((_, f)) => *f = from,
+            None => self.from.push((child, from)),
+        }
+    }
+
+    fn first_pending(&self, key: u64) -> u64 {
+        self.from
+            .iter()
+            .find(|(k, _)| *k == key)
+            .map_or(0, |&(_, from)| from)
     }
 
     /// A number no other incision of this process has (what marks the nodes it passed).
     pub fn id(&self) -> u64 {
         self.id
-    }
-
-    /// The cut of the last [`Incision::advance`] separated something and was kept, or its
-    /// strip crossed nothing: the next strip starts at the edge's place now. (Only a strip
-    /// that crossed a body without separating anything stays pending, so the next one
-    /// bisects its part again where the tissue then is.)
-    pub fn kept(&mut self) {
-        self.pending.clear();
     }
 
     /// Whether `edge` lies in the plane of the stroke so far (within 1e-6 of its size).
@@ -194,320 +236,6 @@ impl SimBody {
     /// The cuts this body came from, if any.
     pub fn cut_record(&self) -> Option<&CutRecord> {
         self.cut.as_ref()
-    }
-
-    /// Cuts the body along `blade` (triangles in scene coordinates, where the body is now).
-    /// Returns `None` when nothing was separated (the body is unchanged). Otherwise the body
-    /// becomes the piece holding most of its fixed nodes (the largest when none is fixed),
-    /// each other piece is returned as a new body named `NAME.k`, and every piece is at its
-    /// precise level in the state the body was cut in (see the module docs). A refused cut
-    /// leaves the body as it was.
-    pub fn cut(
-        &mut self,
-        blade: &[CutTriangle],
-        options: &CutOptions,
-    ) -> Result<Option<BladeCut>, WorldError> {
-        Ok(match self.cut_within(blade, &[], 0, options)? {
-            BladeOutcome::Cut(c) => Some(*c),
-            _ => None,
-        })
-    }
-
-    /// [`SimBody::cut`] by the pending strips `blade` of incision `incision` ([`Incision::id`])
-    /// whose stroke so far is `region` (see [`crate::mesh::cut::recut_within`]).
-    pub fn cut_within(
-        &mut self,
-        blade: &[CutTriangle],
-        region: &[CutTriangle],
-        incision: u64,
-        options: &CutOptions,
-    ) -> Result<BladeOutcome, WorldError> {
-        let err = |b: &SimBody, reason: String| WorldError::Cut {
-            body: b.label(),
-            reason,
-        };
-        crate::mesh::cut::check_blade(blade)
-            .and_then(|_| crate::mesh::cut::check_blade(region))
-            .map_err(|e| err(self, e.to_string()))?;
-        if blade.is_empty() || !self.blade_reaches(blade) {
-            return Ok(BladeOutcome::Missed);
-        }
-        // From here a failure is the shape's, not the blade's: the body is passed by this
-        // step, as it is (a warning names why).
-        let skip = |b: &SimBody, why: String| {
-            log::warn!("body `{}`: not cut this step: {why}", b.name);
-            Ok(BladeOutcome::Missed)
-        };
-        let started = std::time::Instant::now();
-        let (x, v) = self.body.node_state().map_err(|e| self.precision_err(e))?;
-        let tets: Vec<[usize; 4]> = self
-            .mesh
-            .tets()
-            .iter()
-            .map(|t| t.map(|i| i as usize))
-            .collect();
-        let now = match TetMesh::new(x.clone(), tets) {
-            Ok(m) => m,
-            Err(e) => return skip(self, format!("its shape now: {e}")),
-        };
-        if now
-            .warnings()
-            .iter()
-            .any(|w| matches!(w, crate::mesh::MeshWarning::Reoriented { .. }))
-        {
-            // Where its elements are turned inside out the body has no shape to cut along.
-            return skip(
-                self,
-                "some tetrahedra are inverted in the shape it is in".into(),
-            );
-        }
-        let history = self.cut.as_ref().map(|c| &c.history);
-        let cut = match recut_within(&now, history, blade, region, incision, options) {
-            Ok(c) => c,
-            Err(e) => return skip(self, e.to_string()),
-        };
-        if cut.separated == 0 {
-            return Ok(if cut.bisected > 0 {
-                BladeOutcome::Crossed
-            } else {
-                BladeOutcome::Missed
-            });
-        }
-        // Every field of the body before, carried to the new nodes.
-        let origins = &cut.node_origin;
-        let carry = |field: &[Vec3]| -> Vec<Vec3> {
-            origins.iter().map(|o| o.interpolate(field)).collect()
-        };
-        let rest_all = carry(self.mesh.positions());
-        let v_all = carry(&v);
-        let x_all = cut.mesh.positions().to_vec();
-        let heat_all = self.heat.as_ref().map(|h| {
-            let t: Vec<f64> = origins
-                .iter()
-                .map(|o| o.interpolate(h.temperatures()))
-                .collect();
-            let d: Vec<f64> = origins.iter().map(|o| o.interpolate(h.damage())).collect();
-            (t, d)
-        });
-        let parts = match pieces(&cut.mesh) {
-            Ok(p) => p,
-            Err(e) => return skip(self, format!("its pieces: {e}")),
-        };
-        let mut build_us = 0.0;
-        let settings = self.body.settings().clone();
-        let old_volumes = lumped_volumes(&self.mesh);
-        let held = held_axes(&settings.boundary, self.mesh.node_count());
-        let origin = self.cut.as_ref().map_or_else(
-            || (self.name.clone(), self.mesh.volume(), 0),
-            |c| (c.origin.clone(), c.origin_volume, c.cuts),
-        );
-        // The body keeps the piece with most fixed nodes, then the largest.
-        let fixed_count = |p: &crate::mesh::pieces::Piece| {
-            p.nodes
-                .iter()
-                .filter(|&&n| fixed_axes(&held, &origins[n as usize]).is_some())
-                .count()
-        };
-        let keep = (0..parts.len())
-            .max_by(|&a, &b| {
-                (fixed_count(&parts[a]), parts[a].mesh.volume())
-                    .partial_cmp(&(fixed_count(&parts[b]), parts[b].mesh.volume()))
-                    .unwrap_or(std::cmp::Ordering::Equal)
-            })
-            .unwrap_or(0);
-        let mut order: Vec<usize> = vec![keep];
-        order.extend((0..parts.len()).filter(|&k| k != keep));
-        let mut built = Vec::with_capacity(parts.len());
-        let mut node_map = vec![(u32::MAX, u32::MAX); self.mesh.node_count()];
-        for (slot, &k) in order.iter().enumerate() {
-            let part = &parts[k];
-            let rest: Vec<Vec3> = part.nodes.iter().map(|&n| rest_all[n as usize]).collect();
-            let corners: Vec<[usize; 4]> = part
-                .mesh
-                .tets()
-                .iter()
-                .map(|t| t.map(|i| i as usize))
-                .collect();
-            let mesh = match TetMesh::new(rest, corners) {
-                Ok(m) => m,
-                Err(e) => return skip(self, format!("a piece's rest shape: {e}")),
-            };
-            if mesh
-                .warnings()
-                .iter()
-                .any(|w| matches!(w, crate::mesh::MeshWarning::Reoriented { .. }))
-            {
-                return skip(self, "a piece's rest tetrahedron would be inverted".into());
-            }
-            let new_volumes = lumped_volumes(&mesh);
-            let mut piece_settings = settings.clone();
-            // Masses are given per body: each piece takes its share by volume.
-            let share = mesh.volume() / self.mesh.volume();
-            piece_settings.fem.mass *= share;
-            piece_settings.msd.mass *= share;
-            piece_settings.cage_msd.mass *= share;
-            // The MSD's damping is per node: the same damping rate on nodes of the piece's
-            // mass (its share of the mass over its nodes, against the body's per node).
-            let per_node = share * self.mesh.node_count() as f64 / mesh.node_count() as f64;
-            piece_settings.msd.damping *= per_node;
-            piece_settings.cage_msd.damping *= share;
-            piece_settings.boundary = carried_boundary(
-                &settings.boundary,
-                &held,
-                origins,
-                &part.nodes,
-                &old_volumes,
-                &new_volumes,
-            );
-            let heat = self.heat.as_ref().map(|h| {
-                let fixed = carried_heat_boundary(
-                    &self.heat_boundary,
-                    origins,
-                    &part.nodes,
-                    self.mesh.node_count(),
-                );
-                (*h.params(), fixed)
-            });
-            let name = if slot == 0 {
-                self.name.clone()
-            } else {
-                format!("{}.{}", self.name, self.pieces_made + slot)
-            };
-            let building = std::time::Instant::now();
-            let mut body = match SimBody::build(name, Arc::new(mesh), piece_settings, heat, false) {
-                Ok(b) => b,
-                Err(e) => return skip(self, format!("building a piece: {e}")),
-            };
-            build_us += building.elapsed().as_secs_f64() * 1e6;
-            let xp: Vec<Vec3> = part.nodes.iter().map(|&n| x_all[n as usize]).collect();
-            let vp: Vec<Vec3> = part.nodes.iter().map(|&n| v_all[n as usize]).collect();
-            body.body
-                .pin(self.body.pinned())
-                .map_err(|e| body.precision_err(e))?;
-            body.body
-                .start_precise(&xp, &vp)
-                .map_err(|e| body.precision_err(e))?;
-            if let (Some(h), Some((t, d))) = (body.heat.as_mut(), heat_all.as_ref()) {
-                let nodes = &part.nodes;
-                let r = h
-                    .set_temperatures(|i| t[nodes[i] as usize])
-                    .and_then(|_| h.set_damage(|i| d[nodes[i] as usize]));
-                r.map_err(|source| WorldError::Heat {
-                    body: body.label(),
-                    source,
-                })?;
-            }
-            body.friction = self.friction;
-            // What was set at run time beyond the settings.
-            body.body
-                .set_precise_cg_must_converge(self.body.cg_must_converge());
-            if self.body.has_shadow() {
-                body.set_shadow(true)?;
-            }
-            let history = crate::mesh::cut::CutHistory {
-                sides: part
-                    .tets
-                    .iter()
-                    .map(|&t| cut.history.sides[t as usize])
-                    .collect(),
-                on_blade: part
-                    .nodes
-                    .iter()
-                    .map(|&n| cut.history.on_blade[n as usize])
-                    .collect(),
-            };
-            body.cut = Some(CutRecord {
-                origin: origin.0.clone(),
-                origin_volume: origin.1,
-                cuts: origin.2 + 1,
-                ..CutRecord::default()
-            });
-            body.finish_cut_record(history);
-            body.collider.gather(body.body.node_positions());
-            body.start.copy_from_slice(body.collider.positions());
-            body.write_surface()?;
-            for (local, &n) in part.nodes.iter().enumerate() {
-                if let Some(o) = single_node(&origins[n as usize]) {
-                    let slot_map = &mut node_map[o as usize];
-                    if slot_map.0 == u32::MAX {
-                        *slot_map = (slot as u32, local as u32);
-                    }
-                }
-            }
-            built.push(body);
-        }
-        let whole_us = started.elapsed().as_secs_f64() * 1e6;
-        for b in &mut built {
-            if let Some(r) = b.cut.as_mut() {
-                r.mesh_us = whole_us - build_us;
-                r.build_us = build_us;
-            }
-        }
-        let mut built = built.into_iter();
-        let kept = built.next().expect("a cut leaves at least one piece");
-        let made = self.pieces_made + order.len() - 1;
-        let loose = self.loose;
-        let previous = Box::new(std::mem::replace(self, kept));
-        self.pieces_made = made;
-        self.loose = loose;
-        let mut pieces: Vec<SimBody> = built.collect();
-        for p in &mut pieces {
-            p.loose = true;
-        }
-        Ok(BladeOutcome::Cut(Box::new(BladeCut {
-            separated: cut.separated,
-            bisected: cut.bisected,
-            pieces,
-            node_map,
-            previous,
-        })))
-    }
-
-    /// Whether the blade's bounds meet the body's (a cheap test before the cut).
-    fn blade_reaches(&self, blade: &[CutTriangle]) -> bool {
-        let Some(b) = crate::mesh::Aabb::from_points(self.body.node_positions()) else {
-            return false;
-        };
-        let mut lo = Vec3::repeat(f64::INFINITY);
-        let mut hi = Vec3::repeat(f64::NEG_INFINITY);
-        for t in blade {
-            for c in &t.corners {
-                lo = lo.inf(c);
-                hi = hi.sup(c);
-            }
-        }
-        (0..3).all(|a| lo[a] <= b.max[a] && hi[a] >= b.min[a])
-    }
-
-    /// Fills the record's per-face and per-body figures from `sides`.
-    fn finish_cut_record(&mut self, history: crate::mesh::cut::CutHistory) {
-        let sides = &history.sides;
-        let surface = self.mesh.surface();
-        let p = self.mesh.positions();
-        let mut faces = Vec::new();
-        let mut area = 0.0;
-        for (k, &(t, corner)) in surface.triangle_tets().iter().enumerate() {
-            if sides[t as usize][corner as usize] {
-                faces.push(k as u32);
-                let [a, b, c] = surface.triangles()[k].map(|i| p[i as usize]);
-                area += 0.5 * (b - a).cross(&(c - a)).norm();
-            }
-        }
-        let mut smallest = f64::INFINITY;
-        for tet in self.mesh.tets() {
-            let corners = tet.map(|i| p[i as usize]);
-            for a in crate::mesh::tet_dihedral_angles(&corners) {
-                smallest = smallest.min(a);
-            }
-        }
-        let closed = surface_closed(surface.triangles());
-        if let Some(r) = self.cut.as_mut() {
-            r.history = history;
-            r.surface_faces = faces;
-            r.area = area;
-            r.smallest_dihedral_deg = smallest;
-            r.closed = closed;
-        }
     }
 }
 
@@ -561,7 +289,7 @@ pub fn remap_grips<T: BorrowMut<Tool>, B: Borrow<SimBody>>(
 }
 
 /// Whether every edge of `triangles` is in exactly two of them.
-fn surface_closed(triangles: &[[u32; 3]]) -> bool {
+pub(super) fn surface_closed(triangles: &[[u32; 3]]) -> bool {
     let mut edges: Vec<(u32, u32)> = triangles
         .iter()
         .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
@@ -583,7 +311,7 @@ fn surface_closed(triangles: &[[u32; 3]]) -> bool {
 }
 
 /// A quarter of the volume of every tetrahedron around each node.
-fn lumped_volumes(mesh: &TetMesh) -> Vec<f64> {
+pub(super) fn lumped_volumes(mesh: &TetMesh) -> Vec<f64> {
     let mut out = vec![0.0; mesh.node_count()];
     for (t, v) in mesh.tets().iter().zip(mesh.tet_volumes()) {
         for &i in t {
@@ -594,12 +322,12 @@ fn lumped_volumes(mesh: &TetMesh) -> Vec<f64> {
 }
 
 /// The node an origin is, when it is one node of the mesh before as it was.
-fn single_node(o: &NodeOrigin) -> Option<u32> {
+pub(super) fn single_node(o: &NodeOrigin) -> Option<u32> {
     (o.weights[0] == 1.0).then_some(o.nodes[0])
 }
 
 /// The axes a boundary holds at each of `n` nodes.
-fn held_axes(b: &Boundary, n: usize) -> Vec<[bool; 3]> {
+pub(super) fn held_axes(b: &Boundary, n: usize) -> Vec<[bool; 3]> {
     let mut out = vec![[false; 3]; n];
     for &(node, axes) in &b.fixed {
         if node < n {
@@ -612,7 +340,7 @@ fn held_axes(b: &Boundary, n: usize) -> Vec<[bool; 3]> {
 }
 
 /// The axes held at a new node: those held at every node it was made from.
-fn fixed_axes(held: &[[bool; 3]], o: &NodeOrigin) -> Option<[bool; 3]> {
+pub(super) fn fixed_axes(held: &[[bool; 3]], o: &NodeOrigin) -> Option<[bool; 3]> {
     let mut axes = [true; 3];
     for k in 0..4 {
         if o.weights[k] != 0.0 {
@@ -628,7 +356,7 @@ fn fixed_axes(held: &[[bool; 3]], o: &NodeOrigin) -> Option<[bool; 3]> {
 /// The supports of a piece: fixed axes held by every node a new node was made from, and
 /// anchors' stiffness per volume carried by the weights (a soft anchor standing for tissue
 /// around the node holds a share of the node's volume).
-fn carried_boundary(
+pub(super) fn carried_boundary(
     b: &Boundary,
     held: &[[bool; 3]],
     origins: &[NodeOrigin],
@@ -660,7 +388,7 @@ fn carried_boundary(
 
 /// The heat field's fixed temperatures of a piece: a new node made only from fixed nodes
 /// is fixed at its weighted temperature.
-fn carried_heat_boundary(
+pub(super) fn carried_heat_boundary(
     b: &HeatBoundary,
     origins: &[NodeOrigin],
     nodes: &[u32],

@@ -8,7 +8,7 @@
 //! ```
 //!
 //! - cut: every blade with cutting on cuts the bodies its incision crosses
-//!   ([`SimBody::cut_within`]); pieces that come loose are added as bodies (see
+//!   ([`SimBody::cut_within`], in the step or on a thread of its own: [`SimBody::begin_cut`]); pieces that come loose are added as bodies (see
 //!   `docs/cutting.md`).
 //! - [`prepare`]: tool velocities from their poses, body surfaces and bounds gathered.
 //! - [`detect_contacts`]: broad phase, tool and body narrow phases on the positions at the
@@ -27,12 +27,14 @@
 
 mod body;
 mod cut;
+mod cut_job;
 mod scene;
 mod script;
 mod soft_world;
 
 pub use body::{SETTLE_STEPS, SimBody};
 pub use cut::{BladeCut, BladeOutcome, CutRecord, Incision, remap_grips, swept_triangles};
+pub use cut_job::CutJob;
 pub use soft_world::SoftTissueWorld;
 
 pub use crate::contact::{ContactState, ContactStats, detect_contacts, solve_contacts};

@@ -22,6 +22,21 @@ pub struct SoftTissueWorld {
     uncut: Vec<(usize, SimBody)>,
     /// Each tool's incision while it cuts.
     incisions: Vec<Option<super::cut::Incision>>,
+    /// Cuts being prepared on threads of their own, in the order they began.
+    in_flight: Vec<InFlight>,
+}
+
+/// A cut being prepared ([`crate::mesh::cut::CutOptions::background_steps`]).
+#[derive(Debug)]
+struct InFlight {
+    body: usize,
+    tool: usize,
+    incision: u64,
+    /// The incision's mark of the strips it cuts with.
+    mark: u64,
+    /// The step it lands in.
+    due: u64,
+    job: super::CutJob,
 }
 
 impl SoftTissueWorld {
@@ -54,6 +69,7 @@ impl SoftTissueWorld {
             cut_options: Default::default(),
             uncut: Vec::new(),
             incisions: Vec::new(),
+            in_flight: Vec::new(),
         })
     }
 
@@ -130,50 +146,126 @@ impl SoftTissueWorld {
             made.push(self.bodies.len());
             self.bodies.push(p);
         }
+        // Every blade's strips pending for the body are pending for its pieces too.
+        for inc in self.incisions.iter_mut().flatten() {
+            for &p in &made {
+                inc.inherit(index as u64, p as u64);
+            }
+        }
         super::cut::remap_grips(&mut self.tools, &self.bodies, index, &node_map, first);
         made
     }
 
     /// The cut stage: every blade with cutting on cuts the bodies its edge crossed since the
-    /// last step.
+    /// last step. With [`crate::mesh::cut::CutOptions::background_steps`] above 0, a cut is
+    /// prepared on a thread of its own and lands that many steps later (in the order the
+    /// cuts began); a body being cut is not cut again before its cut lands.
     fn cut_stage(&mut self) -> Result<(), WorldError> {
         self.incisions.resize(self.tools.len(), None);
+        let cutting = |t: &Tool| t.cutting() && t.blade_sweep().is_some();
+        if self.in_flight.is_empty() && !self.tools.iter().any(cutting) {
+            // Nothing to cut (and nothing allocated for it).
+            self.incisions.iter_mut().for_each(|i| *i = None);
+            return Ok(());
+        }
         // Bodies made by this stage are not cut again in it.
         let count = self.bodies.len();
+        let mut strokes: Vec<Option<Vec<crate::mesh::cut::CutTriangle>>> =
+            Vec::with_capacity(self.tools.len());
         for t in 0..self.tools.len() {
             let tool = &self.tools[t];
             let sweep = tool.blade_sweep().filter(|_| tool.cutting());
             let Some([from, to]) = sweep else {
                 self.incisions[t] = None;
+                strokes.push(None);
                 continue;
             };
             let incision = self.incisions[t].get_or_insert_with(|| super::cut::Incision::new(from));
-            let id = incision.id();
-            let (strip, stroke) = incision.advance(to);
-            if strip.is_empty() {
+            strokes.push(Some(incision.advance(to)));
+        }
+        // Cuts due land first.
+        let mut k = 0;
+        while k < self.in_flight.len() {
+            if self.in_flight[k].due > self.steps {
+                k += 1;
                 continue;
             }
-            let (mut crossed, mut cut) = (false, false);
+            let f = self.in_flight.remove(k);
+            let outcome = self.bodies[f.body].finish_cut(f.job)?;
+            self.cut_landed(f.tool, f.incision, f.body, f.mark, outcome);
+        }
+        let background = self.cut_options.background_steps;
+        for (t, stroke) in strokes.iter().enumerate() {
+            let Some(stroke) = stroke else { continue };
             for i in 0..count {
-                let outcome = self.bodies[i].cut_within(&strip, &stroke, id, &self.cut_options)?;
-                match outcome {
-                    super::cut::BladeOutcome::Missed => {}
-                    super::cut::BladeOutcome::Crossed => crossed = true,
-                    super::cut::BladeOutcome::Cut(c) => {
-                        cut = true;
-                        self.add_cut(i, *c);
-                    }
+                if self.in_flight.iter().any(|f| f.body == i) {
+                    continue;
                 }
-            }
-            // Strips that crossed a body without separating anything stay pending, unless
-            // they cut another (they would cut that one again, wherever it moved).
-            if (cut || !crossed)
-                && let Some(inc) = self.incisions[t].as_mut()
-            {
-                inc.kept();
+                let Some(inc) = self.incisions[t].as_ref() else {
+                    break;
+                };
+                let id = inc.id();
+                let (strips, mark) = inc.pending(i as u64);
+                if strips.is_empty() {
+                    continue;
+                }
+                let job = self.bodies[i].begin_cut(
+                    &strips,
+                    stroke,
+                    id,
+                    &self.cut_options,
+                    background > 0,
+                )?;
+                match job {
+                    None => self.cut_landed(t, id, i, mark, super::BladeOutcome::Missed),
+                    Some(job) if background == 0 => {
+                        let outcome = self.bodies[i].finish_cut(job)?;
+                        self.cut_landed(t, id, i, mark, outcome);
+                    }
+                    Some(job) => self.in_flight.push(InFlight {
+                        body: i,
+                        tool: t,
+                        incision: id,
+                        mark,
+                        due: self.steps + background as u64,
+                        job,
+                    }),
+                }
             }
         }
         Ok(())
+    }
+
+    /// A cut of body `body` by tool `tool`'s incision `incision` with its strips up to
+    /// `mark` came to `outcome`: the pieces are added, and the strips are no longer pending
+    /// for the body and its pieces unless they crossed it without separating anything.
+    fn cut_landed(
+        &mut self,
+        tool: usize,
+        incision: u64,
+        body: usize,
+        mark: u64,
+        outcome: super::BladeOutcome,
+    ) {
+        let made = match outcome {
+            super::BladeOutcome::Crossed => return,
+            super::BladeOutcome::Missed => Vec::new(),
+            super::BladeOutcome::Cut(c) => self.add_cut(body, *c),
+        };
+        if let Some(Some(inc)) = self.incisions.get_mut(tool)
+            && inc.id() == incision
+        {
+            inc.consumed(body as u64, mark);
+            for p in made {
+                inc.consumed(p as u64, mark);
+            }
+        }
+    }
+
+    /// Cuts being prepared on threads of their own (see
+    /// [`crate::mesh::cut::CutOptions::background_steps`]).
+    pub fn cuts_in_flight(&self) -> usize {
+        self.in_flight.len()
     }
 
     /// Settings.
@@ -402,6 +494,8 @@ impl SoftTissueWorld {
         }
         self.bodies.retain(|b| !b.loose);
         self.incisions.clear();
+        // Cuts being prepared are dropped (their threads end on their own).
+        self.in_flight.clear();
         for b in &mut self.bodies {
             b.reset()?;
         }

@@ -61,6 +61,13 @@ pub struct CutOptions {
     /// instead of bisecting (in `[0.01, 0.5)`; larger keeps children fatter, smaller follows
     /// the blade more closely).
     pub snap: f64,
+    /// Steps a world's cut is prepared for on a thread of its own before it lands (0: it
+    /// is made within the step the blade crossed the body). The mesh change and the build
+    /// of the cut body's solvers, heat, contact surface and cage then take no step's time:
+    /// the body steps on as it was meanwhile, and the step `background_steps` later hands
+    /// its state at that step to the cut body (waiting for the thread if it is not done,
+    /// which keeps runs the same whatever the machine's speed). Meshes ignore it.
+    pub background_steps: u32,
 }
 
 /// A piece a cut would make of fewer tetrahedra than this, or one element thick along the
@@ -72,7 +79,10 @@ pub const MIN_SNAP: f64 = 0.01;
 
 impl Default for CutOptions {
     fn default() -> Self {
-        CutOptions { snap: 0.3 }
+        CutOptions {
+            snap: 0.3,
+            background_steps: 0,
+        }
     }
 }
 

@@ -1,0 +1,575 @@
+//! A cut in two halves: [`SimBody::begin_cut`] takes what the cut needs of the body (its
+//! rest mesh, its shape now, its settings, heat and cut history) and prepares the cut mesh
+//! and the bodies of its pieces, in the step or on a thread of its own; [`SimBody::finish_cut`]
+//! lands it, handing the body's state at that step to the pieces. Preparing is a pure
+//! function of what was taken, so a cut lands the same whenever its thread ran.
+
+use super::cut::{
+    CutRecord, carried_boundary, carried_heat_boundary, fixed_axes, held_axes, lumped_volumes,
+    single_node, surface_closed,
+};
+use super::*;
+use crate::mesh::cut::{CutHistory, CutOptions, CutTriangle, NodeOrigin, recut_within};
+use crate::mesh::pieces::pieces;
+
+/// A cut begun by [`SimBody::begin_cut`], to land with [`SimBody::finish_cut`].
+#[derive(Debug)]
+pub struct CutJob {
+    /// The body's rest mesh and settings when it began: a body built again since is not
+    /// the one the cut was prepared for.
+    mesh: Arc<TetMesh>,
+    settings: BodySettings,
+    heat: Option<(HeatParams, HeatBoundary)>,
+    work: Work,
+}
+
+#[derive(Debug)]
+enum Work {
+    Ready(Prepared),
+    /// The thread, and its native id once it has one (to raise it from idle priority when
+    /// a step must wait for it).
+    Thread(
+        std::thread::JoinHandle<Prepared>,
+        Arc<std::sync::atomic::AtomicU64>,
+    ),
+}
+
+impl CutJob {
+    /// Whether its preparation is done (landing it does not wait).
+    pub fn is_ready(&self) -> bool {
+        match &self.work {
+            Work::Ready(_) => true,
+            Work::Thread(h, _) => h.is_finished(),
+        }
+    }
+}
+
+/// What a cut needs of its body, taken when it began.
+struct Input {
+    name: String,
+    mesh: Arc<TetMesh>,
+    x: Vec<Vec3>,
+    settings: BodySettings,
+    heat: Option<(HeatParams, HeatBoundary)>,
+    history: Option<CutHistory>,
+    origin: (String, f64, u32),
+    pieces_made: usize,
+    blade: Vec<CutTriangle>,
+    region: Vec<CutTriangle>,
+    incision: u64,
+    options: CutOptions,
+}
+
+/// A prepared cut.
+#[derive(Debug)]
+enum Prepared {
+    /// Nothing to cut (a warning said why, where the shape could not be cut).
+    Missed,
+    /// Crossed, nothing separated.
+    Crossed,
+    Cut(Box<PreparedCut>),
+}
+
+#[derive(Debug)]
+struct PreparedCut {
+    separated: usize,
+    bisected: usize,
+    /// Each node of the cut mesh as a point of a tetrahedron before.
+    origins: Vec<NodeOrigin>,
+    /// Each piece's nodes (cut mesh indices) and its body, at rest; the kept piece first.
+    parts: Vec<(Vec<u32>, SimBody)>,
+    node_map: Vec<(u32, u32)>,
+}
+
+impl SimBody {
+    /// Cuts the body along `blade` (triangles in scene coordinates, where the body is now).
+    /// Returns `None` when nothing was separated (the body is unchanged). Otherwise the body
+    /// becomes the piece holding most of its fixed nodes (the largest when none is fixed),
+    /// each other piece is returned as a new body named `NAME.k`, and every piece is at its
+    /// precise level in the state the body was cut in (see the module docs). A refused cut
+    /// leaves the body as it was.
+    pub fn cut(
+        &mut self,
+        blade: &[CutTriangle],
+        options: &CutOptions,
+    ) -> Result<Option<BladeCut>, WorldError> {
+        Ok(match self.cut_within(blade, &[], 0, options)? {
+            BladeOutcome::Cut(c) => Some(*c),
+            _ => None,
+        })
+    }
+
+    /// [`SimBody::cut`] by the pending strips `blade` of incision `incision` ([`Incision::id`])
+    /// whose stroke so far is `region` (see [`crate::mesh::cut::recut_within`]).
+    pub fn cut_within(
+        &mut self,
+        blade: &[CutTriangle],
+        region: &[CutTriangle],
+        incision: u64,
+        options: &CutOptions,
+    ) -> Result<BladeOutcome, WorldError> {
+        match self.begin_cut(blade, region, incision, options, false)? {
+            Some(job) => self.finish_cut(job),
+            None => Ok(BladeOutcome::Missed),
+        }
+    }
+
+    /// Begins [`SimBody::cut_within`]: takes the body's shape now and prepares the cut,
+    /// here or (`background`) on a thread of its own. `None`: the blade does not reach the
+    /// body. A blade with bad values is refused by name.
+    pub fn begin_cut(
+        &mut self,
+        blade: &[CutTriangle],
+        region: &[CutTriangle],
+        incision: u64,
+        options: &CutOptions,
+        background: bool,
+    ) -> Result<Option<CutJob>, WorldError> {
+        let err = |b: &SimBody, reason: String| WorldError::Cut {
+            body: b.label(),
+            reason,
+        };
+        if !(crate::mesh::cut::MIN_SNAP..0.5).contains(&options.snap) {
+            let e = crate::mesh::cut::CutError::BadSnap(options.snap);
+            return Err(err(self, e.to_string()));
+        }
+        crate::mesh::cut::check_blade(blade)
+            .and_then(|_| crate::mesh::cut::check_blade(region))
+            .map_err(|e| err(self, e.to_string()))?;
+        if blade.is_empty() || !self.blade_reaches(blade) {
+            return Ok(None);
+        }
+        let (x, _) = self.body.node_state().map_err(|e| self.precision_err(e))?;
+        let input = Input {
+            name: self.name.clone(),
+            mesh: self.mesh.clone(),
+            x,
+            settings: self.body.settings().clone(),
+            heat: self
+                .heat
+                .as_ref()
+                .map(|h| (*h.params(), self.heat_boundary.clone())),
+            history: self.cut.as_ref().map(|c| c.history.clone()),
+            origin: self.cut.as_ref().map_or_else(
+                || (self.name.clone(), self.mesh.volume(), 0),
+                |c| (c.origin.clone(), c.origin_volume, c.cuts),
+            ),
+            pieces_made: self.pieces_made,
+            blade: blade.to_vec(),
+            region: region.to_vec(),
+            incision,
+            options: *options,
+        };
+        let (mesh, settings, heat) = (
+            input.mesh.clone(),
+            input.settings.clone(),
+            input.heat.clone(),
+        );
+        let work = if background {
+            // A thread of its own, not the world's pool, at idle priority: the steps go on
+            // beside it.
+            let (tx, rx) = std::sync::mpsc::channel::<Input>();
+            let native = Arc::new(std::sync::atomic::AtomicU64::new(0));
+            let id = native.clone();
+            let spawned = std::thread::Builder::new()
+                .name("soft-tissue cut".into())
+                .spawn(move || {
+                    // It runs on a core the steps (and a haptic loop) leave free.
+                    match crate::haptics::priority::background() {
+                        Ok(me) => id.store(me, std::sync::atomic::Ordering::Release),
+                        Err(e) => log::debug!("a cut's thread kept its priority: {e}"),
+                    }
+                    match rx.recv() {
+                        Ok(input) => prepare(input),
+                        Err(_) => Prepared::Missed,
+                    }
+                });
+            match spawned {
+                Ok(handle) => {
+                    // Sent once the thread exists, so a refused spawn keeps the input.
+                    let _ = tx.send(input);
+                    Work::Thread(handle, native)
+                }
+                Err(e) => {
+                    log::warn!("body `{}`: cut prepared in the step: {e}", self.name);
+                    Work::Ready(prepare(input))
+                }
+            }
+        } else {
+            Work::Ready(prepare(input))
+        };
+        Ok(Some(CutJob {
+            mesh,
+            settings,
+            heat,
+            work,
+        }))
+    }
+
+    /// Lands a cut begun by [`SimBody::begin_cut`] (waiting for its thread if it is not
+    /// done): the body's state now (positions, velocities, temperature, damage) goes to the
+    /// pieces by the weights of their nodes. A body built again since the cut began is not
+    /// the one it was prepared for: the cut is dropped and reported as crossed (its strips
+    /// cut again).
+    pub fn finish_cut(&mut self, job: CutJob) -> Result<BladeOutcome, WorldError> {
+        let started = std::time::Instant::now();
+        let prepared = match job.work {
+            Work::Ready(p) => p,
+            Work::Thread(h, native) => match wait(h, &native) {
+                Ok(p) => p,
+                Err(_) => {
+                    log::warn!(
+                        "body `{}`: not cut: the thread preparing the cut failed",
+                        self.name
+                    );
+                    return Ok(BladeOutcome::Missed);
+                }
+            },
+        };
+        let cut = match prepared {
+            Prepared::Missed => return Ok(BladeOutcome::Missed),
+            Prepared::Crossed => return Ok(BladeOutcome::Crossed),
+            Prepared::Cut(c) => c,
+        };
+        let heat = self
+            .heat
+            .as_ref()
+            .map(|h| (*h.params(), self.heat_boundary.clone()));
+        if !Arc::ptr_eq(&self.mesh, &job.mesh)
+            || self.body.settings() != &job.settings
+            || heat != job.heat
+        {
+            log::info!(
+                "body `{}`: a cut prepared for it was dropped: the body was built again (or its heat changed) since",
+                self.name
+            );
+            return Ok(BladeOutcome::Crossed);
+        }
+        let PreparedCut {
+            separated,
+            bisected,
+            origins,
+            parts,
+            node_map,
+        } = *cut;
+        // Every field of the body now, carried to the new nodes.
+        let (x, v) = self.body.node_state().map_err(|e| self.precision_err(e))?;
+        let carry = |field: &[Vec3]| -> Vec<Vec3> {
+            origins.iter().map(|o| o.interpolate(field)).collect()
+        };
+        let x_all = carry(&x);
+        let v_all = carry(&v);
+        // Where the supports hold their nodes (moved kinematically or not), whatever the level.
+        let held_all = carry(self.body.precise().positions());
+        // Where the tissue has moved since the cut began, a piece's element may be turned
+        // inside out in the state of now: the cut is dropped and its strips cut again.
+        for (nodes, body) in &parts {
+            let inverted = body.mesh.tets().iter().any(|t| {
+                let [a, b, c, d] = t.map(|i| x_all[nodes[i as usize] as usize]);
+                (b - a).cross(&(c - a)).dot(&(d - a)) <= 0.0
+            });
+            if inverted {
+                log::warn!(
+                    "body `{}`: a cut dropped: an element of it would be inverted where the body is now",
+                    self.name
+                );
+                return Ok(BladeOutcome::Crossed);
+            }
+        }
+        let heat_all = self.heat.as_ref().map(|h| {
+            let t: Vec<f64> = origins
+                .iter()
+                .map(|o| o.interpolate(h.temperatures()))
+                .collect();
+            let d: Vec<f64> = origins.iter().map(|o| o.interpolate(h.damage())).collect();
+            (t, d)
+        });
+        let mut built = Vec::with_capacity(parts.len());
+        for (nodes, mut body) in parts {
+            let xp: Vec<Vec3> = nodes.iter().map(|&n| x_all[n as usize]).collect();
+            let vp: Vec<Vec3> = nodes.iter().map(|&n| v_all[n as usize]).collect();
+            body.body
+                .pin(self.body.pinned())
+                .map_err(|e| body.precision_err(e))?;
+            body.body
+                .start_precise(&xp, &vp)
+                .map_err(|e| body.precision_err(e))?;
+            // A support holds a piece's node where it held the node it came from.
+            let precise = body.body.precise_mut();
+            let fixed = precise.fixed().to_vec();
+            for ((p, axes), &n) in precise.positions_mut().iter_mut().zip(&fixed).zip(&nodes) {
+                for a in 0..3 {
+                    if axes[a] {
+                        p[a] = held_all[n as usize][a];
+                    }
+                }
+            }
+            if let (Some(h), Some((t, d))) = (body.heat.as_mut(), heat_all.as_ref()) {
+                let r = h
+                    .set_temperatures(|i| t[nodes[i] as usize])
+                    .and_then(|_| h.set_damage(|i| d[nodes[i] as usize]));
+                r.map_err(|source| WorldError::Heat {
+                    body: body.label(),
+                    source,
+                })?;
+            }
+            body.friction = self.friction;
+            // What was set at run time beyond the settings.
+            body.body
+                .set_precise_cg_must_converge(self.body.cg_must_converge());
+            if self.body.has_shadow() {
+                body.set_shadow(true)?;
+            }
+            body.collider.gather(body.body.node_positions());
+            body.start.copy_from_slice(body.collider.positions());
+            body.write_surface()?;
+            built.push(body);
+        }
+        let land_us = started.elapsed().as_secs_f64() * 1e6;
+        for b in &mut built {
+            if let Some(r) = b.cut.as_mut() {
+                r.land_us = land_us;
+            }
+        }
+        let count = built.len();
+        let mut built = built.into_iter();
+        let kept = built.next().expect("a cut leaves at least one piece");
+        let made = self.pieces_made + count - 1;
+        let loose = self.loose;
+        let previous = Box::new(std::mem::replace(self, kept));
+        self.pieces_made = made;
+        self.loose = loose;
+        let mut pieces: Vec<SimBody> = built.collect();
+        for p in &mut pieces {
+            p.loose = true;
+        }
+        Ok(BladeOutcome::Cut(Box::new(BladeCut {
+            separated,
+            bisected,
+            pieces,
+            node_map,
+            previous,
+        })))
+    }
+
+    /// Whether the blade's bounds meet the body's (a cheap test before the cut).
+    fn blade_reaches(&self, blade: &[CutTriangle]) -> bool {
+        let Some(b) = crate::mesh::Aabb::from_points(self.body.node_positions()) else {
+            return false;
+        };
+        let mut lo = Vec3::repeat(f64::INFINITY);
+        let mut hi = Vec3::repeat(f64::NEG_INFINITY);
+        for t in blade {
+            for c in &t.corners {
+                lo = lo.inf(c);
+                hi = hi.sup(c);
+            }
+        }
+        (0..3).all(|a| lo[a] <= b.max[a] && hi[a] >= b.min[a])
+    }
+
+    /// Fills the record's per-face and per-body figures from `sides`.
+    fn finish_cut_record(&mut self, history: CutHistory) {
+        let sides = &history.sides;
+        let surface = self.mesh.surface();
+        let p = self.mesh.positions();
+        let mut faces = Vec::new();
+        let mut area = 0.0;
+        for (k, &(t, corner)) in surface.triangle_tets().iter().enumerate() {
+            if sides[t as usize][corner as usize] {
+                faces.push(k as u32);
+                let [a, b, c] = surface.triangles()[k].map(|i| p[i as usize]);
+                area += 0.5 * (b - a).cross(&(c - a)).norm();
+            }
+        }
+        let mut smallest = f64::INFINITY;
+        for tet in self.mesh.tets() {
+            let corners = tet.map(|i| p[i as usize]);
+            for a in crate::mesh::tet_dihedral_angles(&corners) {
+                smallest = smallest.min(a);
+            }
+        }
+        let closed = surface_closed(surface.triangles());
+        if let Some(r) = self.cut.as_mut() {
+            r.history = history;
+            r.surface_faces = faces;
+            r.area = area;
+            r.smallest_dihedral_deg = smallest;
+            r.closed = closed;
+        }
+    }
+}
+
+/// Joins the thread preparing a cut; one not done yet runs at the waiting step's priority
+/// from here.
+fn wait(
+    h: std::thread::JoinHandle<Prepared>,
+    native: &std::sync::atomic::AtomicU64,
+) -> std::thread::Result<Prepared> {
+    let id = native.load(std::sync::atomic::Ordering::Acquire);
+    if !h.is_finished() && id != 0 {
+        crate::haptics::priority::foreground(id);
+    }
+    h.join()
+}
+
+/// A mesh of `positions` and `tets`, refused (`Err` with why) where it does not build or
+/// some tetrahedron is inverted.
+fn upright(positions: Vec<Vec3>, tets: &[[u32; 4]], what: &str) -> Result<TetMesh, String> {
+    let corners: Vec<[usize; 4]> = tets.iter().map(|t| t.map(|i| i as usize)).collect();
+    let mesh = TetMesh::new(positions, corners).map_err(|e| format!("{what}: {e}"))?;
+    if mesh
+        .warnings()
+        .iter()
+        .any(|w| matches!(w, crate::mesh::MeshWarning::Reoriented { .. }))
+    {
+        return Err(format!("{what}: some tetrahedra are inverted"));
+    }
+    Ok(mesh)
+}
+
+/// Prepares a cut from what was taken of the body: the cut mesh, its pieces and their
+/// bodies at rest. A shape that cannot be cut is passed by (a warning says why).
+fn prepare(input: Input) -> Prepared {
+    match try_prepare(input) {
+        Ok(p) => p,
+        Err((name, why)) => {
+            log::warn!("body `{name}`: not cut this step: {why}");
+            Prepared::Missed
+        }
+    }
+}
+
+fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
+    let started = std::time::Instant::now();
+    let name = input.name.clone();
+    let fail = |why: String| (name.clone(), why);
+    // Where its elements are turned inside out the body has no shape to cut along.
+    let now = upright(input.x, input.mesh.tets(), "its shape now").map_err(fail)?;
+    let cut = recut_within(
+        &now,
+        input.history.as_ref(),
+        &input.blade,
+        &input.region,
+        input.incision,
+        &input.options,
+    )
+    .map_err(|e| fail(e.to_string()))?;
+    if cut.separated == 0 {
+        return Ok(if cut.bisected > 0 {
+            Prepared::Crossed
+        } else {
+            Prepared::Missed
+        });
+    }
+    let origins = cut.node_origin;
+    let rest_all: Vec<Vec3> = origins
+        .iter()
+        .map(|o| o.interpolate(input.mesh.positions()))
+        .collect();
+    let parts = pieces(&cut.mesh).map_err(|e| fail(format!("its pieces: {e}")))?;
+    let settings = &input.settings;
+    let old_mesh = &input.mesh;
+    let old_volumes = lumped_volumes(old_mesh);
+    let held = held_axes(&settings.boundary, old_mesh.node_count());
+    // The body keeps the piece with most fixed nodes, then the largest.
+    let fixed_count = |p: &crate::mesh::pieces::Piece| {
+        p.nodes
+            .iter()
+            .filter(|&&n| fixed_axes(&held, &origins[n as usize]).is_some())
+            .count()
+    };
+    let keep = (0..parts.len())
+        .max_by(|&a, &b| {
+            (fixed_count(&parts[a]), parts[a].mesh.volume())
+                .partial_cmp(&(fixed_count(&parts[b]), parts[b].mesh.volume()))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        })
+        .unwrap_or(0);
+    let mut order: Vec<usize> = vec![keep];
+    order.extend((0..parts.len()).filter(|&k| k != keep));
+    let mut build_us = 0.0;
+    let mut built = Vec::with_capacity(parts.len());
+    let mut node_map = vec![(u32::MAX, u32::MAX); old_mesh.node_count()];
+    for (slot, &k) in order.iter().enumerate() {
+        let part = &parts[k];
+        let rest: Vec<Vec3> = part.nodes.iter().map(|&n| rest_all[n as usize]).collect();
+        let mesh = upright(rest, part.mesh.tets(), "a piece's rest shape").map_err(&fail)?;
+        let new_volumes = lumped_volumes(&mesh);
+        let mut piece_settings = settings.clone();
+        // Masses are given per body: each piece takes its share by volume.
+        let share = mesh.volume() / old_mesh.volume();
+        piece_settings.fem.mass *= share;
+        piece_settings.msd.mass *= share;
+        piece_settings.cage_msd.mass *= share;
+        // The MSD's damping is per node: the same damping rate on nodes of the piece's
+        // mass (its share of the mass over its nodes, against the body's per node).
+        let per_node = share * old_mesh.node_count() as f64 / mesh.node_count() as f64;
+        piece_settings.msd.damping *= per_node;
+        piece_settings.cage_msd.damping *= share;
+        piece_settings.boundary = carried_boundary(
+            &settings.boundary,
+            &held,
+            &origins,
+            &part.nodes,
+            &old_volumes,
+            &new_volumes,
+        );
+        let heat = input.heat.as_ref().map(|(params, boundary)| {
+            let fixed =
+                carried_heat_boundary(boundary, &origins, &part.nodes, old_mesh.node_count());
+            (*params, fixed)
+        });
+        let piece_name = if slot == 0 {
+            input.name.clone()
+        } else {
+            format!("{}.{}", input.name, input.pieces_made + slot)
+        };
+        let building = std::time::Instant::now();
+        let mut body = SimBody::build(piece_name, Arc::new(mesh), piece_settings, heat, false)
+            .map_err(|e| fail(format!("building a piece: {e}")))?;
+        build_us += building.elapsed().as_secs_f64() * 1e6;
+        let history = CutHistory {
+            sides: part
+                .tets
+                .iter()
+                .map(|&t| cut.history.sides[t as usize])
+                .collect(),
+            on_blade: part
+                .nodes
+                .iter()
+                .map(|&n| cut.history.on_blade[n as usize])
+                .collect(),
+        };
+        body.cut = Some(CutRecord {
+            origin: input.origin.0.clone(),
+            origin_volume: input.origin.1,
+            cuts: input.origin.2 + 1,
+            ..CutRecord::default()
+        });
+        body.finish_cut_record(history);
+        for (local, &n) in part.nodes.iter().enumerate() {
+            if let Some(o) = single_node(&origins[n as usize]) {
+                let slot_map = &mut node_map[o as usize];
+                if slot_map.0 == u32::MAX {
+                    *slot_map = (slot as u32, local as u32);
+                }
+            }
+        }
+        built.push((part.nodes.clone(), body));
+    }
+    let whole_us = started.elapsed().as_secs_f64() * 1e6;
+    for (_, b) in &mut built {
+        if let Some(r) = b.cut.as_mut() {
+            r.mesh_us = whole_us - build_us;
+            r.build_us = build_us;
+        }
+    }
+    Ok(Prepared::Cut(Box::new(PreparedCut {
+        separated: cut.separated,
+        bisected: cut.bisected,
+        origins,
+        parts: built,
+        node_map,
+    })))
+}
