@@ -1,10 +1,12 @@
 //! The cut stage: every blade with cutting on cuts the bodies its incision crosses (the
-//! core's [`SimBody::cut`]); the pieces that come loose become entities of their own.
+//! core's [`SimBody::begin_cut`] and [`SimBody::finish_cut`], in the step or on a thread of
+//! its own, landing `CutOptions::background_steps` steps later); the pieces that come
+//! loose become entities of their own.
 //! It runs in [`SoftTissueSystems::Prepare`] before the prepare stage, so the pieces'
 //! entities exist when this step's bodies are gathered.
 
 use super::*;
-use soft_tissue_core::mesh::cut::{CutOptions, CutTriangle};
+use soft_tissue_core::mesh::cut::CutTriangle;
 use soft_tissue_core::scenario::Anchor;
 use soft_tissue_core::world::{BladeOutcome, Incision, remap_grips};
 
@@ -22,6 +24,31 @@ fn local_mesh(mesh: &Arc<TetMesh>, placement: &GlobalTransform) -> Arc<TetMesh> 
     }
 }
 
+/// A body of the cut stage: its entity, description, simulation, whether it keeps its
+/// uncut body, whether it is a piece, its share of the uncut body's mass.
+type BodyItem<'a> = (
+    Entity,
+    Mut<'a, SoftBody>,
+    Mut<'a, SimulatedBody>,
+    bool,
+    bool,
+    Option<&'a CutShare>,
+);
+
+/// A piece a cut made, to spawn: the entity it came from, its share of the uncut body's
+/// mass, its body, description, build inputs, placement, frame, and the incision (blade,
+/// id, mark) whose strips made it.
+type Made = (
+    Entity,
+    f64,
+    SimBody,
+    SoftBody,
+    BuiltFrom,
+    GlobalTransform,
+    Option<Affine>,
+    (Entity, u64, u64),
+);
+
 #[allow(clippy::type_complexity, clippy::too_many_arguments)]
 pub(super) fn cut_stage(
     mut commands: Commands,
@@ -37,6 +64,8 @@ pub(super) fn cut_stage(
     poses: TransformHelper,
     mut assets: ResMut<Assets<TetMeshAsset>>,
     mut next: ResMut<NextBodyOrder>,
+    mut jobs: ResMut<CutJobs>,
+    config: Res<SoftTissueConfig>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let t = Instant::now();
@@ -50,8 +79,7 @@ pub(super) fn cut_stage(
         .map(|(e, _, s)| (s.order, e))
         .collect();
     order.sort_unstable();
-    let mut blades: SmallVec<[(Entity, u64, Vec<CutTriangle>, Vec<CutTriangle>); 2]> =
-        SmallVec::new();
+    let mut blades: SmallVec<[(Entity, u64, Vec<CutTriangle>); 2]> = SmallVec::new();
     for (_, entity) in order {
         let Ok((_, spec, mut state)) = tools.get_mut(entity) else {
             continue;
@@ -76,122 +104,112 @@ pub(super) fn cut_stage(
             None => state.incision = None,
             Some([from, to]) => {
                 let incision = state.incision.get_or_insert_with(|| Incision::new(from));
-                let id = incision.id();
-                let (strip, stroke) = incision.advance(to);
-                if !strip.is_empty() {
-                    blades.push((entity, id, strip, stroke));
-                }
+                let stroke = incision.advance(to);
+                blades.push((entity, incision.id(), stroke));
             }
         }
     }
-    if blades.is_empty() {
+    if blades.is_empty() && jobs.0.is_empty() {
         status.times.cut_us = 0.0;
         return;
     }
-    let mut list: Vec<_> = bodies.iter_mut().collect();
+    let mut list: Vec<BodyItem> = bodies.iter_mut().collect();
     list.sort_unstable_by_key(|(_, _, b, _, _, _)| b.order);
     let existing = list.len();
-    let options = CutOptions::default();
-    let mut made: Vec<(
-        Entity,
-        f64,
-        SimBody,
-        SoftBody,
-        BuiltFrom,
-        GlobalTransform,
-        Option<Affine>,
-    )> = Vec::new();
-    // Stops at the first failure, but the pieces cut before it are still spawned (their
-    // bodies' kept parts were already replaced).
-    'blades: for (blade, id, strip, stroke) in &blades {
-        let (mut crossed, mut cut_any) = (false, false);
-        for i in 0..existing {
-            let (entity, spec, sim, has_uncut, is_piece, share) = &mut list[i];
-            let cut = match sim.body.cut_within(strip, stroke, *id, &options) {
-                Ok(BladeOutcome::Cut(c)) => *c,
-                Ok(BladeOutcome::Crossed) => {
-                    crossed = true;
-                    continue;
-                }
-                Ok(BladeOutcome::Missed) => continue,
-                Err(e) => {
-                    fail(
-                        &mut status,
-                        stage_error(SoftTissueStage::Cut, "cutting", Some(*entity), e),
-                    );
-                    break 'blades;
-                }
-            };
-            cut_any = true;
-            let sim = &mut **sim;
-            let placement = sim.placement;
-            // Each part's share of the uncut body's mass: the share the body had (a body
-            // built again after a cut keeps it only in `CutShare`) by volume.
-            let per_volume = share.map_or(1.0, |s| s.0) / cut.previous.mesh().volume();
-            if !*has_uncut && !*is_piece {
-                commands.entity(*entity).insert(UncutBody {
-                    body: Some(cut.previous),
-                    mesh: spec.mesh.clone(),
-                    built_from: sim.built_from,
-                });
-                *has_uncut = true;
-            }
-            // The kept piece's mesh becomes the entity's, in its frame (what a rebuild would
-            // build again, with its share of the masses), without a change the prepare
-            // stage would rebuild it for.
-            let share = per_volume * sim.body.mesh().volume();
-            let handle = assets.add(TetMeshAsset(local_mesh(sim.body.mesh(), &placement)));
-            sim.built_from.mesh = handle.id();
-            spec.bypass_change_detection().mesh = handle;
-            sim.shape += 1;
-            sim.dirty = true;
-            // Its cage is new: the component takes its triangles again.
-            commands
-                .entity(*entity)
-                .insert((GreenCage::default(), CutShare(share)));
-            let first = existing + made.len();
-            for piece in cut.pieces {
-                let handle = assets.add(TetMeshAsset(local_mesh(piece.mesh(), &placement)));
-                let mut piece_spec = (**spec).clone();
-                piece_spec.mesh = handle.clone();
-                // A piece holding none of the body's support is free.
-                if piece.body().is_free() {
-                    piece_spec.anchor = Anchor::None;
-                }
-                let mut built_from = sim.built_from;
-                built_from.mesh = handle.id();
-                built_from.anchor = piece_spec.anchor;
-                made.push((
-                    *entity,
-                    per_volume * piece.mesh().volume(),
-                    piece,
-                    piece_spec,
-                    built_from,
-                    placement,
-                    sim.to_local,
-                ));
-            }
-            // Grips on the body follow its nodes, into the pieces too.
-            let lookup: Vec<&SimBody> = list
-                .iter()
-                .map(|(_, _, b, _, _, _)| &b.body)
-                .chain(made.iter().map(|m| &m.2))
-                .collect();
-            for (_, _, mut state) in &mut tools {
-                let mut one = [&mut state.tool];
-                remap_grips(&mut one, &lookup, i, &cut.node_map, first);
-            }
+    let options = config.cut;
+    let mut made: Vec<Made> = Vec::new();
+    let steps = status.steps;
+    // Cuts due land first, in the order they began; a body gone since drops its cut. A
+    // failure stops the stage (the pieces cut before it are still spawned).
+    let mut failed = false;
+    let mut k = 0;
+    while k < jobs.0.len() {
+        if jobs.0[k].due > steps {
+            k += 1;
+            continue;
         }
-        // Strips that crossed a body without separating anything stay pending, unless they
-        // cut another (they would cut that one again, wherever it moved).
-        if (cut_any || !crossed)
-            && let Ok((_, _, mut state)) = tools.get_mut(*blade)
-            && let Some(inc) = state.incision.as_mut()
-        {
-            inc.kept();
+        let job = jobs.0.remove(k);
+        let Some(i) = list.iter().position(|b| b.0 == job.body) else {
+            continue;
+        };
+        let outcome = list[i].2.body.finish_cut(job.job);
+        let from = (job.blade, job.incision, job.mark);
+        if !landed(
+            i,
+            outcome,
+            from,
+            &mut list,
+            &mut made,
+            &mut commands,
+            &mut assets,
+            &mut tools,
+            &mut status,
+        ) {
+            failed = true;
+            break;
         }
     }
-    for (from, share, body, spec, built_from, placement, to_local) in made {
+    // Stops at the first failure, but the pieces cut before it are still spawned (their
+    // bodies' kept parts were already replaced).
+    let blades = if failed { &blades[..0] } else { &blades[..] };
+    'blades: for (blade, id, stroke) in blades {
+        for i in 0..existing {
+            let entity = list[i].0;
+            if jobs.0.iter().any(|j| j.body == entity) {
+                continue;
+            }
+            let Ok((_, _, state)) = tools.get(*blade) else {
+                break;
+            };
+            let Some((strips, mark)) = state
+                .incision
+                .as_ref()
+                .filter(|inc| inc.id() == *id)
+                .map(|inc| inc.pending(entity.to_bits()))
+            else {
+                break;
+            };
+            if strips.is_empty() {
+                continue;
+            }
+            let background = options.background_steps > 0;
+            let sim = &mut list[i].2;
+            let outcome = match sim
+                .body
+                .begin_cut(&strips, stroke, *id, &options, background)
+            {
+                Ok(None) => Ok(BladeOutcome::Missed),
+                Ok(Some(job)) if !background => sim.body.finish_cut(job),
+                Ok(Some(job)) => {
+                    jobs.0.push(PendingCut {
+                        body: entity,
+                        blade: *blade,
+                        incision: *id,
+                        mark,
+                        due: steps + options.background_steps as u64,
+                        job,
+                    });
+                    continue;
+                }
+                Err(e) => Err(e),
+            };
+            let from = (*blade, *id, mark);
+            if !landed(
+                i,
+                outcome,
+                from,
+                &mut list,
+                &mut made,
+                &mut commands,
+                &mut assets,
+                &mut tools,
+                &mut status,
+            ) {
+                break 'blades;
+            }
+        }
+    }
+    for (from, share, body, spec, built_from, placement, to_local, incision) in made {
         let name = Name::new(body.name().to_owned());
         let heat = body.heat().is_some();
         let order = next.0;
@@ -229,8 +247,122 @@ pub(super) fn cut_stage(
         if heat {
             e.insert(Temperature::default());
         }
+        // Every blade's strips pending for the body are pending for the piece, but not the
+        // strips that made it.
+        let (blade, id, mark) = incision;
+        let piece = e.id();
+        for (_, _, mut state) in tools.iter_mut() {
+            if let Some(inc) = state.incision.as_mut() {
+                inc.inherit(from.to_bits(), piece.to_bits());
+            }
+        }
+        if let Ok((_, _, mut state)) = tools.get_mut(blade)
+            && let Some(inc) = state.incision.as_mut().filter(|inc| inc.id() == id)
+        {
+            inc.consumed(piece.to_bits(), mark);
+        }
     }
     status.times.cut_us = t.elapsed().as_secs_f64() * 1e6;
+}
+
+/// Body `list[i]`'s cut by the incision `(blade, id, mark)` came to `outcome`: the kept
+/// piece's mesh becomes the entity's, the pieces are queued in `made`, grips follow, and
+/// the strips are no longer pending for the body unless they crossed it without
+/// separating anything. `false`: the cut failed (the stage stops).
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
+fn landed(
+    i: usize,
+    outcome: Result<BladeOutcome, soft_tissue_core::world::WorldError>,
+    (blade, id, mark): (Entity, u64, u64),
+    list: &mut [BodyItem],
+    made: &mut Vec<Made>,
+    commands: &mut Commands,
+    assets: &mut Assets<TetMeshAsset>,
+    tools: &mut Query<(Entity, &SoftTool, &mut ToolState)>,
+    status: &mut SoftTissueStatus,
+) -> bool {
+    let existing = list.len();
+    let (entity, spec, sim, has_uncut, is_piece, share) = &mut list[i];
+    let cut = match outcome {
+        Ok(BladeOutcome::Cut(c)) => Some(*c),
+        Ok(BladeOutcome::Crossed) => return true,
+        Ok(BladeOutcome::Missed) => None,
+        Err(e) => {
+            fail(
+                status,
+                stage_error(SoftTissueStage::Cut, "cutting", Some(*entity), e),
+            );
+            return false;
+        }
+    };
+    if let Ok((_, _, mut state)) = tools.get_mut(blade)
+        && let Some(inc) = state.incision.as_mut().filter(|inc| inc.id() == id)
+    {
+        inc.consumed(entity.to_bits(), mark);
+    }
+    let Some(cut) = cut else {
+        return true;
+    };
+    let sim = &mut **sim;
+    let placement = sim.placement;
+    // Each part's share of the uncut body's mass: the share the body had (a body
+    // built again after a cut keeps it only in `CutShare`) by volume.
+    let per_volume = share.map_or(1.0, |s| s.0) / cut.previous.mesh().volume();
+    if !*has_uncut && !*is_piece {
+        commands.entity(*entity).insert(UncutBody {
+            body: Some(cut.previous),
+            mesh: spec.mesh.clone(),
+            built_from: sim.built_from,
+        });
+        *has_uncut = true;
+    }
+    // The kept piece's mesh becomes the entity's, in its frame (what a rebuild would
+    // build again, with its share of the masses), without a change the prepare
+    // stage would rebuild it for.
+    let share = per_volume * sim.body.mesh().volume();
+    let handle = assets.add(TetMeshAsset(local_mesh(sim.body.mesh(), &placement)));
+    sim.built_from.mesh = handle.id();
+    spec.bypass_change_detection().mesh = handle;
+    sim.shape += 1;
+    sim.dirty = true;
+    // Its cage is new: the component takes its triangles again.
+    commands
+        .entity(*entity)
+        .insert((GreenCage::default(), CutShare(share)));
+    let first = existing + made.len();
+    for piece in cut.pieces {
+        let handle = assets.add(TetMeshAsset(local_mesh(piece.mesh(), &placement)));
+        let mut piece_spec = (**spec).clone();
+        piece_spec.mesh = handle.clone();
+        // A piece holding none of the body's support is free.
+        if piece.body().is_free() {
+            piece_spec.anchor = Anchor::None;
+        }
+        let mut built_from = sim.built_from;
+        built_from.mesh = handle.id();
+        built_from.anchor = piece_spec.anchor;
+        made.push((
+            *entity,
+            per_volume * piece.mesh().volume(),
+            piece,
+            piece_spec,
+            built_from,
+            placement,
+            sim.to_local,
+            (blade, id, mark),
+        ));
+    }
+    // Grips on the body follow its nodes, into the pieces too.
+    let lookup: Vec<&SimBody> = list
+        .iter()
+        .map(|(_, _, b, _, _, _)| &b.body)
+        .chain(made.iter().map(|m| &m.2))
+        .collect();
+    for (_, _, mut state) in tools.iter_mut() {
+        let mut one = [&mut state.tool];
+        remap_grips(&mut one, &lookup, i, &cut.node_map, first);
+    }
+    true
 }
 
 type Affine = bevy::math::Affine3A;

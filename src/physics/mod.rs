@@ -110,6 +110,7 @@ impl Plugin for SoftTissuePhysicsPlugin {
             .init_resource::<SoftTissueContacts>()
             .init_resource::<SoftTissueObstacles>()
             .init_resource::<NextBodyOrder>()
+            .init_resource::<CutJobs>()
             .insert_resource(Time::<SoftPhysics>::default())
             .add_message::<LevelChanged>()
             .add_message::<BodyTouched>()

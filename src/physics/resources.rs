@@ -1,6 +1,7 @@
 //! The simulation's settings, clock, thread pool and status.
 
 use super::*;
+use soft_tissue_core::mesh::cut::CutOptions;
 
 /// Settings of the simulation.
 #[derive(Resource, Clone, Copy, Debug)]
@@ -30,7 +31,16 @@ pub struct SoftTissueConfig {
     /// their element loop; the result is bit-identical for every count. Changing it takes
     /// effect at the next step (a new pool is started).
     pub threads: usize,
+    /// How blades cut (default: [`CutOptions::default`] prepared on a thread of its own
+    /// over [`DEFAULT_CUT_BACKGROUND_STEPS`] steps, so a cut costs no step the time of the
+    /// mesh change and the new solvers; see
+    /// [`CutOptions::background_steps`]).
+    pub cut: CutOptions,
 }
+
+/// Steps a cut is prepared for in the background by default (at the default 1/64 s step,
+/// 47 ms after the blade crossed the tissue it opens).
+pub const DEFAULT_CUT_BACKGROUND_STEPS: u32 = 3;
 
 impl Default for SoftTissueConfig {
     fn default() -> Self {
@@ -41,6 +51,10 @@ impl Default for SoftTissueConfig {
             gravity: bevy::math::DVec3::ZERO,
             contact: ContactConfig::for_scale(1.0),
             threads: 0,
+            cut: CutOptions {
+                background_steps: DEFAULT_CUT_BACKGROUND_STEPS,
+                ..CutOptions::default()
+            },
         }
     }
 }
@@ -191,3 +205,19 @@ impl SoftTissueObstacles {
 /// come after every body built before them).
 #[derive(Resource, Default, Debug)]
 pub(crate) struct NextBodyOrder(pub(crate) u64);
+
+/// Cuts being prepared on threads of their own, in the order they began.
+#[derive(Resource, Default, Debug)]
+pub(crate) struct CutJobs(pub(crate) Vec<PendingCut>);
+
+/// A cut being prepared: the body's entity, the blade's and its incision's, the incision's
+/// mark of the strips it cuts with, and the step it lands in.
+#[derive(Debug)]
+pub(crate) struct PendingCut {
+    pub(crate) body: Entity,
+    pub(crate) blade: Entity,
+    pub(crate) incision: u64,
+    pub(crate) mark: u64,
+    pub(crate) due: u64,
+    pub(crate) job: soft_tissue_core::world::CutJob,
+}

@@ -19,11 +19,14 @@ pub(super) fn reset_simulation(
     )>,
     mut tools: Query<&mut ToolState>,
     mut contacts: ResMut<SoftTissueContacts>,
+    mut jobs: ResMut<CutJobs>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
     if requests.read().count() == 0 {
         return;
     }
+    // Cuts being prepared are dropped (their threads end on their own).
+    jobs.0.clear();
     status.steps = 0;
     status.error = None;
     status.recent.clear();

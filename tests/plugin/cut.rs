@@ -49,6 +49,10 @@ fn through_cut(world: &SoftTissueWorld, name: &str) -> Script {
 #[test]
 fn a_blade_cuts_a_body_in_two_like_the_core_world_and_a_reset_makes_it_whole() {
     let (mut app, bodies, mut world) = scene_app(CYLINDERS);
+    // The plugin's default: cuts prepared in the background, landing steps later.
+    let options = app.world().resource::<SoftTissueConfig>().cut;
+    assert!(options.background_steps > 0);
+    world.set_cut_options(options).unwrap();
     let script = through_cut(&world, "Model A");
     let dt = world.config().dt;
     let tool = spawn_tool(&mut app, &script);
