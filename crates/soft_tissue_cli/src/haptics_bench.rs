@@ -19,7 +19,9 @@ use soft_tissue_core::world::{Script, SoftTissueWorld};
 
 use crate::simulate::load_scene;
 
-use soft_tissue_core::haptics::{CAUTERY_BUTTON as CAUTERY, GRAB_BUTTON as GRAB};
+use soft_tissue_core::haptics::{
+    CAUTERY_BUTTON as CAUTERY, CUT_BUTTON as CUT, GRAB_BUTTON as GRAB,
+};
 
 #[derive(Args)]
 pub struct HapticsBenchArgs {
@@ -64,6 +66,11 @@ pub struct HapticsBenchArgs {
     /// Folder the scene's mesh files are relative to.
     #[arg(long, default_value = "assets")]
     assets: PathBuf,
+    /// Steps a cut is prepared for on a thread of its own before it lands (0: within the
+    /// step the blade crossed the body). A blade cuts while the cut button is held (or the
+    /// first button, as the plugin's haptic tool does).
+    #[arg(long, default_value_t = 4)]
+    cut_background_steps: u32,
 }
 
 fn parse_priority(text: &str) -> Result<HapticPriority, String> {
@@ -106,6 +113,16 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
     };
     let (_, axis) = script.pose_at(0.0);
     let tool = world.add_tool(Tool::new("haptic tool", script.tool)?);
+    world.set_cut_options(soft_tissue_core::mesh::cut::CutOptions {
+        background_steps: args.cut_background_steps,
+        ..Default::default()
+    })?;
+    let blade = matches!(
+        script.tool,
+        soft_tissue_core::contact::ToolShape::Blade { .. }
+    );
+    // Whole steps while the blade cuts or a cut is being prepared.
+    let mut cutting_us = Vec::new();
     let dt = world.config().dt;
     // Scene-unit gains: the coupling is about as stiff as the organs' surface under the
     // tool; the proxy mass keeps the coupling's natural frequency at ~90 Hz (well resolved
@@ -141,7 +158,11 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
             let t = world.tools_mut();
             t[tool].set_pose(sample.position, axis)?;
             let changed = sample.buttons ^ last_buttons;
-            if changed & GRAB != 0 {
+            if blade {
+                if changed & (GRAB | CUT) != 0 {
+                    t[tool].set_cutting(sample.buttons & (GRAB | CUT) != 0)?;
+                }
+            } else if changed & GRAB != 0 {
                 if sample.buttons & GRAB != 0 {
                     t[tool].grab();
                 } else {
@@ -157,9 +178,13 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
                 t[tool].set_cautery(w)?;
             }
             last_buttons = sample.buttons;
+            let cutting = world.cuts_in_flight() > 0 || world.tools()[tool].cutting();
             let t0 = Instant::now();
             world.step_fixed()?;
             step_us.push(t0.elapsed().as_secs_f64() * 1e6);
+            if cutting {
+                cutting_us.push(t0.elapsed().as_secs_f64() * 1e6);
+            }
             model = contact_model(
                 &world.tools()[tool],
                 tool as u32,
@@ -197,6 +222,14 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
     sorted.sort_unstable_by(f64::total_cmp);
     let physics_median = sorted.get(sorted.len() / 2).copied().unwrap_or(f64::NAN);
     let physics_max = sorted.last().copied().unwrap_or(f64::NAN);
+    let cutting = soft_tissue_core::timing::TimeStats::of(&cutting_us);
+    let cuts = world
+        .bodies()
+        .iter()
+        .filter_map(|b| b.cut_record())
+        .map(|r| r.cuts)
+        .max()
+        .unwrap_or(0);
     let machine = crate::bench::machine();
     let rate = run.ticks as f64 / args.seconds;
     let target_met = p99 <= 1100.0;
@@ -220,6 +253,10 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
             "physics_step_median_us": physics_median,
             "physics_step_max_us": physics_max,
             "physics_steps_late": behind,
+            "physics_steps_while_cutting": cutting_us.len(),
+            "physics_step_while_cutting_us": cutting,
+            "cut_background_steps": args.cut_background_steps,
+            "most_cuts_of_one_body": cuts,
             "recorded_samples": run.recording.samples.len(),
             "haptic_priority": priority_json(&run.priority),
             "spin_us": run.spin_us,
@@ -252,6 +289,21 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
             "physics: {k} steps of {dt} s in real time, median {physics_median:.0} us, max {physics_max:.0} us, \
              {behind} late by more than a step"
         );
+        if !cutting_us.is_empty() {
+            println!(
+                "physics while cutting: {} steps, median / p99 / max us {} ({}); a body cut {cuts} times",
+                cutting_us.len(),
+                crate::realtime::triple(&cutting),
+                if args.cut_background_steps > 0 {
+                    format!(
+                        "cuts prepared on a thread of their own, landing {} steps later",
+                        args.cut_background_steps
+                    )
+                } else {
+                    "cuts made within the step".into()
+                }
+            );
+        }
         println!(
             "target p99 <= 1100 us: {}; machine: {}, {} cores, {} build",
             if target_met { "met" } else { "MISSED" },

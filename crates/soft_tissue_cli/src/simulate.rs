@@ -57,6 +57,16 @@ pub struct SimulateArgs {
     /// Let the scene's mesh paths leave the assets folder (absolute paths, `..`).
     #[arg(long)]
     allow_outside_assets: bool,
+    /// Steps a cut is prepared for on a thread of its own before it lands (0: within the
+    /// step the blade crossed the body; see `CutOptions::background_steps`).
+    #[arg(long, default_value_t = 0)]
+    cut_background_steps: u32,
+    /// Step in real time: each step starts one step's time after the last (as an app's
+    /// fixed step does; a cut prepared in the background then has that time); a step more
+    /// than a step late starts the schedule again from then (no catching up back to back).
+    /// Step times count the steps' work, not the waits between them.
+    #[arg(long)]
+    real_time: bool,
 }
 
 /// `--level`.
@@ -232,6 +242,10 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
         Some(s) => Some(world.add_tool(Tool::new(s.name.clone(), s.tool)?)),
         None => None,
     };
+    world.set_cut_options(soft_tissue_core::mesh::cut::CutOptions {
+        background_steps: args.cut_background_steps,
+        ..Default::default()
+    })?;
     let dt = world.config().dt;
     let nb = world.bodies().len();
     // The whole run's steps, kept for the statistics (allocated before the first step).
@@ -244,25 +258,47 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     let mut worst_penetration = vec![0.0f64; nb];
     let mut most_contacts = vec![0u32; nb];
     let mut contact_rounds = (0u64, 0u32, 0u64, 0u32);
-    // Each cut that changed a body: (mesh change, bodies built), microseconds.
+    // Each cut that changed a body: (mesh change, bodies built, landing), microseconds.
     let mut seen: Vec<u64> = world.bodies().iter().map(|b| b.id()).collect();
-    let mut cut_costs: Vec<(f64, f64)> = Vec::new();
+    let mut cut_costs: Vec<(f64, f64, f64)> = Vec::new();
+    // Whole steps while a blade cuts or a cut is being prepared.
+    let mut cutting_steps: Vec<f64> = Vec::new();
+    let period = std::time::Duration::from_secs_f64(dt);
+    let mut due = std::time::Instant::now();
     for k in 0..args.steps {
         let t = (k + 1) as f64 * dt;
+        if args.real_time {
+            // Each step one period after the last; a step more than a period late is not
+            // caught up with steps back to back (an app drops that time, as Bevy's fixed
+            // step caps its steps per frame): the schedule starts again from now.
+            let now = std::time::Instant::now();
+            if due > now {
+                std::thread::sleep(due - now);
+            } else if now - due > period {
+                due = now;
+            }
+            due += period;
+        }
         if let (Some(s), Some(ti)) = (&script, tool) {
             drive_tool(&mut world, s, ti, t, dt)?;
         }
+        let cutting =
+            world.cuts_in_flight() > 0 || tool.is_some_and(|ti| world.tools()[ti].cutting());
         world.step_fixed()?;
         let st = world.stage_times();
         recorder.record(&world);
+        if cutting {
+            cutting_steps.push(st.total_us());
+        }
         // A cut may have changed bodies and added some (the pieces that came loose).
         {
-            let mut this_step: Vec<(f64, f64)> = Vec::new();
+            let mut this_step: Vec<(f64, f64, f64)> = Vec::new();
             for b in world.bodies() {
                 if let (false, Some(r)) = (seen.contains(&b.id()), b.cut_record()) {
                     seen.push(b.id());
-                    if !this_step.contains(&(r.mesh_us, r.build_us)) {
-                        this_step.push((r.mesh_us, r.build_us));
+                    let c = (r.mesh_us, r.build_us, r.land_us);
+                    if !this_step.contains(&c) {
+                        this_step.push(c);
                     }
                 }
             }
@@ -446,6 +482,13 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "cut_build_us": soft_tissue_core::timing::TimeStats::of(
                     &cut_costs.iter().map(|c| c.1).collect::<Vec<_>>()
                 ),
+                "cut_land_us": soft_tissue_core::timing::TimeStats::of(
+                    &cut_costs.iter().map(|c| c.2).collect::<Vec<_>>()
+                ),
+                "cut_background_steps": args.cut_background_steps,
+                "real_time": args.real_time,
+                "steps_while_cutting": cutting_steps.len(),
+                "step_while_cutting_us": soft_tissue_core::timing::TimeStats::of(&cutting_steps),
                 "state_hash": format!("{:016x}", world.state_hash()),
                 "threads": world.threads().count(),
                 "bodies": bodies,
@@ -550,11 +593,36 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
         if !cut_costs.is_empty() {
             let mesh: Vec<f64> = cut_costs.iter().map(|c| c.0).collect();
             let build: Vec<f64> = cut_costs.iter().map(|c| c.1).collect();
+            let land: Vec<f64> = cut_costs.iter().map(|c| c.2).collect();
             println!(
-                "cuts that changed a body: {}; per cut, median / p99 / max us: mesh change {}, bodies built {}",
+                "cuts that changed a body: {}; per cut, median / p99 / max us: mesh change {}, bodies built {} ({}), landing in its step {}",
                 cut_costs.len(),
                 triple(&soft_tissue_core::timing::TimeStats::of(&mesh)),
                 triple(&soft_tissue_core::timing::TimeStats::of(&build)),
+                if args.cut_background_steps > 0 {
+                    format!(
+                        "on a thread of their own, landing {} steps later",
+                        args.cut_background_steps
+                    )
+                } else {
+                    "within the step".to_string()
+                },
+                triple(&soft_tissue_core::timing::TimeStats::of(&land)),
+            );
+            println!(
+                "steps while cutting ({}{}): {}, median / p99 / max us {}",
+                if args.real_time {
+                    "in real time"
+                } else {
+                    "back to back"
+                },
+                if args.cut_background_steps > 0 {
+                    ", cuts in the background"
+                } else {
+                    ""
+                },
+                cutting_steps.len(),
+                triple(&soft_tissue_core::timing::TimeStats::of(&cutting_steps)),
             );
         }
         for (i, b) in world.bodies().iter().enumerate().take(12) {
