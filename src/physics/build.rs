@@ -37,14 +37,16 @@ fn placed(mesh: &Arc<TetMesh>, placement: &GlobalTransform) -> Result<Arc<TetMes
 
 /// The mesh with every node mapped by `m`.
 pub(super) fn mapped(mesh: &TetMesh, m: bevy::math::DMat4) -> Result<Arc<TetMesh>, String> {
-    let positions = mesh
-        .positions()
-        .iter()
-        .map(|p| {
-            let q = m.transform_point3(bevy::math::DVec3::new(p.x, p.y, p.z));
-            soft_tissue_core::Vec3::new(q.x, q.y, q.z)
-        })
-        .collect();
+    let map = |p: &soft_tissue_core::Vec3| {
+        let q = m.transform_point3(bevy::math::DVec3::new(p.x, p.y, p.z));
+        soft_tissue_core::Vec3::new(q.x, q.y, q.z)
+    };
+    // A placement keeps the topology (linear time); one that mirrors or flattens elements
+    // builds the mesh anew (turned elements re-oriented, flat ones refused by name).
+    if let Ok(moved) = mesh.mapped(map) {
+        return Ok(Arc::new(moved));
+    }
+    let positions = mesh.positions().iter().map(map).collect();
     let tets = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
     TetMesh::new(positions, tets)
         .map(Arc::new)

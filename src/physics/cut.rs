@@ -36,8 +36,9 @@ type BodyItem<'a> = (
 );
 
 /// A piece a cut made, to spawn: the entity it came from, its share of the uncut body's
-/// mass, its body, description, build inputs, placement, frame, and the incision (blade,
-/// id, mark) whose strips made it.
+/// mass, its body, description, build inputs, placement, frame, and where each blade's
+/// incision had its body's pending strips start when it was cut (blade, incision id,
+/// first pending strip): the piece's start the same.
 type Made = (
     Entity,
     f64,
@@ -46,7 +47,7 @@ type Made = (
     BuiltFrom,
     GlobalTransform,
     Option<Affine>,
-    (Entity, u64, u64),
+    Vec<(Entity, u64, u64)>,
 );
 
 #[allow(clippy::type_complexity, clippy::too_many_arguments)]
@@ -247,19 +248,15 @@ pub(super) fn cut_stage(
         if heat {
             e.insert(Temperature::default());
         }
-        // Every blade's strips pending for the body are pending for the piece, but not the
-        // strips that made it.
-        let (blade, id, mark) = incision;
+        // Every blade's strips pending for the body when it was cut are pending for the
+        // piece (but not the strips that made it).
         let piece = e.id();
-        for (_, _, mut state) in tools.iter_mut() {
-            if let Some(inc) = state.incision.as_mut() {
-                inc.inherit(from.to_bits(), piece.to_bits());
+        for (blade, id, first) in incision {
+            if let Ok((_, _, mut state)) = tools.get_mut(blade)
+                && let Some(inc) = state.incision.as_mut().filter(|inc| inc.id() == id)
+            {
+                inc.consumed(piece.to_bits(), first);
             }
-        }
-        if let Ok((_, _, mut state)) = tools.get_mut(blade)
-            && let Some(inc) = state.incision.as_mut().filter(|inc| inc.id() == id)
-        {
-            inc.consumed(piece.to_bits(), mark);
         }
     }
     status.times.cut_us = t.elapsed().as_secs_f64() * 1e6;
@@ -330,6 +327,14 @@ fn landed(
         .entity(*entity)
         .insert((GreenCage::default(), CutShare(share)));
     let first = existing + made.len();
+    // Where every blade's strips pending for the body start now (after this cut's).
+    let pending: Vec<(Entity, u64, u64)> = tools
+        .iter()
+        .filter_map(|(e, _, state)| {
+            let inc = state.incision.as_ref()?;
+            Some((e, inc.id(), inc.pending_from(entity.to_bits())))
+        })
+        .collect();
     for piece in cut.pieces {
         let handle = assets.add(TetMeshAsset(local_mesh(piece.mesh(), &placement)));
         let mut piece_spec = (**spec).clone();
@@ -349,7 +354,7 @@ fn landed(
             built_from,
             placement,
             sim.to_local,
-            (blade, id, mark),
+            pending.clone(),
         ));
     }
     // Grips on the body follow its nodes, into the pieces too.

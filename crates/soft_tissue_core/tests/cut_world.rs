@@ -94,6 +94,23 @@ fn centre(b: &SimBody) -> Vec3 {
     x.iter().zip(m).map(|(x, m)| x * *m).sum::<Vec3>() / total
 }
 
+/// The acceleration of body `i`'s centre over the next 40 steps (second difference over two
+/// spans of 20).
+fn acceleration(w: &mut SoftTissueWorld, i: usize) -> Vec3 {
+    let n = 20;
+    let mut c = Vec::new();
+    for k in 0..=2 * n {
+        if k % n == 0 {
+            c.push(centre(&w.bodies()[i]));
+        }
+        if k < 2 * n {
+            w.step_fixed().unwrap();
+        }
+    }
+    let span = n as f64 * DT;
+    (c[2] - 2.0 * c[1] + c[0]) / (span * span)
+}
+
 fn total_mass(b: &SimBody) -> f64 {
     b.body().precise().masses().iter().sum()
 }
@@ -149,18 +166,7 @@ fn a_hanging_bar_cut_through_falls_in_two_the_lower_piece_at_g() {
         }
         // Free fall of the loose piece: its centre accelerates at g (no damping; the
         // internal forces sum to zero).
-        let n = 20;
-        let mut c = Vec::new();
-        for k in 0..=2 * n {
-            if k % n == 0 {
-                c.push(centre(&w.bodies()[1]));
-            }
-            if k < 2 * n {
-                w.step_fixed().unwrap();
-            }
-        }
-        let span = n as f64 * DT;
-        let a = (c[2] - 2.0 * c[1] + c[0]) / (span * span);
+        let a = acceleration(&mut w, 1);
         assert!(
             (a.y - G).abs() < 0.02 * G && a.x.abs() < 0.02 * G && a.z.abs() < 0.02 * G,
             "{method:?}: the loose piece accelerates at {a:?}, not g along +y"
@@ -526,18 +532,7 @@ fn a_cut_prepared_in_the_background_lands_steps_later_in_the_state_then() {
     assert!(((m - mass) / mass).abs() < 1e-9 && ((v - volume) / volume).abs() < 1e-9);
     let r = lower.cut_record().unwrap();
     assert!(r.closed && r.mesh_us > 0.0 && r.build_us > 0.0, "{r:?}");
-    let n = 20;
-    let mut c = Vec::new();
-    for k in 0..=2 * n {
-        if k % n == 0 {
-            c.push(centre(&w.bodies()[1]));
-        }
-        if k < 2 * n {
-            w.step_fixed().unwrap();
-        }
-    }
-    let span = n as f64 * DT;
-    let a = (c[2] - 2.0 * c[1] + c[0]) / (span * span);
+    let a = acceleration(&mut w, 1);
     assert!(
         (a.y - G).abs() < 0.02 * G && a.x.abs() < 0.02 * G && a.z.abs() < 0.02 * G,
         "the loose piece accelerates at {a:?}, not g along +y"

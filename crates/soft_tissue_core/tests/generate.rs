@@ -262,3 +262,31 @@ fn mesher_rejects_bad_spacing() {
     assert!(stuff(&tiny, 1.0).is_err());
     let _ = Vec3::zeros();
 }
+
+/// A placement of a mesh (turned, moved, scaled) keeps its topology: `TetMesh::mapped` gives
+/// what building the moved nodes anew gives; a mirror turns its elements inside out and is
+/// refused by name.
+#[test]
+fn a_placed_mesh_keeps_its_topology_and_a_mirror_is_refused() {
+    let mesh =
+        soft_tissue_core::mesh::generate::block(Vec3::zeros(), Vec3::new(1.0, 2.0, 0.5), [3, 4, 2])
+            .unwrap();
+    let turn = nalgebra::Rotation3::from_euler_angles(0.3, -1.1, 2.0);
+    let place = |p: &Vec3| turn * p * 2.5 + Vec3::new(0.1, -3.0, 7.0);
+    let moved = mesh.mapped(place).unwrap();
+    let positions: Vec<Vec3> = mesh.positions().iter().map(place).collect();
+    let tets = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
+    let anew = TetMesh::new(positions, tets).unwrap();
+    assert_eq!(moved.tets(), anew.tets());
+    assert_eq!(moved.surface().triangles(), anew.surface().triangles());
+    assert_eq!(moved.positions(), anew.positions());
+    assert!(((moved.volume() - anew.volume()) / anew.volume()).abs() < 1e-12);
+    assert!((moved.volume() - 2.5f64.powi(3) * mesh.volume()).abs() < 1e-9 * moved.volume());
+    assert!((moved.bbox().min - anew.bbox().min).norm() < 1e-12);
+    assert!((moved.bbox().max - anew.bbox().max).norm() < 1e-12);
+    let e = mesh
+        .mapped(|p| Vec3::new(-p.x, p.y, p.z))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("tetrahedron 0"), "{e}");
+}

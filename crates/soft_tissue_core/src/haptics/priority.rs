@@ -147,55 +147,24 @@ pub(crate) trait PriorityOs {
 /// Puts the calling thread under the idle policy (Linux's `SCHED_IDLE`: it runs on a core
 /// nothing else wants), for work beside the steps (a cut prepared in the background) that
 /// must not take a core from the physics or the haptic loop. `Err` says why not.
-/// Returns the thread's native id, for [`foreground`].
-pub(crate) fn background() -> Result<u64, String> {
+pub(crate) fn background() -> Result<(), String> {
     #[cfg(target_os = "linux")]
     {
         use thread_priority::{
             NormalThreadSchedulePolicy, ThreadPriority, ThreadSchedulePolicy,
             set_thread_priority_and_policy, thread_native_id,
         };
-        let me = thread_native_id();
         set_thread_priority_and_policy(
-            me,
+            thread_native_id(),
             ThreadPriority::Min,
             ThreadSchedulePolicy::Normal(NormalThreadSchedulePolicy::Idle),
         )
-        .map_err(os_text)?;
-        Ok(me as u64)
+        .map_err(os_text)
     }
     #[cfg(not(target_os = "linux"))]
     {
         Err("no idle priority on this OS".into())
     }
-}
-
-/// Puts thread `native` (from [`background`]) back under the normal policy at nice 0, as
-/// the thread that waits for it (best effort: a failure only logs).
-pub(crate) fn foreground(native: u64) {
-    #[cfg(target_os = "linux")]
-    {
-        use thread_priority::{
-            NormalThreadSchedulePolicy, ThreadPriority, ThreadPriorityValue, ThreadSchedulePolicy,
-            set_thread_priority_and_policy,
-        };
-        // Nice 0 on the crate's 0..=99 scale (its formula: trunc(39 (1 - p / 99)) - 20).
-        let r = ThreadPriorityValue::try_from(47u8)
-            .map_err(|e| e.to_string())
-            .and_then(|v| {
-                set_thread_priority_and_policy(
-                    native as thread_priority::ThreadId,
-                    ThreadPriority::Crossplatform(v),
-                    ThreadSchedulePolicy::Normal(NormalThreadSchedulePolicy::Other),
-                )
-                .map_err(os_text)
-            });
-        if let Err(e) = r {
-            log::debug!("a cut's thread stayed at idle priority: {e}");
-        }
-    }
-    #[cfg(not(target_os = "linux"))]
-    let _ = native;
 }
 
 /// Applies `request` to the calling thread and reads back what it got.

@@ -452,6 +452,64 @@ impl TetMesh {
         &self.node_component
     }
 
+    /// This mesh with every node moved by `map`, a map that keeps each element's orientation
+    /// (a placement: rotation, translation, positive scale). The topology is kept; only the
+    /// volumes and the bounds are computed again, in time linear in the mesh. An error where a
+    /// moved coordinate is not finite or an element's volume is not positive (the map turned
+    /// it inside out or flattened it: [`TetMesh::new`] builds such a mesh anew).
+    pub fn mapped(&self, map: impl Fn(&Vec3) -> Vec3) -> Result<TetMesh, MeshError> {
+        let positions: Vec<Vec3> = self.positions.iter().map(map).collect();
+        for (node, p) in positions.iter().enumerate() {
+            for (axis, name) in ['x', 'y', 'z'].into_iter().enumerate() {
+                if !p[axis].is_finite() {
+                    return Err(MeshError::NonFiniteCoordinate {
+                        node,
+                        axis: name,
+                        value: p[axis],
+                    });
+                }
+            }
+        }
+        let mut volumes = Vec::with_capacity(self.tets.len());
+        for (tet, t) in self.tets.iter().enumerate() {
+            let corners = t.map(|i| positions[i as usize]);
+            let volume = tet_signed_volume(&corners);
+            if volume.is_nan() || volume <= 0.0 {
+                let mut sum = 0.0;
+                for a in 0..4 {
+                    for b in a + 1..4 {
+                        sum += (corners[a] - corners[b]).norm_squared();
+                    }
+                }
+                let edge = (sum / 6.0).sqrt();
+                return Err(MeshError::DegenerateTet {
+                    tet,
+                    nodes: t.map(|i| i as usize),
+                    volume,
+                    ratio: volume / (edge.powi(3) / (6.0 * std::f64::consts::SQRT_2)),
+                    threshold: 0.0,
+                });
+            }
+            volumes.push(volume);
+        }
+        let bbox = Aabb::from_points(self.tets.iter().flatten().map(|&n| &positions[n as usize]))
+            .unwrap_or(self.bbox);
+        Ok(TetMesh {
+            positions,
+            tets: self.tets.clone(),
+            volumes,
+            surface: self.surface.clone(),
+            edges: self.edges.clone(),
+            node_tet_offsets: self.node_tet_offsets.clone(),
+            node_tet_list: self.node_tet_list.clone(),
+            tet_neighbors: self.tet_neighbors.clone(),
+            node_component: self.node_component.clone(),
+            component_count: self.component_count,
+            bbox,
+            warnings: self.warnings.clone(),
+        })
+    }
+
     /// Bounding box of the nodes used by tetrahedra.
     pub fn bbox(&self) -> Aabb {
         self.bbox

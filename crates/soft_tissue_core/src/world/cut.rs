@@ -175,6 +175,12 @@ impl Incision {
         }
     }
 
+    /// The number of the first strip pending for body `key` (what
+    /// [`Incision::consumed`] with it gives another body).
+    pub fn pending_from(&self, key: u64) -> u64 {
+        self.first_pending(key)
+    }
+
     fn first_pending(&self, key: u64) -> u64 {
         self.from
             .iter()

@@ -26,12 +26,9 @@ pub struct CutJob {
 #[derive(Debug)]
 enum Work {
     Ready(Prepared),
-    /// The thread, and its native id once it has one (to raise it from idle priority when
-    /// a step must wait for it).
-    Thread(
-        std::thread::JoinHandle<Prepared>,
-        Arc<std::sync::atomic::AtomicU64>,
-    ),
+    /// The thread, and what it was given (a step that would have to wait for it prepares
+    /// the cut itself from the same input: the same result, in bounded time).
+    Thread(std::thread::JoinHandle<Prepared>, Box<Input>),
 }
 
 impl CutJob {
@@ -45,6 +42,7 @@ impl CutJob {
 }
 
 /// What a cut needs of its body, taken when it began.
+#[derive(Debug, Clone)]
 struct Input {
     name: String,
     mesh: Arc<TetMesh>,
@@ -168,28 +166,18 @@ impl SimBody {
         let work = if background {
             // A thread of its own, not the world's pool, at idle priority: the steps go on
             // beside it.
-            let (tx, rx) = std::sync::mpsc::channel::<Input>();
-            let native = Arc::new(std::sync::atomic::AtomicU64::new(0));
-            let id = native.clone();
+            let given = input.clone();
             let spawned = std::thread::Builder::new()
                 .name("soft-tissue cut".into())
                 .spawn(move || {
                     // It runs on a core the steps (and a haptic loop) leave free.
-                    match crate::haptics::priority::background() {
-                        Ok(me) => id.store(me, std::sync::atomic::Ordering::Release),
-                        Err(e) => log::debug!("a cut's thread kept its priority: {e}"),
+                    if let Err(e) = crate::haptics::priority::background() {
+                        log::debug!("a cut's thread kept its priority: {e}");
                     }
-                    match rx.recv() {
-                        Ok(input) => prepare(input),
-                        Err(_) => Prepared::Missed,
-                    }
+                    prepare(given)
                 });
             match spawned {
-                Ok(handle) => {
-                    // Sent once the thread exists, so a refused spawn keeps the input.
-                    let _ = tx.send(input);
-                    Work::Thread(handle, native)
-                }
+                Ok(handle) => Work::Thread(handle, Box::new(input)),
                 Err(e) => {
                     log::warn!("body `{}`: cut prepared in the step: {e}", self.name);
                     Work::Ready(prepare(input))
@@ -206,8 +194,8 @@ impl SimBody {
         }))
     }
 
-    /// Lands a cut begun by [`SimBody::begin_cut`] (waiting for its thread if it is not
-    /// done): the body's state now (positions, velocities, temperature, damage) goes to the
+    /// Lands a cut begun by [`SimBody::begin_cut`] (a cut whose thread is not done yet is
+    /// prepared here, from what the thread was given: the same result): the body's state now (positions, velocities, temperature, damage) goes to the
     /// pieces by the weights of their nodes. A body built again since the cut began is not
     /// the one it was prepared for: the cut is dropped and reported as crossed (its strips
     /// cut again).
@@ -215,7 +203,9 @@ impl SimBody {
         let started = std::time::Instant::now();
         let prepared = match job.work {
             Work::Ready(p) => p,
-            Work::Thread(h, native) => match wait(h, &native) {
+            // Not done (its idle thread got no core in time): the step prepares it.
+            Work::Thread(h, input) if !h.is_finished() => prepare(*input),
+            Work::Thread(h, _) => match h.join() {
                 Ok(p) => p,
                 Err(_) => {
                     log::warn!(
@@ -398,19 +388,6 @@ impl SimBody {
             r.closed = closed;
         }
     }
-}
-
-/// Joins the thread preparing a cut; one not done yet runs at the waiting step's priority
-/// from here.
-fn wait(
-    h: std::thread::JoinHandle<Prepared>,
-    native: &std::sync::atomic::AtomicU64,
-) -> std::thread::Result<Prepared> {
-    let id = native.load(std::sync::atomic::Ordering::Acquire);
-    if !h.is_finished() && id != 0 {
-        crate::haptics::priority::foreground(id);
-    }
-    h.join()
 }
 
 /// A mesh of `positions` and `tets`, refused (`Err` with why) where it does not build or
