@@ -96,8 +96,10 @@ fn counter_sees_allocations_on_every_thread() {
     assert_eq!(here.count, 1, "{here:?}");
     assert_eq!(here.sizes, [64]);
     let pool = Threads::new(2).unwrap();
-    // Warm the pool first (its threads' own lazily made state).
-    pool.run(|| rayon::join(|| (), || ()));
+    // Warm the pool first: every worker started and ran once (its own lazily made state; a
+    // worker that starts late, on a loaded machine, would otherwise allocate in a later
+    // test's window).
+    pool.run(|| rayon::broadcast(|_| ()));
     let caller = std::thread::current().id();
     let mut on_worker = false;
     let seen = allocations(|| {

@@ -144,28 +144,16 @@ pub(crate) trait PriorityOs {
     fn read(&self) -> Scheduling;
 }
 
-/// Puts the calling thread under the idle policy (Linux's `SCHED_IDLE`: it runs on a core
-/// nothing else wants), for work beside the steps (a cut prepared in the background) that
-/// must not take a core from the physics or the haptic loop. `Err` says why not.
+/// Lowers the calling thread to nice 10, for work beside the steps (a cut prepared in the
+/// background) that should yield a core to the physics and the haptic loop but still get a
+/// share of it (an idle-policy thread may get none while a step waits for it, and an
+/// unprivileged process cannot raise it again). `Err` says why not.
 pub(crate) fn background() -> Result<(), String> {
-    #[cfg(target_os = "linux")]
-    {
-        use thread_priority::{
-            NormalThreadSchedulePolicy, ThreadPriority, ThreadSchedulePolicy,
-            set_thread_priority_and_policy, thread_native_id,
-        };
-        set_thread_priority_and_policy(
-            thread_native_id(),
-            ThreadPriority::Min,
-            ThreadSchedulePolicy::Normal(NormalThreadSchedulePolicy::Idle),
-        )
-        .map_err(os_text)
-    }
-    #[cfg(not(target_os = "linux"))]
-    {
-        Err("no idle priority on this OS".into())
-    }
+    SystemOs.set_nice(BACKGROUND_NICE)
 }
+
+/// The nice value of [`background`] work.
+pub(crate) const BACKGROUND_NICE: i32 = 10;
 
 /// Applies `request` to the calling thread and reads back what it got.
 pub(crate) fn apply(request: HapticPriority) -> PriorityOutcome {

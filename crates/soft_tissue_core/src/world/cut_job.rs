@@ -26,9 +26,7 @@ pub struct CutJob {
 #[derive(Debug)]
 enum Work {
     Ready(Prepared),
-    /// The thread, and what it was given (a step that would have to wait for it prepares
-    /// the cut itself from the same input: the same result, in bounded time).
-    Thread(std::thread::JoinHandle<Prepared>, Box<Input>),
+    Thread(std::thread::JoinHandle<Prepared>),
 }
 
 impl CutJob {
@@ -36,7 +34,7 @@ impl CutJob {
     pub fn is_ready(&self) -> bool {
         match &self.work {
             Work::Ready(_) => true,
-            Work::Thread(h, _) => h.is_finished(),
+            Work::Thread(h) => h.is_finished(),
         }
     }
 }
@@ -164,20 +162,27 @@ impl SimBody {
             input.heat.clone(),
         );
         let work = if background {
-            // A thread of its own, not the world's pool, at idle priority: the steps go on
+            // A thread of its own, not the world's pool, at a lower priority: the steps go on
             // beside it.
-            let given = input.clone();
+            let (tx, rx) = std::sync::mpsc::channel::<Input>();
             let spawned = std::thread::Builder::new()
                 .name("soft-tissue cut".into())
                 .spawn(move || {
-                    // It runs on a core the steps (and a haptic loop) leave free.
+                    // It yields a core to the steps (and a haptic loop).
                     if let Err(e) = crate::haptics::priority::background() {
                         log::debug!("a cut's thread kept its priority: {e}");
                     }
-                    prepare(given)
+                    match rx.recv() {
+                        Ok(input) => prepare(input),
+                        Err(_) => Prepared::Missed,
+                    }
                 });
             match spawned {
-                Ok(handle) => Work::Thread(handle, Box::new(input)),
+                Ok(handle) => {
+                    // Sent once the thread exists, so a refused spawn keeps the input.
+                    let _ = tx.send(input);
+                    Work::Thread(handle)
+                }
                 Err(e) => {
                     log::warn!("body `{}`: cut prepared in the step: {e}", self.name);
                     Work::Ready(prepare(input))
@@ -194,8 +199,8 @@ impl SimBody {
         }))
     }
 
-    /// Lands a cut begun by [`SimBody::begin_cut`] (a cut whose thread is not done yet is
-    /// prepared here, from what the thread was given: the same result): the body's state now (positions, velocities, temperature, damage) goes to the
+    /// Lands a cut begun by [`SimBody::begin_cut`] (waiting for its thread if it is not
+    /// done): the body's state now (positions, velocities, temperature, damage) goes to the
     /// pieces by the weights of their nodes. A body built again since the cut began is not
     /// the one it was prepared for: the cut is dropped and reported as crossed (its strips
     /// cut again).
@@ -203,9 +208,7 @@ impl SimBody {
         let started = std::time::Instant::now();
         let prepared = match job.work {
             Work::Ready(p) => p,
-            // Not done (its idle thread got no core in time): the step prepares it.
-            Work::Thread(h, input) if !h.is_finished() => prepare(*input),
-            Work::Thread(h, _) => match h.join() {
+            Work::Thread(h) => match h.join() {
                 Ok(p) => p,
                 Err(_) => {
                     log::warn!(
