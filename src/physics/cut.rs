@@ -120,6 +120,22 @@ pub(super) fn cut_stage(
     let options = config.cut;
     let mut made: Vec<Made> = Vec::new();
     let steps = status.steps;
+    // One call of `landed` with this stage's state, wherever a cut lands.
+    macro_rules! land {
+        ($i:expr, $outcome:expr, $from:expr) => {
+            landed(
+                $i,
+                $outcome,
+                $from,
+                &mut list,
+                &mut made,
+                &mut commands,
+                &mut assets,
+                &mut tools,
+                &mut status,
+            )
+        };
+    }
     // Cuts due land first, in the order they began; a body gone since drops its cut. A
     // failure stops the stage (the pieces cut before it are still spawned).
     let mut failed = false;
@@ -134,18 +150,7 @@ pub(super) fn cut_stage(
             continue;
         };
         let outcome = list[i].2.body.finish_cut(job.job);
-        let from = (job.blade, job.incision, job.mark);
-        if !landed(
-            i,
-            outcome,
-            from,
-            &mut list,
-            &mut made,
-            &mut commands,
-            &mut assets,
-            &mut tools,
-            &mut status,
-        ) {
+        if !land!(i, outcome, (job.blade, job.incision, job.mark)) {
             failed = true;
             break;
         }
@@ -194,18 +199,7 @@ pub(super) fn cut_stage(
                 }
                 Err(e) => Err(e),
             };
-            let from = (*blade, *id, mark);
-            if !landed(
-                i,
-                outcome,
-                from,
-                &mut list,
-                &mut made,
-                &mut commands,
-                &mut assets,
-                &mut tools,
-                &mut status,
-            ) {
+            if !land!(i, outcome, (*blade, *id, mark)) {
                 break 'blades;
             }
         }
