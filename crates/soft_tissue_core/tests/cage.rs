@@ -354,6 +354,14 @@ fn bad_cages_are_refused_with_the_defect_named() {
         Cage::new(nan, t.clone()),
         Err(CageError::NonFiniteVertex { vertex: 3, .. })
     ));
+    // Finite but so far out that the Green coordinates' products would overflow (a fuzzed
+    // OBJ with a coordinate of 5.6e99 made them infinite).
+    let mut far = v.clone();
+    far[3].y = 5.6e99;
+    assert!(matches!(
+        Cage::new(far, t.clone()),
+        Err(CageError::VertexOutOfRange { vertex: 3, .. })
+    ));
     let mut flat = v.clone();
     flat[8] = Vec3::new(0.0, 0.0, 1.0); // coincides with vertex 4
     assert!(Cage::new(flat, t.clone()).is_err());

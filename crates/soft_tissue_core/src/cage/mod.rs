@@ -34,6 +34,10 @@ use crate::Vec3;
 use crate::mesh::io::SurfaceMesh;
 use crate::msd::MsdError;
 
+/// Largest magnitude a cage vertex coordinate may have (the Green coordinates take products
+/// of coordinates up to the fourth power; beyond this they would overflow `f64`).
+pub const MAX_CAGE_COORDINATE: f64 = 1e75;
+
 /// Errors of cage construction, embedding and stepping. Indices name the offending cage
 /// vertex, cage triangle or embedded point.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -53,6 +57,17 @@ pub enum CageError {
         vertex: usize,
         /// Its coordinates.
         position: [f64; 3],
+    },
+    /// A vertex coordinate beyond [`MAX_CAGE_COORDINATE`] in magnitude: the products the
+    /// Green coordinates take of it (up to the fourth power) would overflow.
+    #[error("cage vertex {vertex} lies beyond {limit:e} of the origin: {position:?}")]
+    VertexOutOfRange {
+        /// Vertex index.
+        vertex: usize,
+        /// Its coordinates.
+        position: [f64; 3],
+        /// [`MAX_CAGE_COORDINATE`].
+        limit: f64,
     },
     /// A triangle refers to a vertex that does not exist, or twice to the same vertex.
     #[error("cage triangle {triangle} has bad vertex indices {indices:?} ({vertices} vertices)")]
@@ -190,6 +205,13 @@ impl Cage {
                 return Err(CageError::NonFiniteVertex {
                     vertex: i,
                     position: [v.x, v.y, v.z],
+                });
+            }
+            if v.amax() > MAX_CAGE_COORDINATE {
+                return Err(CageError::VertexOutOfRange {
+                    vertex: i,
+                    position: [v.x, v.y, v.z],
+                    limit: MAX_CAGE_COORDINATE,
                 });
             }
         }
