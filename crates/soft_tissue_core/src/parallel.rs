@@ -34,7 +34,27 @@ pub fn available_cores() -> usize {
 /// Whether the caller runs inside a pool of more than one thread (the only case where the
 /// core splits work).
 pub fn in_pool() -> bool {
-    rayon::current_thread_index().is_some() && rayon::current_num_threads() > 1
+    rayon::current_thread_index().is_some()
+        && rayon::current_num_threads() > 1
+        && !SEQUENTIAL.with(|s| s.get())
+}
+
+thread_local! {
+    /// Set while [`sequential`] runs its work on this thread.
+    static SEQUENTIAL: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Runs `f` on the calling thread without splitting its work, even inside a pool: long work
+/// given one of a pool's threads (a cut's preparation) leaves the others to the steps.
+pub fn sequential<R>(f: impl FnOnce() -> R) -> R {
+    struct Restore(bool);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            SEQUENTIAL.with(|s| s.set(self.0));
+        }
+    }
+    let _restore = Restore(SEQUENTIAL.with(|s| s.replace(true)));
+    f()
 }
 
 /// A thread pool for world steps, or none (one thread: the caller's).
@@ -132,5 +152,11 @@ mod tests {
         assert!(t.run(in_pool));
         assert!(!in_pool());
         assert_eq!(Threads::new(0).unwrap().count(), available_cores());
+    }
+
+    #[test]
+    fn sequential_work_does_not_split_inside_a_pool() {
+        let t = Threads::new(2).unwrap();
+        assert_eq!(t.run(|| (sequential(in_pool), in_pool())), (false, true));
     }
 }

@@ -11,6 +11,7 @@ use super::cut::{
 use super::*;
 use crate::mesh::cut::{CutHistory, CutOptions, CutTriangle, NodeOrigin, recut_within};
 use crate::mesh::pieces::pieces;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 /// A cut begun by [`SimBody::begin_cut`], to land with [`SimBody::finish_cut`].
 #[derive(Debug)]
@@ -27,7 +28,13 @@ pub struct CutJob {
 enum Work {
     Ready(Prepared),
     Thread(std::thread::JoinHandle<Prepared>),
+    /// On one thread of the world's pool (the others step).
+    Pool(std::sync::mpsc::Receiver<Prepared>, Arc<AtomicBool>),
 }
+
+/// Pool threads busy preparing cuts, in every pool of the process (a pool keeps at least
+/// one thread for the steps).
+static POOL_CUTS: AtomicUsize = AtomicUsize::new(0);
 
 impl CutJob {
     /// Whether its preparation is done (landing it does not wait).
@@ -35,6 +42,58 @@ impl CutJob {
         match &self.work {
             Work::Ready(_) => true,
             Work::Thread(h) => h.is_finished(),
+            Work::Pool(_, done) => done.load(Ordering::Acquire),
+        }
+    }
+}
+
+/// Prepares `input` on one of the pool's threads when the caller runs in a pool with a
+/// thread to spare (the steps go on, on the others, and share no core with it); `Err` gives
+/// the input back otherwise.
+fn prepare_in_pool(input: Input) -> Result<Work, Box<Input>> {
+    let threads = rayon::current_num_threads();
+    if rayon::current_thread_index().is_none() || threads < 2 {
+        return Err(Box::new(input));
+    }
+    let taken = POOL_CUTS.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+        (n + 1 < threads).then_some(n + 1)
+    });
+    if taken.is_err() {
+        return Err(Box::new(input));
+    }
+    let (tx, rx) = std::sync::mpsc::channel();
+    let done = Arc::new(AtomicBool::new(false));
+    let flag = done.clone();
+    rayon::spawn(move || {
+        // A panic must not reach the pool (it would abort the process): the landing step
+        // sees the channel close instead.
+        let prepared = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            crate::parallel::sequential(|| prepare(input))
+        }));
+        POOL_CUTS.fetch_sub(1, Ordering::AcqRel);
+        if let Ok(p) = prepared {
+            let _ = tx.send(p);
+        }
+        flag.store(true, Ordering::Release);
+    });
+    Ok(Work::Pool(rx, done))
+}
+
+/// The preparation on a pool thread, waited for: a pool thread that waits runs the pool's
+/// queued work meanwhile (the preparation itself, if no thread has taken it yet).
+fn wait_in_pool(rx: std::sync::mpsc::Receiver<Prepared>) -> Option<Prepared> {
+    loop {
+        match rx.try_recv() {
+            Ok(p) => return Some(p),
+            Err(std::sync::mpsc::TryRecvError::Disconnected) => return None,
+            Err(std::sync::mpsc::TryRecvError::Empty) => {}
+        }
+        if !matches!(rayon::yield_now(), Some(rayon::Yield::Executed)) {
+            match rx.recv_timeout(std::time::Duration::from_micros(200)) {
+                Ok(p) => return Some(p),
+                Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return None,
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+            }
         }
     }
 }
@@ -161,7 +220,26 @@ impl SimBody {
             input.settings.clone(),
             input.heat.clone(),
         );
-        let work = if background {
+        let pooled = if background {
+            prepare_in_pool(input)
+        } else {
+            Err(Box::new(input))
+        };
+        let work = match pooled {
+            Ok(work) => work,
+            Err(input) => self.prepare_elsewhere(*input, background),
+        };
+        Ok(Some(CutJob {
+            mesh,
+            settings,
+            heat,
+            work,
+        }))
+    }
+
+    /// A cut's preparation in the step, or (`background`) on a thread of its own.
+    fn prepare_elsewhere(&self, input: Input, background: bool) -> Work {
+        if background {
             // A thread of its own, not the world's pool, at a lower priority: the steps go on
             // beside it.
             let (tx, rx) = std::sync::mpsc::channel::<Input>();
@@ -190,13 +268,7 @@ impl SimBody {
             }
         } else {
             Work::Ready(prepare(input))
-        };
-        Ok(Some(CutJob {
-            mesh,
-            settings,
-            heat,
-            work,
-        }))
+        }
     }
 
     /// Lands a cut begun by [`SimBody::begin_cut`] (waiting for its thread if it is not
@@ -213,6 +285,16 @@ impl SimBody {
                 Err(_) => {
                     log::warn!(
                         "body `{}`: not cut: the thread preparing the cut failed",
+                        self.name
+                    );
+                    return Ok(BladeOutcome::Missed);
+                }
+            },
+            Work::Pool(rx, _) => match wait_in_pool(rx) {
+                Some(p) => p,
+                None => {
+                    log::warn!(
+                        "body `{}`: not cut: the pool thread preparing the cut failed",
                         self.name
                     );
                     return Ok(BladeOutcome::Missed);
