@@ -1,0 +1,274 @@
+//! A heat field's electrodes and sample points: the sub-grid spots (see `spot.rs`) as the
+//! field keeps them, and the points where temperature and damage are followed finer than
+//! the mesh.
+
+use super::spot::{RETIRE_KELVIN, arrhenius};
+use super::*;
+
+impl HeatField {
+    /// Heats through an electrode for the next step: `source.watts` into the tissue at
+    /// `source.center` (rest, scene units), where the coarse field is interpolated by
+    /// `nodes` (node, weight; weights summing to 1). The power goes into the spot already at
+    /// that place (within half an electrode radius) or a new one; see the module `spot` for
+    /// the model.
+    pub fn add_electrode(
+        &mut self,
+        source: &ElectrodeSource,
+        nodes: &[(usize, f64)],
+    ) -> Result<(), HeatError> {
+        let n = self.temperature.len();
+        let first = nodes.first().map_or(0, |x| x.0);
+        let bad = |what: &'static str, value: f64| HeatError::NonFinite {
+            what,
+            node: first,
+            value,
+        };
+        if !(source.watts.is_finite() && source.watts >= 0.0) {
+            return Err(bad("electrode power", source.watts));
+        }
+        if !(source.radius.is_finite() && source.radius > 0.0) {
+            return Err(HeatError::BadParameter {
+                field: "electrode radius",
+                value: source.radius,
+                expected: "finite and > 0",
+            });
+        }
+        if !(source.tissue_fraction > 0.0 && source.tissue_fraction <= 1.0) {
+            return Err(HeatError::BadParameter {
+                field: "electrode tissue_fraction",
+                value: source.tissue_fraction,
+                expected: "in (0, 1]",
+            });
+        }
+        if !source.center.iter().all(|c| c.is_finite()) {
+            return Err(bad("electrode centre", source.center.norm()));
+        }
+        if nodes.is_empty() {
+            return Err(HeatError::BadParameter {
+                field: "electrode nodes",
+                value: 0.0,
+                expected: "at least one node",
+            });
+        }
+        for &(node, w) in nodes {
+            if node >= n {
+                return Err(HeatError::BadNode { node, nodes: n });
+            }
+            if !w.is_finite() {
+                return Err(HeatError::NonFinite {
+                    what: "electrode weight",
+                    node,
+                    value: w,
+                });
+            }
+        }
+        if source.watts == 0.0 {
+            return Ok(());
+        }
+        let s = self.params.meters_per_unit;
+        let near = self.spots.iter().position(|p| {
+            p.grid.radius == source.radius
+                && p.fraction == source.tissue_fraction
+                && (p.center - source.center).norm() * s < 0.5 * source.radius
+        });
+        let k = match near {
+            Some(k) => k,
+            None => {
+                if self.spots.len() >= MAX_SPOTS
+                    && let Some(old) = self.spots.iter().position(|p| p.power == 0.0)
+                {
+                    self.retire(old);
+                }
+                let grid = match self.grids.iter().find(|g| g.radius == source.radius) {
+                    Some(g) => g.clone(),
+                    None => {
+                        let g = Arc::new(RadialGrid::new(source.radius, &self.params, self.dt));
+                        self.grids.push(g.clone());
+                        g
+                    }
+                };
+                let nodes: Vec<(u32, f64)> = nodes.iter().map(|&(i, w)| (i as u32, w)).collect();
+                let base = interpolate(&self.temperature, &nodes);
+                self.spots.push(Spot::new(
+                    source.center,
+                    nodes,
+                    source.tissue_fraction,
+                    grid,
+                    base,
+                ));
+                self.spots.len() - 1
+            }
+        };
+        self.spots[k].power += source.watts;
+        Ok(())
+    }
+
+    /// Power queued at electrodes for the next step, W.
+    pub fn queued_electrode_power(&self) -> f64 {
+        self.spots.iter().map(|p| p.power).sum()
+    }
+
+    /// Spots (places an electrode heated whose heat is still above the coarse field).
+    pub fn spot_count(&self) -> usize {
+        self.spots.len()
+    }
+
+    /// Temperature at `position` (rest, scene units) where the coarse field is interpolated
+    /// by `nodes`: the coarse value plus the excess of every spot, C.
+    pub fn temperature_at(&self, position: &Vec3, nodes: &[(u32, f64)]) -> f64 {
+        let s = self.params.meters_per_unit;
+        interpolate(&self.temperature, nodes)
+            + self
+                .spots
+                .iter()
+                .map(|p| p.excess_at(position, s))
+                .sum::<f64>()
+    }
+
+    /// The largest temperature, at a node or an electrode, C.
+    pub fn max_temperature(&self) -> f64 {
+        let coarse = self
+            .temperature
+            .iter()
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
+        self.spots
+            .iter()
+            .map(|p| interpolate(&self.temperature, &p.nodes) + p.max_excess())
+            .fold(coarse, f64::max)
+    }
+
+    /// Burnt volumes at the sub-grid scale, of the spots now and of those that ended, m^3.
+    /// Places where spots overlap count once for each.
+    pub fn burn_volumes(&self) -> BurnVolumes {
+        let mut v = self.retired;
+        for p in &self.spots {
+            v += p.volumes(&self.params);
+        }
+        v
+    }
+
+    /// Radius of the coagulated zone (damage at least 1) around each live spot, m.
+    pub fn coagulated_radii(&self) -> Vec<f64> {
+        self.spots.iter().map(|p| p.coagulated_radius()).collect()
+    }
+
+    /// Radius of the crater around each live spot (the electrode's radius where nothing
+    /// vaporized), m: how far the electrode has burnt its way in.
+    pub fn crater_radii(&self) -> Vec<f64> {
+        self.spots.iter().map(|p| p.crater_radius()).collect()
+    }
+
+    /// Follows temperature, damage and peak temperature at `samples` (see [`HeatSample`]);
+    /// replaces the points followed before. Their damage starts at zero.
+    pub fn set_samples(&mut self, samples: Vec<HeatSample>) -> Result<(), HeatError> {
+        let n = self.temperature.len();
+        for p in &samples {
+            for &(node, w) in &p.nodes {
+                if node as usize >= n {
+                    return Err(HeatError::BadNode {
+                        node: node as usize,
+                        nodes: n,
+                    });
+                }
+                if !w.is_finite() {
+                    return Err(HeatError::NonFinite {
+                        what: "sample weight",
+                        node: node as usize,
+                        value: w,
+                    });
+                }
+            }
+            if !p.position.iter().all(|c| c.is_finite()) {
+                return Err(HeatError::NonFinite {
+                    what: "sample position",
+                    node: p.nodes[0].0 as usize,
+                    value: p.position.norm(),
+                });
+            }
+        }
+        self.sample_temperature = samples
+            .iter()
+            .map(|p| self.temperature_at(&p.position, &p.nodes))
+            .collect();
+        self.sample_peak = self.sample_temperature.clone();
+        self.sample_damage = vec![0.0; samples.len()];
+        self.samples = samples;
+        Ok(())
+    }
+
+    /// Temperature at each sample, C.
+    pub fn sample_temperatures(&self) -> &[f64] {
+        &self.sample_temperature
+    }
+
+    /// Arrhenius damage integral at each sample.
+    pub fn sample_damage(&self) -> &[f64] {
+        &self.sample_damage
+    }
+
+    /// The largest temperature each sample reached, C.
+    pub fn sample_peaks(&self) -> &[f64] {
+        &self.sample_peak
+    }
+
+    /// Takes the spots' solved steps; spots with no power whose excess has faded end.
+    pub(super) fn commit_spots(&mut self) {
+        if self.spots.is_empty() {
+            return;
+        }
+        self.changed = true;
+        let dt = self.dt;
+        let mut k = 0;
+        while k < self.spots.len() {
+            let spot = &mut self.spots[k];
+            let powered = spot.power > 0.0;
+            let base = interpolate(&self.temperature, &spot.nodes);
+            spot.commit(&self.params, base, dt);
+            if !powered && spot.max_excess() < RETIRE_KELVIN {
+                self.retire(k);
+            } else {
+                k += 1;
+            }
+        }
+    }
+
+    /// Ends spot `k`: its excess heat goes into its coarse nodes, its volumes and boiled
+    /// heat are kept.
+    fn retire(&mut self, k: usize) {
+        let spot = self.spots.remove(k);
+        let energy = spot.sensible_energy();
+        for &(node, w) in &spot.nodes {
+            let i = node as usize;
+            if self.fixed[i].is_none() {
+                self.temperature[i] += w * energy / self.capacity[i];
+            }
+        }
+        self.retired += spot.volumes(&self.params);
+        self.retired_boiled += spot.boiled_energy();
+    }
+
+    /// Temperatures, peaks and damage at the samples after a step.
+    pub(super) fn update_samples(&mut self) {
+        if self.samples.is_empty() || !self.changed {
+            return;
+        }
+        let s = self.params.meters_per_unit;
+        let dt = self.dt;
+        let p = self.params;
+        for k in 0..self.samples.len() {
+            let sample = &self.samples[k];
+            let mut t = interpolate4(&self.temperature, &sample.nodes);
+            for spot in &self.spots {
+                t += spot.excess_at(&sample.position, s);
+            }
+            self.sample_temperature[k] = t;
+            if t > self.sample_peak[k] {
+                self.sample_peak[k] = t;
+            }
+            if p.damage_frequency > 0.0 && t > p.damage_threshold {
+                self.sample_damage[k] += dt * arrhenius(&p, t);
+            }
+        }
+    }
+}
