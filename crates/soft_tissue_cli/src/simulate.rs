@@ -177,6 +177,26 @@ pub(crate) fn drive_tool(
     Ok(())
 }
 
+/// Body `i`'s heat (`None` without a heat field): the largest temperature of the run, the
+/// burnt volumes at the electrodes' scale, the spots now, the heat step's time.
+fn heat_summary(
+    world: &SoftTissueWorld,
+    i: usize,
+    hottest: f64,
+    heat_us: &[f64],
+) -> Option<serde_json::Value> {
+    let h = world.bodies()[i].heat()?;
+    let v = h.burn_volumes();
+    Some(json!({
+        "largest_temperature_c": hottest.max(h.max_temperature()),
+        "coagulated_mm3": v.coagulated * 1e9,
+        "charred_mm3": v.charred * 1e9,
+        "vaporized_mm3": v.vaporized * 1e9,
+        "spots": h.spot_count(),
+        "heat_us": soft_tissue_core::timing::TimeStats::of(heat_us),
+    }))
+}
+
 /// What cuts did to body `i` (`None` if it was never cut): its cut faces and their area,
 /// the pieces its uncut body is in now, their volume change, the smallest dihedral angle
 /// of its tetrahedra, whether its surface is closed.
@@ -256,6 +276,8 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     let mut worst_shadow = vec![0.0f64; nb];
     let mut shadow_sum = vec![(0.0f64, 0u64); nb];
     let mut worst_penetration = vec![0.0f64; nb];
+    let mut hottest = vec![f64::NEG_INFINITY; nb];
+    let mut heat_us: Vec<Vec<f64>> = vec![Vec::new(); nb];
     let mut most_contacts = vec![0u32; nb];
     let mut contact_rounds = (0u64, 0u32, 0u64, 0u32);
     // Each cut that changed a body: (mesh change, bodies built, landing), microseconds.
@@ -312,6 +334,8 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
             worst_shadow.resize(nb, 0.0);
             shadow_sum.resize(nb, (0.0, 0));
             worst_penetration.resize(nb, 0.0);
+            hottest.resize(nb, f64::NEG_INFINITY);
+            heat_us.resize(nb, Vec::new());
             most_contacts.resize(nb, 0);
         }
         for (i, b) in world.bodies().iter().enumerate() {
@@ -329,6 +353,10 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 shadow_sum[i].1 += 1;
             }
             worst_penetration[i] = worst_penetration[i].max(d.max_penetration);
+            if let Some(t) = d.max_temperature {
+                hottest[i] = hottest[i].max(t);
+                heat_us[i].push(d.heat_us);
+            }
             most_contacts[i] = most_contacts[i].max(d.contacts);
         }
         let cs = world.contacts().stats();
@@ -434,6 +462,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "max_penetration_ratio": worst_penetration[i] / b.body().smallest_dimension(),
                 "max_contacts": most_contacts[i],
                 "cut": cut_summary(&world, i),
+                "heat": heat_summary(&world, i, hottest[i], &heat_us[i]),
             })
         })
         .collect();
@@ -624,6 +653,20 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 cutting_steps.len(),
                 triple(&soft_tissue_core::timing::TimeStats::of(&cutting_steps)),
             );
+        }
+        for (i, b) in world.bodies().iter().enumerate().take(12) {
+            if let Some(h) = heat_summary(&world, i, hottest[i], &heat_us[i]) {
+                println!(
+                    "{:<24} heat: largest {:.1} C, coagulated {:.2} mm^3, charred {:.2} mm^3, vaporized {:.2} mm^3 (sub-grid), spots {}; heat step median / p99 / max us {}",
+                    b.name(),
+                    h["largest_temperature_c"].as_f64().unwrap_or(f64::NAN),
+                    h["coagulated_mm3"].as_f64().unwrap_or(f64::NAN),
+                    h["charred_mm3"].as_f64().unwrap_or(f64::NAN),
+                    h["vaporized_mm3"].as_f64().unwrap_or(f64::NAN),
+                    h["spots"],
+                    triple(&soft_tissue_core::timing::TimeStats::of(&heat_us[i])),
+                );
+            }
         }
         for (i, b) in world.bodies().iter().enumerate().take(12) {
             if let Some(c) = cut_summary(&world, i) {

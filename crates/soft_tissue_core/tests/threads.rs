@@ -55,7 +55,8 @@ const SPIN: f64 = 3.0;
 struct Run {
     /// `state_hash` after the last step.
     hash: u64,
-    /// The liver's temperatures after the last step (bits).
+    /// The liver's temperatures after the last step, then its largest temperature and its
+    /// heat content (bits).
     temperatures: Vec<u64>,
     /// `state_hash` before the first step.
     start_hash: u64,
@@ -140,15 +141,16 @@ fn run(threads: usize, model: FemModel) -> Run {
             .fold(0.0, f64::max);
         liver_moved = liver_moved.max(moved / smallest);
     }
-    let temperatures = w.bodies()[li].heat().unwrap().temperatures();
-    let heated = temperatures
-        .iter()
-        .zip(&start_temperature)
-        .map(|(a, b)| a - b)
-        .fold(0.0, f64::max);
+    let heat = w.bodies()[li].heat().unwrap();
+    // The electrode's spot included (the nodes themselves warm little).
+    let heated =
+        heat.max_temperature() - start_temperature.iter().copied().fold(f64::MIN, f64::max);
+    let mut temperatures: Vec<u64> = heat.temperatures().iter().map(|t| t.to_bits()).collect();
+    temperatures.push(heat.max_temperature().to_bits());
+    temperatures.push(heat.heat_content().to_bits());
     Run {
         hash: w.state_hash(),
-        temperatures: temperatures.iter().map(|t| t.to_bits()).collect(),
+        temperatures,
         start_hash,
         tool_steps,
         body_steps,

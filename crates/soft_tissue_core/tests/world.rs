@@ -277,8 +277,9 @@ fn runs_are_bit_identical_and_reset_restores_the_start() {
     assert_eq!(snapshot(&fresh), first);
 }
 
-#[test]
-fn cautery_delivers_its_power_and_damages_the_tissue() {
+/// The cauterize-liver script with the electrode of `radius` (m; `None`: nodal heating):
+/// the world after it, the liver's index, the heat delivered and the heat expected (J).
+fn cauterize(radius: Option<f64>) -> (SoftTissueWorld, usize, f64, f64) {
     use soft_tissue_core::contact::Counterpart;
     let mut w = organs();
     let s = Script::builtin("cauterize-liver", &w).unwrap();
@@ -287,6 +288,7 @@ fn cautery_delivers_its_power_and_damages_the_tissue() {
     let dt = w.config().dt;
     let mut on_steps = 0;
     let tool = w.add_tool(Tool::new("cautery", s.tool).unwrap());
+    w.tools_mut()[tool].set_electrode_radius(radius).unwrap();
     for k in 0..400 {
         let t = (k + 1) as f64 * dt;
         let (p, a) = s.pose_at(t);
@@ -309,17 +311,60 @@ fn cautery_delivers_its_power_and_damages_the_tissue() {
             on_steps += 1;
         }
     }
-    let heat = w.bodies()[liver].heat().unwrap();
-    let delivered = heat.heat_content() - q0;
-    let expected = 30.0 * dt * on_steps as f64;
+    let delivered = w.bodies()[liver].heat().unwrap().heat_content() - q0;
     assert!(
         on_steps > 100,
         "the cautery touched for {on_steps} steps only"
     );
+    (w, liver, delivered, 30.0 * dt * on_steps as f64)
+}
+
+#[test]
+fn cautery_burns_a_millimetre_spot_with_its_power() {
+    let (w, liver, delivered, expected) = cauterize(Some(1e-3));
+    let heat = w.bodies()[liver].heat().unwrap();
+    assert!(
+        (delivered - expected).abs() < 1e-9 * expected,
+        "delivered {delivered} J, expected {expected} J"
+    );
+    // 30 W into a 1 mm electrode boil the tissue at it, vaporize a crater and coagulate
+    // around it; the coarse nodes stay far cooler.
+    let v = heat.burn_volumes();
+    println!(
+        "{} spots, coagulated {:.2} mm^3, charred {:.2} mm^3, vaporized {:.2} mm^3, craters {:?} mm, {:.1} C now",
+        heat.spot_count(),
+        v.coagulated * 1e9,
+        v.charred * 1e9,
+        v.vaporized * 1e9,
+        heat.crater_radii()
+            .iter()
+            .map(|r| r * 1e3)
+            .collect::<Vec<_>>(),
+        heat.max_temperature()
+    );
+    assert!(v.vaporized > 0.0 && v.charred >= v.vaporized && v.coagulated >= v.charred);
+    assert!(heat.crater_radii().iter().any(|&r| r > 1e-3));
+    let coarse = heat.temperatures().iter().copied().fold(f64::MIN, f64::max);
+    assert!(coarse < 60.0, "hottest node {coarse} C");
+    assert_eq!(
+        w.bodies()[liver].diagnostics().max_temperature,
+        Some(heat.max_temperature())
+    );
+    // The heat the water took stays counted: the energy above holds with it.
+    assert!(heat.subgrid_heat_content() > 0.5 * expected);
+    // Bodies without heat parameters pay nothing for heat.
+    assert!(w.bodies().iter().filter(|b| b.heat().is_some()).count() == 1);
+}
+
+#[test]
+fn cautery_without_an_electrode_heats_the_nodes() {
+    let (w, liver, delivered, expected) = cauterize(None);
+    let heat = w.bodies()[liver].heat().unwrap();
     assert!(
         (delivered - expected).abs() < 1e-6 * expected,
         "delivered {delivered} J, expected {expected} J"
     );
+    assert_eq!(heat.spot_count(), 0);
     // The organ meshes are coarse (a node stands for about 3 cm^3 of liver, 11 J/K), so
     // 60 J warm the tip's nodes by a few kelvin rather than burning a millimetre spot; the
     // rise is bounded by the energy over the capacity of the hottest node.
@@ -338,8 +383,6 @@ fn cautery_delivers_its_power_and_damages_the_tissue() {
             assert!(*t > 37.0, "damage at {t} C");
         }
     }
-    // Bodies without heat parameters pay nothing for heat.
-    assert!(w.bodies().iter().filter(|b| b.heat().is_some()).count() == 1);
     let _ = HeatParams::liver();
 }
 

@@ -44,7 +44,7 @@ pub use problem::{BodyPoint, ContactRow, ContactSolver, Counterpart, RowKind, So
 pub use rigid::{Friction, FrictionCombine, MeshShape, Obstacle, Pose, RigidShape, pose_along};
 pub use stages::{ContactState, ContactStats, detect_contacts, solve_contacts};
 pub use surface::{SurfaceCollider, SurfaceHit};
-pub use tool::{Grip, JawShape, Tool, ToolShape};
+pub use tool::{DEFAULT_ELECTRODE_RADIUS, Grip, JawShape, Tool, ToolShape};
 
 use parry3d::bounding_volume::Aabb as ParryAabb;
 use parry3d::math::Vector as ParryVector;

@@ -175,6 +175,9 @@ pub struct Grip {
     pub offset: Vec3,
 }
 
+/// A cautery electrode's radius by default, m (1 mm).
+pub const DEFAULT_ELECTRODE_RADIUS: f64 = 1e-3;
+
 /// A kinematic tool: pokes (always), picks (after [`Tool::grab`]), cauterizes (with power
 /// set) and, as a grasper, holds by squeezing. The caller sets its pose each step; the step
 /// returns the contact force on it (the sum of its contacts' forces).
@@ -190,6 +193,7 @@ pub struct Tool {
     last_position: Option<Vec3>,
     velocity: Vec3,
     cautery_watts: f64,
+    electrode_radius: Option<f64>,
     grab_requested: bool,
     grips: Vec<Grip>,
     reaction: Vec3,
@@ -224,6 +228,7 @@ impl Tool {
             last_position: None,
             velocity: Vec3::zeros(),
             cautery_watts: 0.0,
+            electrode_radius: Some(DEFAULT_ELECTRODE_RADIUS),
             grab_requested: false,
             grips: Vec::new(),
             reaction: Vec3::zeros(),
@@ -332,6 +337,29 @@ impl Tool {
     /// Cautery power, W.
     pub fn cautery_watts(&self) -> f64 {
         self.cautery_watts
+    }
+
+    /// The cautery electrode's radius, m: its heat is modelled at that scale by a sub-grid
+    /// spot at the contact (see [`crate::heat::HeatField::add_electrode`]). `None` spreads
+    /// the power over the pressed mesh nodes instead (the coarse field only, as before the
+    /// sub-grid model). Default [`DEFAULT_ELECTRODE_RADIUS`].
+    pub fn set_electrode_radius(&mut self, radius: Option<f64>) -> Result<(), ContactError> {
+        if let Some(r) = radius
+            && !(r.is_finite() && r > 0.0)
+        {
+            return Err(ContactError::BadTool {
+                tool: self.name.clone(),
+                what: "electrode radius (must be > 0 m)",
+                value: r,
+            });
+        }
+        self.electrode_radius = radius;
+        Ok(())
+    }
+
+    /// The cautery electrode's radius, m (`None`: nodal heating).
+    pub fn electrode_radius(&self) -> Option<f64> {
+        self.electrode_radius
     }
 
     /// The tool's surface friction.

@@ -125,17 +125,17 @@ impl HeatField {
                 .sum::<f64>()
     }
 
-    /// The largest temperature, at a node or an electrode, C.
+    /// The largest temperature, at a node or an electrode, C (NaN if any is).
     pub fn max_temperature(&self) -> f64 {
         let coarse = self
             .temperature
             .iter()
             .copied()
-            .fold(f64::NEG_INFINITY, f64::max);
+            .fold(f64::NEG_INFINITY, crate::state::nan_max);
         self.spots
             .iter()
             .map(|p| interpolate(&self.temperature, &p.nodes) + p.max_excess())
-            .fold(coarse, f64::max)
+            .fold(coarse, crate::state::nan_max)
     }
 
     /// Burnt volumes at the sub-grid scale, of the spots now and of those that ended, m^3.
@@ -157,6 +157,19 @@ impl HeatField {
     /// vaporized), m: how far the electrode has burnt its way in.
     pub fn crater_radii(&self) -> Vec<f64> {
         self.spots.iter().map(|p| p.crater_radius()).collect()
+    }
+
+    /// Ends every spot: their excess heat goes into their coarse nodes (a mesh about to
+    /// change keeps the heat in its nodes' field).
+    pub fn absorb_spots(&mut self) {
+        if self.spots.is_empty() {
+            return;
+        }
+        while !self.spots.is_empty() {
+            self.retire(0);
+        }
+        self.changed = true;
+        self.version += 1;
     }
 
     /// Follows temperature, damage and peak temperature at `samples` (see [`HeatSample`]);

@@ -302,7 +302,16 @@ impl Spot {
                     }
                 }
             }
-            inner = self.first_left(&self.boiled_next);
+            let left = self.first_left(&self.boiled_next);
+            // A shell whose water ran out in this pass joins the crater at once.
+            for i in inner..left {
+                let over = base + self.next[i] - boil;
+                if over > 0.0 {
+                    self.boiled_next[i] += g.capacity[i] * over;
+                    self.next[i] -= over;
+                }
+            }
+            inner = left;
         }
         self.outflow = self.fraction * outflow;
         self.perfused = self.fraction * perfused;

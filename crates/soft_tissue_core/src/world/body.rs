@@ -136,7 +136,8 @@ impl SimBody {
                 switched: None,
                 last_switch: None,
                 max_displacement: 0.0,
-                max_temperature: heat.as_ref().map(|h| max_of(h.temperatures())),
+                max_temperature: heat.as_ref().map(|h| h.max_temperature()),
+                heat_us: 0.0,
                 shadow: None,
             },
             name,
@@ -360,7 +361,7 @@ impl SimBody {
         self.diagnostics.method = self.body.settings().precise;
         self.diagnostics.switch_count = self.body.switch_count();
         self.diagnostics.last_switch = self.body.last_switch();
-        self.diagnostics.max_temperature = self.heat.as_ref().map(|h| max_of(h.temperatures()));
+        self.diagnostics.max_temperature = self.heat.as_ref().map(|h| h.max_temperature());
         Ok(())
     }
 
@@ -440,10 +441,4 @@ impl SimBody {
         self.written_asleep = false;
         r.map_err(|e| self.precision_err(e))
     }
-}
-
-pub(crate) fn max_of(v: &[f64]) -> f64 {
-    v.iter()
-        .copied()
-        .fold(f64::NEG_INFINITY, crate::state::nan_max)
 }

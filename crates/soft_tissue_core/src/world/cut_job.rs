@@ -29,8 +29,18 @@ enum Work {
     Ready(Prepared),
     Thread(std::thread::JoinHandle<Prepared>),
     /// On one thread of the world's pool (the others step).
-    Pool(std::sync::mpsc::Receiver<Prepared>, Arc<AtomicBool>),
+    /// (In a mutex so a job can sit in shared state, a Bevy resource.)
+    Pool(
+        std::sync::Mutex<std::sync::mpsc::Receiver<Prepared>>,
+        Arc<AtomicBool>,
+    ),
 }
+
+// A job sits in shared state (a Bevy resource): it must stay Send and Sync.
+const _: fn() = || {
+    fn shareable<T: Send + Sync>() {}
+    shareable::<CutJob>();
+};
 
 /// Pool threads busy preparing cuts, in every pool of the process (a pool keeps at least
 /// one thread for the steps).
@@ -76,7 +86,7 @@ fn prepare_in_pool(input: Input) -> Result<Work, Box<Input>> {
         }
         flag.store(true, Ordering::Release);
     });
-    Ok(Work::Pool(rx, done))
+    Ok(Work::Pool(std::sync::Mutex::new(rx), done))
 }
 
 /// The preparation on a pool thread, waited for: a pool thread that waits runs the pool's
@@ -290,7 +300,7 @@ impl SimBody {
                     return Ok(BladeOutcome::Missed);
                 }
             },
-            Work::Pool(rx, _) => match wait_in_pool(rx) {
+            Work::Pool(rx, _) => match rx.into_inner().ok().and_then(wait_in_pool) {
                 Some(p) => p,
                 None => {
                     log::warn!(
@@ -351,7 +361,10 @@ impl SimBody {
                 return Ok(BladeOutcome::Crossed);
             }
         }
-        let heat_all = self.heat.as_ref().map(|h| {
+        let heat_all = self.heat.as_mut().map(|h| {
+            // The electrodes' spots give their heat to the nodes first (the pieces start
+            // without spots; burnt volumes start again in them).
+            h.absorb_spots();
             let t: Vec<f64> = origins
                 .iter()
                 .map(|o| o.interpolate(h.temperatures()))

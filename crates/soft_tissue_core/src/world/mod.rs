@@ -229,8 +229,12 @@ pub struct BodyDiagnostics {
     pub last_switch: Option<SwitchRecord>,
     /// Largest surface displacement from the initial (settled) shape, scene units.
     pub max_displacement: f64,
-    /// Largest temperature, C (`None` without a heat field).
+    /// Largest temperature, C, at a node or an electrode's spot (`None` without a heat
+    /// field).
     pub max_temperature: Option<f64>,
+    /// Wall time of this body's heat in the step (coarse field and electrode spots), us
+    /// (part of `step_us`; beside the mechanics on another thread in a pool).
+    pub heat_us: f64,
     /// Distance of the cage level from its shadow precise simulation after this step
     /// (`None` unless [`SimBody::set_shadow`] turned it on and the body is at its cage).
     pub shadow: Option<ShadowError>,
@@ -338,6 +342,10 @@ pub fn step_solvers<B: BorrowMut<SimBody> + Send, T: Borrow<Tool>>(
         if total == 0 {
             continue;
         }
+        if let Some(radius) = tool.electrode_radius() {
+            electrode_power(bodies, state, &pressing, watts, radius)?;
+            continue;
+        }
         let share = watts / total as f64;
         for r in state.solved_rows().iter().filter(pressing) {
             let b = bodies[r.a.body as usize].borrow_mut();
@@ -377,6 +385,67 @@ pub fn step_solvers<B: BorrowMut<SimBody> + Send, T: Borrow<Tool>>(
     Ok(())
 }
 
+/// An electrode's power into the bodies it presses, each body's share by its part of the
+/// normal force, at the force-weighted centre of its pressed points on the rest mesh (see
+/// [`HeatField::add_electrode`]; the electrode is taken as centred on a flat surface, half
+/// of its sphere in tissue).
+fn electrode_power<B: BorrowMut<SimBody>>(
+    bodies: &mut [B],
+    state: &ContactState,
+    pressing: &dyn Fn(&&crate::contact::ContactRow) -> bool,
+    watts: f64,
+    radius: f64,
+) -> Result<(), WorldError> {
+    let rows: Vec<&crate::contact::ContactRow> =
+        state.solved_rows().iter().filter(pressing).collect();
+    let force: f64 = rows.iter().map(|r| r.force.x).sum();
+    let mut done: Vec<u32> = Vec::new();
+    for r in &rows {
+        let body = r.a.body;
+        if done.contains(&body) {
+            continue;
+        }
+        done.push(body);
+        let b = bodies[body as usize].borrow_mut();
+        let Some(h) = b.heat.as_mut() else { continue };
+        let rest = b.mesh.positions();
+        let mut center = Vec3::zeros();
+        let mut nodes: Vec<(usize, f64)> = Vec::new();
+        let mut part = 0.0;
+        for q in rows.iter().filter(|q| q.a.body == body) {
+            let f = q.force.x;
+            part += f;
+            for (v, w) in q.a.terms() {
+                let node = b.collider.nodes()[v as usize] as usize;
+                center += rest[node] * (f * w);
+                nodes.push((node, f * w));
+            }
+        }
+        if part <= 0.0 {
+            continue;
+        }
+        center /= part;
+        for n in &mut nodes {
+            n.1 /= part;
+        }
+        let source = crate::heat::ElectrodeSource {
+            center,
+            watts: watts * part / force,
+            radius,
+            tissue_fraction: 0.5,
+        };
+        h.add_electrode(&source, &nodes)
+            .map_err(|source| WorldError::Heat {
+                body: BodyName {
+                    name: b.name.clone(),
+                    id: Some(b.collider.id()),
+                },
+                source,
+            })?;
+    }
+    Ok(())
+}
+
 impl SimBody {
     /// This body's heat and level step, timed into its diagnostics.
     fn step_solver(&mut self) -> Result<(), WorldError> {
@@ -397,24 +466,36 @@ impl SimBody {
         // they run side by side.
         // The heat field's new temperatures are taken only when the mechanics stepped too,
         // so a body whose mechanics fail is left as it was.
-        let (heat, mechanics) = match self.heat.as_mut() {
+        let timed = |h: &mut HeatField| {
+            let start = Instant::now();
+            let r = h.solve_next();
+            (r, start.elapsed())
+        };
+        let ((heat, heat_time), mechanics) = match self.heat.as_mut() {
             Some(h) if crate::parallel::in_pool() => {
-                rayon::join(|| h.solve_next(), || self.body.step(self.touched))
+                rayon::join(|| timed(h), || self.body.step(self.touched))
             }
             Some(h) => {
-                let heat = h.solve_next();
+                let heat = timed(h);
                 (heat, self.body.step(self.touched))
             }
-            None => (Ok(()), self.body.step(self.touched)),
+            None => (
+                (Ok(()), std::time::Duration::ZERO),
+                self.body.step(self.touched),
+            ),
         };
         heat.map_err(|source| WorldError::Heat {
             body: self.label(),
             source,
         })?;
         let stats = mechanics.map_err(|e| self.precision_err(e))?;
+        let mut heat_time = heat_time;
         if let Some(h) = self.heat.as_mut() {
+            let start = Instant::now();
             h.commit();
+            heat_time += start.elapsed();
         }
+        self.diagnostics.heat_us = heat_time.as_secs_f64() * 1e6;
         if let Some(r) = stats.switched {
             self.diagnostics.switched = Some(r);
         }
