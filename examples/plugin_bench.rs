@@ -189,6 +189,7 @@ fn run_plugin(
                 shape: script.tool,
                 grab: false,
                 cautery_watts: 0.0,
+                electrode_radius: Some(1e-3),
                 jaws: 0.0,
                 cut: false,
                 friction: Default::default(),

@@ -30,14 +30,14 @@ target=${CARGO_TARGET_DIR:-target}
 cargo test -q --workspace --no-run --locked
 
 # Frames at 1/60 s of simulated time each: organs 150 (2.5 s, the cautery pressing on the
-# liver), cylinders 130 (2.2 s, model A pushed into model B).
-for shot in organs:150 cylinders:130; do
-    name=${shot%%:*}
-    frames=${shot##*:}
+# liver), cylinders 130 (2.2 s, model A pushed into model B), organs-burn 230 (3.8 s, close
+# up: the burn the cautery left on the liver, the tool lifted off). PNG:APP:FRAMES[:OPTION].
+for shot in organs:organs:150 cylinders:cylinders:130 organs-burn:organs:230:--close-up; do
+    IFS=: read -r name app frames extra <<< "$shot"
     png="$out/$name.png"
     rm -f "$png"
     WGPU_BACKEND=vulkan timeout 600 xvfb-run -a -s "-screen 0 1280x720x24" \
-        "$target/debug/examples/$name" --screenshot "$png" --frames "$frames" \
+        "$target/debug/examples/$app" --screenshot "$png" --frames "$frames" $extra \
         > "/tmp/soft-tissue-$name.log" 2>&1 || { tail -20 "/tmp/soft-tissue-$name.log"; exit 1; }
     size=$(stat -c %s "$png")
     # A blank or failed frame compresses to almost nothing.

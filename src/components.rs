@@ -9,7 +9,9 @@
 
 use bevy::prelude::*;
 use soft_tissue_core::cage::CageDynamics;
-use soft_tissue_core::contact::{Friction, JawShape, MeshShape, RigidShape, Tool, ToolShape};
+use soft_tissue_core::contact::{
+    DEFAULT_ELECTRODE_RADIUS, Friction, JawShape, MeshShape, RigidShape, Tool, ToolShape,
+};
 use soft_tissue_core::fem::FemIntegrator;
 use soft_tissue_core::heat::HeatParams;
 use soft_tissue_core::material::{FemParams, MsdParams};
@@ -272,8 +274,15 @@ pub struct Temperature {
     pub damage: Vec<f32>,
     /// Lowest node temperature, C.
     pub min: f64,
-    /// Highest node temperature, C.
+    /// Highest temperature, C: at a node or at a cautery electrode's spot (its millimetre
+    /// field, see `soft_tissue_core::heat`).
     pub max: f64,
+    /// Tissue coagulated (Arrhenius damage at least 1) at the electrodes' scale, mm^3.
+    pub coagulated_mm3: f64,
+    /// Tissue that reached boiling (charred) at the electrodes' scale, mm^3.
+    pub charred_mm3: f64,
+    /// Tissue whose water boiled away (vaporized) at the electrodes' scale, mm^3.
+    pub vaporized_mm3: f64,
     /// The heat field's version these values were read at (see `HeatField::version`).
     #[reflect(ignore)]
     pub(crate) version: Option<u64>,
@@ -503,6 +512,10 @@ pub struct SoftTool {
     pub grab: bool,
     /// Electrocautery power delivered at the contact, W (0: off).
     pub cautery_watts: f64,
+    /// The cautery electrode's radius, m: its heat is modelled at that scale (a millimetre
+    /// spot that chars and vaporizes; `soft_tissue_core::heat`). `None` spreads the power
+    /// over the pressed mesh nodes. Default 1 mm.
+    pub electrode_radius: Option<f64>,
     /// A grasper's jaw opening the jaws move toward, scene units (0 closes them; ignored by
     /// other tools).
     pub jaws: f64,
@@ -520,6 +533,7 @@ impl SoftTool {
             shape: ToolShape::Sphere { radius },
             grab: false,
             cautery_watts: 0.0,
+            electrode_radius: Some(DEFAULT_ELECTRODE_RADIUS),
             jaws: 0.0,
             cut: false,
             friction: Friction::default(),
@@ -533,6 +547,7 @@ impl SoftTool {
             shape: ToolShape::Blade { length },
             grab: false,
             cautery_watts: 0.0,
+            electrode_radius: Some(DEFAULT_ELECTRODE_RADIUS),
             jaws: 0.0,
             cut: false,
             friction: Friction::default(),
@@ -545,6 +560,7 @@ impl SoftTool {
             shape: ToolShape::Grasper { jaw, max_opening },
             grab: false,
             cautery_watts: 0.0,
+            electrode_radius: Some(DEFAULT_ELECTRODE_RADIUS),
             jaws: max_opening,
             cut: false,
             friction: Friction::default(),

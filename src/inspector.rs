@@ -227,7 +227,19 @@ fn inspector_panel(
                             .last_jump_ratio
                             .map_or("-".into(), |r| format!("{:.3}", 100.0 * r)),
                     );
-                    ui.label(temp.map_or("-".into(), |t| format!("{:.1}..{:.1}", t.min, t.max)));
+                    ui.label(temp.map_or("-".into(), |t| {
+                        let range = format!("{:.1}..{:.1}", t.min, t.max);
+                        if t.coagulated_mm3 > 0.0 || t.charred_mm3 > 0.0 {
+                            // Burnt at the electrodes' scale: coagulated / charred /
+                            // vaporized.
+                            format!(
+                                "{range}, burnt {:.1} / {:.1} / {:.1} mm3",
+                                t.coagulated_mm3, t.charred_mm3, t.vaporized_mm3
+                            )
+                        } else {
+                            range
+                        }
+                    }));
                     ui.label(
                         diag.shadow_error_ratio
                             .map_or("-".into(), |r| format!("{:.2}", 100.0 * r)),

@@ -1,12 +1,15 @@
 //! The rendered surface of every body: a `Mesh` created when the body is built and written
 //! once per rendered frame (in `PostUpdate`, after the fixed-step loop), not once per fixed
 //! step, and only when the body changed. Bodies with a temperature field get vertex colours:
-//! warm tissue turns red toward 60 C, thermally damaged tissue turns a coagulated grey-brown.
+//! warm tissue turns red toward 60 C, coagulated tissue white-grey, tissue that reached
+//! boiling dark (charred).
 //!
 //! A body with a [`VisualMesh`] is drawn with a finer mesh embedded in its tetrahedra
 //! ([`soft_tissue_core::mesh::embed`]): every visual vertex is the barycentric combination of
 //! its tetrahedron's four nodes, whatever level the body is at (the cage level evaluates every
-//! node), and its temperature and damage are interpolated the same way.
+//! node). Its temperature, damage and char come from the heat field's samples at those
+//! vertices (`HeatField::set_samples`, registered here on the first draw), so an electrode's
+//! millimetre spot shows at the visual mesh's resolution, not as a tint over elements.
 
 use bevy::asset::RenderAssetUsages;
 use bevy::mesh::{
@@ -14,6 +17,7 @@ use bevy::mesh::{
 };
 use bevy::prelude::*;
 
+use soft_tissue_core::heat::HeatSample;
 use soft_tissue_core::mesh::embed::Embedding;
 use soft_tissue_core::mesh::subdivide::loop_subdivide;
 
@@ -47,18 +51,48 @@ pub struct SoftTissueMeshSystems;
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct SoftBodyMesh;
 
-/// The colour of tissue at `celsius` with `damage` (0..1).
+/// The colour of tissue at `celsius` with `damage` (0..1): warm tissue reddens toward 60 C,
+/// coagulated tissue turns white-grey.
 pub fn tissue_colour(celsius: f32, damage: f32) -> [f32; 4] {
+    burn_colour(celsius, damage, 0.0)
+}
+
+/// [`tissue_colour`], then darkened toward char by `charred` (0..1: how far the tissue went
+/// toward boiling, see [`charred_fraction`]).
+pub fn burn_colour(celsius: f32, damage: f32, charred: f32) -> [f32; 4] {
     let warm = ((celsius - 37.0) / (60.0 - 37.0)).clamp(0.0, 1.0);
     let base = [1.0, 1.0 - 0.75 * warm, 1.0 - 0.8 * warm];
-    let charred = [0.55, 0.45, 0.40];
+    let coagulated = [0.86, 0.82, 0.78];
+    let char = [0.10, 0.08, 0.07];
     let d = damage.clamp(0.0, 1.0);
-    [
-        base[0] + (charred[0] - base[0]) * d,
-        base[1] + (charred[1] - base[1]) * d,
-        base[2] + (charred[2] - base[2]) * d,
-        1.0,
-    ]
+    let c = charred.clamp(0.0, 1.0);
+    std::array::from_fn(|i| {
+        if i == 3 {
+            return 1.0;
+        }
+        let tissue = base[i] + (coagulated[i] - base[i]) * d;
+        tissue + (char[i] - tissue) * c
+    })
+}
+
+/// How charred tissue looks whose largest temperature was `peak` C: none below 90 C, fully
+/// at the boiling point (where it dries and chars) and above.
+pub fn charred_fraction(peak: f64, boiling: f64) -> f32 {
+    ((peak - (boiling - 10.0)) / 10.0).clamp(0.0, 1.0) as f32
+}
+
+/// Sample points of a heat field at the vertices of a visual mesh: each vertex's rest
+/// position and its tetrahedron's nodes and weights.
+fn heat_samples(embedding: &Embedding, rest: &[soft_tissue_core::Vec3]) -> Vec<HeatSample> {
+    embedding
+        .corners()
+        .iter()
+        .zip(embedding.weights())
+        .map(|(c, w)| HeatSample {
+            position: (0..4).map(|k| rest[c[k] as usize] * w[k]).sum(),
+            nodes: std::array::from_fn(|k| (c[k], w[k])),
+        })
+        .collect()
 }
 
 /// Area-weighted vertex normals of a triangle surface.
@@ -369,6 +403,7 @@ struct Scratch {
     normals: Vec<[f32; 3]>,
     celsius: Vec<f32>,
     damage: Vec<f32>,
+    charred: Vec<f32>,
 }
 
 #[allow(clippy::type_complexity)]
@@ -408,12 +443,28 @@ fn upload_meshes(
             *rendered = r;
             continue;
         }
+        // A body with heat follows its temperature and damage at the visual vertices, finer
+        // than its mesh (an electrode's millimetre spot shows as one).
+        if let Some(v) = visual
+            && sim
+                .body()
+                .heat()
+                .is_some_and(|h| h.sample_temperatures().len() != v.embedding.len())
+        {
+            let samples = heat_samples(&v.embedding, sim.body().mesh().positions());
+            if let Some(h) = sim.body_mut().heat_mut()
+                && let Err(e) = h.set_samples(samples)
+            {
+                warn!("body {entity}: its burn is drawn from the nodes: {e}");
+            }
+        }
         let b = sim.body();
         let Scratch {
             positions,
             normals: normal,
             celsius,
             damage,
+            charred,
         } = &mut *s;
         if let Some(v) = visual {
             let n = v.embedding.len();
@@ -432,7 +483,26 @@ fn upload_meshes(
             if let Some(heat) = b.heat() {
                 celsius.resize(n, 0.0);
                 damage.resize(n, 0.0);
-                if v.embedding
+                charred.clear();
+                let boiling = heat.params().vaporization.boiling_temperature;
+                if heat.sample_temperatures().len() == n {
+                    for (k, (&t, &d)) in heat
+                        .sample_temperatures()
+                        .iter()
+                        .zip(heat.sample_damage())
+                        .enumerate()
+                    {
+                        celsius[k] = t as f32;
+                        damage[k] = (1.0 - (-d.max(0.0)).exp()) as f32;
+                    }
+                    charred.extend(
+                        heat.sample_peaks()
+                            .iter()
+                            .map(|&p| charred_fraction(p, boiling)),
+                    );
+                    write_burn_colours(&mut mesh, celsius, damage, charred);
+                } else if v
+                    .embedding
                     .interpolate(heat.temperatures(), celsius)
                     .is_ok()
                     && v.embedding.interpolate(heat.damage(), damage).is_ok()
@@ -482,6 +552,19 @@ fn upload_meshes(
                     }
                 }
             }
+        }
+    }
+}
+
+/// [`write_colours`] with each vertex's char.
+fn write_burn_colours(mesh: &mut Mesh, celsius: &[f32], damage: &[f32], charred: &[f32]) {
+    if let Some(VertexAttributeValues::Float32x4(colours)) =
+        mesh.attribute_mut(Mesh::ATTRIBUTE_COLOR)
+        && colours.len() == celsius.len()
+        && charred.len() == celsius.len()
+    {
+        for (((c, &t), &d), &ch) in colours.iter_mut().zip(celsius).zip(damage).zip(charred) {
+            *c = burn_colour(t, d, ch);
         }
     }
 }

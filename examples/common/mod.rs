@@ -173,6 +173,13 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
         ));
     }
     let tool_shape = script.as_ref().map(|s| s.tool);
+    // Where the scripted tool works at half its script (for `--close-up`).
+    let work_at = script.as_ref().map(|s| {
+        let end = s.waypoints.last().map_or(0.0, |w| w.t);
+        let (p, _) = s.pose_at(0.5 * end);
+        Vec3::new(p.x as f32, p.y as f32, p.z as f32)
+    });
+    let close_up = options.close_up;
     let colours = example.colours.clone();
     let surface_file = options.surface.clone();
     let cautery_watts = example.cautery_watts;
@@ -238,11 +245,19 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
         }
         world.spawn((
             Camera3d::default(),
-            Orbit {
-                focus,
-                yaw: 0.0,
-                pitch: -0.35,
-                distance,
+            match work_at.filter(|_| close_up) {
+                Some(at) => Orbit {
+                    focus: at,
+                    yaw: 0.3,
+                    pitch: -1.1,
+                    distance: 0.35 * scale,
+                },
+                None => Orbit {
+                    focus,
+                    yaw: 0.0,
+                    pitch: -0.35,
+                    distance,
+                },
             },
             Transform::default(),
         ));

@@ -22,10 +22,13 @@ pub struct ExampleOptions {
     /// .stl, .ply, .gltf, .glb) meshed on load and added as a body beside the scene, drawn with the
     /// surface itself.
     pub surface: Option<String>,
+    /// `--close-up`: the camera close above where the scripted tool works (a burn, a cut).
+    pub close_up: bool,
 }
 
 impl ExampleOptions {
-    /// Parses `--screenshot FILE --frames N --smooth L --mouse --scene FILE --large`.
+    /// Parses `--screenshot FILE --frames N --smooth L --mouse --scene FILE --large
+    /// --surface FILE --close-up`.
     pub fn from_args() -> Result<Self, String> {
         let mut o = ExampleOptions {
             screenshot: None,
@@ -34,6 +37,7 @@ impl ExampleOptions {
             mouse: false,
             scene: None,
             surface: None,
+            close_up: false,
         };
         let mut args = std::env::args().skip(1);
         while let Some(a) = args.next() {
@@ -49,6 +53,7 @@ impl ExampleOptions {
                         .map_err(|e| format!("--frames: {e}"))?
                 }
                 "--mouse" => o.mouse = true,
+                "--close-up" => o.close_up = true,
                 "--scene" => o.scene = Some(args.next().ok_or("--scene needs a file")?.into()),
                 "--large" => o.scene = Some("scenes/organs-large.scene.ron".into()),
                 "--surface" => o.surface = Some(args.next().ok_or("--surface needs a file")?),
@@ -65,7 +70,7 @@ impl ExampleOptions {
                 other => {
                     return Err(format!(
                         "unknown option {other} (--screenshot FILE --frames N --smooth L --mouse \
-                         --scene FILE --large --surface FILE)"
+                         --scene FILE --large --surface FILE --close-up)"
                     ));
                 }
             }

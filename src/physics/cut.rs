@@ -8,7 +8,7 @@
 use super::*;
 use soft_tissue_core::mesh::cut::CutTriangle;
 use soft_tissue_core::scenario::Anchor;
-use soft_tissue_core::world::{BladeOutcome, Incision, remap_grips};
+use soft_tissue_core::world::{BladeOutcome, CutPlace, Incision, remap_grips};
 
 use crate::render::{EmbeddedVisual, SoftBodyMesh};
 
@@ -66,6 +66,7 @@ pub(super) fn cut_stage(
     mut assets: ResMut<Assets<TetMeshAsset>>,
     mut next: ResMut<NextBodyOrder>,
     mut jobs: ResMut<CutJobs>,
+    threads: Res<SoftTissueThreads>,
     config: Res<SoftTissueConfig>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
@@ -110,7 +111,11 @@ pub(super) fn cut_stage(
             }
         }
     }
-    if blades.is_empty() && jobs.0.is_empty() {
+    // An electrode's crater (tissue to remove) is checked without allocating.
+    let craters = bodies
+        .iter()
+        .any(|(_, _, sim, ..)| sim.body.heat().is_some_and(|h| h.has_craters()));
+    if blades.is_empty() && jobs.0.is_empty() && !craters {
         status.times.cut_us = 0.0;
         return;
     }
@@ -150,6 +155,9 @@ pub(super) fn cut_stage(
             continue;
         };
         let outcome = list[i].2.body.finish_cut(job.job);
+        if job.vaporized > 0 && !matches!(outcome, Ok(BladeOutcome::Cut(_))) {
+            list[i].2.body.vaporize_refused(job.vaporized);
+        }
         if !land!(i, outcome, (job.blade, job.incision, job.mark)) {
             failed = true;
             break;
@@ -179,11 +187,14 @@ pub(super) fn cut_stage(
                 continue;
             }
             let background = options.background_steps > 0;
+            // On a thread the solver stage's pool lends, where it has one to spare.
+            let place = match (background, &threads.threads) {
+                (false, _) => CutPlace::Here,
+                (true, Some((_, pool))) => CutPlace::Pool(pool),
+                (true, None) => CutPlace::Thread,
+            };
             let sim = &mut list[i].2;
-            let outcome = match sim
-                .body
-                .begin_cut(&strips, stroke, *id, &options, background)
-            {
+            let outcome = match sim.body.begin_cut_at(&strips, stroke, *id, &options, place) {
                 Ok(None) => Ok(BladeOutcome::Missed),
                 Ok(Some(job)) if !background => sim.body.finish_cut(job),
                 Ok(Some(job)) => {
@@ -194,13 +205,56 @@ pub(super) fn cut_stage(
                         mark,
                         due: steps + options.background_steps as u64,
                         job,
+                        vaporized: 0,
                     });
                     continue;
                 }
                 Err(e) => Err(e),
             };
             if !land!(i, outcome, (*blade, *id, mark)) {
+                failed = true;
                 break 'blades;
+            }
+        }
+    }
+    // Tissue electrodes vaporized leaves the bodies, as a cut changes them.
+    if craters && !failed {
+        for i in 0..existing {
+            let entity = list[i].0;
+            if jobs.0.iter().any(|j| j.body == entity) {
+                continue;
+            }
+            let tets = list[i].2.body.vaporized_tets();
+            let n = tets.len();
+            let background = options.background_steps > 0;
+            let place = match (background, &threads.threads) {
+                (false, _) => CutPlace::Here,
+                (true, Some((_, pool))) => CutPlace::Pool(pool),
+                (true, None) => CutPlace::Thread,
+            };
+            let sim = &mut list[i].2;
+            let outcome = match sim.body.begin_vaporize(tets, &options, place) {
+                Ok(None) => continue,
+                Ok(Some(job)) if !background => sim.body.finish_cut(job),
+                Ok(Some(job)) => {
+                    jobs.0.push(PendingCut {
+                        body: entity,
+                        blade: Entity::PLACEHOLDER,
+                        incision: 0,
+                        mark: 0,
+                        due: steps + options.background_steps as u64,
+                        job,
+                        vaporized: n,
+                    });
+                    continue;
+                }
+                Err(e) => Err(e),
+            };
+            if !matches!(outcome, Ok(BladeOutcome::Cut(_))) {
+                list[i].2.body.vaporize_refused(n);
+            }
+            if !land!(i, outcome, (Entity::PLACEHOLDER, 0, 0)) {
+                break;
             }
         }
     }

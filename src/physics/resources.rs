@@ -220,4 +220,6 @@ pub(crate) struct PendingCut {
     pub(crate) mark: u64,
     pub(crate) due: u64,
     pub(crate) job: soft_tissue_core::world::CutJob,
+    /// Vaporized tetrahedra it removes (0: a blade's cut; its blade is then a placeholder).
+    pub(crate) vaporized: usize,
 }

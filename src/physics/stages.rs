@@ -275,6 +275,19 @@ pub(super) fn prepare_stage(
                 stage_error(SoftTissueStage::Prepare, "a blade's cut", Some(entity), e),
             );
         }
+        if t.electrode_radius() != spec.electrode_radius
+            && let Err(e) = t.set_electrode_radius(spec.electrode_radius)
+        {
+            fail(
+                &mut status,
+                stage_error(
+                    SoftTissueStage::Prepare,
+                    "a tool's electrode radius",
+                    Some(entity),
+                    e,
+                ),
+            );
+        }
         if let Err(e) = t.set_cautery(spec.cautery_watts) {
             fail(
                 &mut status,
@@ -607,7 +620,16 @@ pub(super) fn writeback_stage(
                 }
                 (lo, hi) = (lo.min(v), hi.max(v));
             }
+            let spots = h.max_temperature();
+            if spots.is_nan() {
+                (lo, hi) = (f64::NAN, f64::NAN);
+            } else if !hi.is_nan() {
+                hi = hi.max(spots);
+            }
             (tc.min, tc.max) = (lo, hi);
+            let v = h.burn_volumes();
+            (tc.coagulated_mm3, tc.charred_mm3, tc.vaporized_mm3) =
+                (v.coagulated * 1e9, v.charred * 1e9, v.vaporized * 1e9);
         }
         if awake || b.surface_written() || d.switched.is_some() || heat_changed {
             sim.dirty = true;

@@ -121,6 +121,7 @@ fn contacts_name_the_touched_body_while_another_is_rebuilt() {
                 shape: ToolShape::Sphere { radius: 0.1 },
                 grab: false,
                 cautery_watts: 0.0,
+                electrode_radius: Some(1e-3),
                 jaws: 0.0,
                 cut: false,
                 friction: Default::default(),

@@ -144,6 +144,7 @@ fn spawn_tool(app: &mut App, script: &Script) -> Entity {
         shape: script.tool,
         grab: false,
         cautery_watts: 0.0,
+        electrode_radius: Some(1e-3),
         jaws: 0.0,
         cut: false,
         friction: Default::default(),

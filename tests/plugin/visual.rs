@@ -277,6 +277,7 @@ fn a_non_manifold_mesh_simulates_and_draws_in_the_plugin() {
                 shape: ToolShape::Sphere { radius: r as f64 },
                 grab: false,
                 cautery_watts: 0.0,
+                electrode_radius: Some(1e-3),
                 jaws: 0.0,
                 cut: false,
                 friction: Default::default(),
@@ -316,4 +317,72 @@ fn a_non_manifold_mesh_simulates_and_draws_in_the_plugin() {
     assert!(moved > 0.01, "the drawn mesh did not follow ({moved})");
     assert!(elastic > 0.0, "no elastic energy while pressed");
     assert_eq!(level(&app, body), Level::Cage, "it did not come back");
+}
+
+/// The organs' liver drawn with a subdivided visual mesh and cauterized at 30 W: the burn is
+/// drawn at the visual vertices from the heat field's samples there: a charred spot a few
+/// millimetres wide (dark), and every burnt vertex within 8 mm of it, not a tint over
+/// elements (which are centimetres across); the inspector's component has the burnt
+/// volumes. (At 30 W the coagulated rim around the char is a fraction of a millimetre: the
+/// heat has no time to spread.)
+#[test]
+fn a_cautery_burn_is_drawn_at_the_visual_vertices_not_over_elements() {
+    let (mut app, bodies, world) = scene_app(ORGANS);
+    let liver = bodies[world.body_index("Liver").unwrap()];
+    app.world_mut()
+        .entity_mut(liver)
+        .insert(VisualMesh::Subdivided { levels: 3 });
+    let script = Script::builtin("cauterize-liver", &world).unwrap();
+    let tool = spawn_tool(&mut app, &script);
+    let dt = world.config().dt;
+    for k in 1..=300 {
+        drive_tool(&mut app, tool, &script, k, dt);
+        app.update();
+    }
+    assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
+    let t = app.world().get::<Temperature>(liver).unwrap();
+    assert!(
+        t.charred_mm3 > 0.0 && t.coagulated_mm3 >= t.charred_mm3,
+        "{t:?}"
+    );
+    assert!(t.max >= 99.0, "{t:?}");
+    let handle = app.world().get::<Mesh3d>(liver).unwrap().0.clone();
+    let meshes = app.world().resource::<Assets<Mesh>>();
+    let mesh = meshes.get(&handle).unwrap();
+    let Some(VertexAttributeValues::Float32x4(colours)) = mesh.attribute(Mesh::ATTRIBUTE_COLOR)
+    else {
+        panic!("no vertex colours");
+    };
+    let p = mesh_positions(mesh);
+    assert_eq!(p.len(), colours.len());
+    let dark: Vec<Vec3> = (0..p.len())
+        .filter(|&i| colours[i][0] < 0.4)
+        .map(|i| Vec3::from_array(p[i]))
+        .collect();
+    // Burnt at all: coagulated (white-grey) or charred; unburnt tissue keeps its red
+    // channel at 1, warm or not.
+    let burnt: Vec<Vec3> = (0..p.len())
+        .filter(|&i| colours[i][0] < 0.999)
+        .map(|i| Vec3::from_array(p[i]))
+        .collect();
+    assert!(!dark.is_empty(), "no charred vertex among {}", p.len());
+    let centre = dark.iter().sum::<Vec3>() / dark.len() as f32;
+    // A liver element is about 0.14 units (1.4 cm) across; the charred spot's vertices
+    // lie within 0.05 units (5 mm) of their centre.
+    let spread = dark.iter().map(|q| q.distance(centre)).fold(0.0, f32::max);
+    println!(
+        "{} of {} vertices charred within {:.1} mm of their centre, {} burnt at all",
+        dark.len(),
+        p.len(),
+        spread * 100.0,
+        burnt.len()
+    );
+    assert!(spread < 0.05, "charred vertices spread over {spread} units");
+    // Every burnt vertex is near the char: the burn is a spot, not elements tinted.
+    let burnt_spread = burnt.iter().map(|q| q.distance(centre)).fold(0.0, f32::max);
+    println!("burnt within {:.1} mm of the char", burnt_spread * 100.0);
+    assert!(
+        burnt_spread < 0.08,
+        "burnt vertices spread over {burnt_spread} units"
+    );
 }

@@ -62,6 +62,10 @@ pub fn sequential<R>(f: impl FnOnce() -> R) -> R {
 pub struct Threads {
     pool: Option<Arc<rayon::ThreadPool>>,
     count: usize,
+    /// Pool threads lent to long work beside the steps (a cut's preparation).
+    lent: Arc<AtomicUsize>,
+    /// Jobs ever lent a thread.
+    lends: Arc<AtomicUsize>,
 }
 
 impl std::fmt::Debug for Threads {
@@ -95,6 +99,8 @@ impl Threads {
         Threads {
             pool: None,
             count: 1,
+            lent: Arc::new(AtomicUsize::new(0)),
+            lends: Arc::new(AtomicUsize::new(0)),
         }
     }
 
@@ -115,12 +121,60 @@ impl Threads {
         Ok(Threads {
             pool: Some(Arc::new(pool)),
             count,
+            lent: Arc::new(AtomicUsize::new(0)),
+            lends: Arc::new(AtomicUsize::new(0)),
         })
     }
 
     /// Number of threads.
     pub fn count(&self) -> usize {
         self.count
+    }
+
+    /// Runs `job` on one of the pool's threads, beside the steps, if the pool has a thread
+    /// to spare (at most `count - 1` are lent at once, so the steps keep one); `job` is
+    /// given back otherwise. The job runs [`sequential`]ly: it does not split its work over
+    /// the threads the steps use.
+    pub fn lend<F: FnOnce() + Send + 'static>(&self, job: F) -> Result<(), F> {
+        let Some(pool) = &self.pool else {
+            return Err(job);
+        };
+        let limit = self.count - 1;
+        if self
+            .lent
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+                (n < limit).then_some(n + 1)
+            })
+            .is_err()
+        {
+            return Err(job);
+        }
+        self.lends.fetch_add(1, Ordering::AcqRel);
+        let lent = self.lent.clone();
+        pool.spawn(move || {
+            struct Return(Arc<AtomicUsize>);
+            impl Drop for Return {
+                fn drop(&mut self) {
+                    self.0.fetch_sub(1, Ordering::AcqRel);
+                }
+            }
+            let _back = Return(lent);
+            // A panic must not reach the pool (it would abort the process).
+            if std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| sequential(job))).is_err() {
+                log::warn!("work lent a pool thread failed");
+            }
+        });
+        Ok(())
+    }
+
+    /// Pool threads lent by [`Threads::lend`] now.
+    pub fn lent(&self) -> usize {
+        self.lent.load(Ordering::Acquire)
+    }
+
+    /// Jobs [`Threads::lend`] has lent a thread so far.
+    pub fn lends(&self) -> usize {
+        self.lends.load(Ordering::Acquire)
     }
 
     /// Runs `f` in the pool (on the calling thread without one).

@@ -449,6 +449,14 @@ fn cutting_is_bit_identical_on_one_and_two_threads_and_after_a_reset() {
             .unwrap();
             let t = w.add_tool(Tool::new("scalpel", ToolShape::Blade { length: 0.06 }).unwrap());
             hashes.push(run(&mut w, t));
+            // In the background on two threads, the cuts took a thread of the world's pool;
+            // on one, or within the step, none.
+            let lent = w.threads().lends();
+            assert_eq!(
+                lent > 0,
+                background_steps > 0 && threads > 1,
+                "{lent} cuts lent a pool thread"
+            );
             w.reset().unwrap();
             assert_eq!(w.bodies().len(), 1);
             hashes.push(run(&mut w, t));

@@ -75,7 +75,9 @@ impl Run {
 
     fn rise(&self, mm: f64) -> f64 {
         let p = self.point(mm);
-        self.field.temperature_at(&p, &[(self.node as u32, 1.0)])
+        self.field
+            .temperature_at(&p, &[(self.node as u32, 1.0)])
+            .unwrap()
             - self.field.params().initial_temperature
     }
 }
@@ -110,7 +112,8 @@ fn constant_power_matches_carslaw_and_jaeger_within_10_percent() {
         }
     }
     assert!(compared >= 6, "only {compared} points rose over 1 K");
-    assert!(worst < 0.10, "worst relative error {worst}");
+    // The goal is 10 %; the model does far better, and a regression shows here.
+    assert!(worst < 0.02, "worst relative error {worst}");
     // Energy: P t, split between the coarse field and the spot.
     let delivered = run.field.heat_content() - q0;
     let expected = watts * run.field.time();
@@ -163,7 +166,7 @@ fn perfusion_steady_state_matches_pennes_within_10_percent() {
     while run.field.time() < 600.0 {
         run.step(watts);
     }
-    let mut worst: f64 = 0.0;
+    let (mut worst, mut near): (f64, f64) = (0.0, 0.0);
     for mm in [1.5, 2.0, 3.0, 5.0] {
         let exact = pennes_sphere_steady(2.0 * watts, RADIUS, p.conductivity, length, mm * 1e-3);
         let got = run.rise(mm);
@@ -176,8 +179,16 @@ fn perfusion_steady_state_matches_pennes_within_10_percent() {
         if exact > 1.0 {
             worst = worst.max(error.abs());
         }
+        if mm <= 3.0 {
+            near = near.max(error.abs());
+        }
     }
-    assert!(worst < 0.10, "worst {worst}");
+    // Goal 10 %; within 3 mm the sub-grid shells hold the field (3 %), farther the coarse
+    // field's share grows.
+    assert!(
+        worst < 0.10 && near < 0.03,
+        "worst {worst}, within 3 mm {near}"
+    );
 }
 
 /// The coagulated radius (damage 1) of the closed-form field, by the Arrhenius integral at
@@ -252,8 +263,9 @@ fn coagulated_radius_matches_the_closed_form_field_within_20_percent() {
         spot * 1e3,
         run.field.max_temperature()
     );
-    assert!((sampled - exact).abs() < 0.2 * exact);
-    assert!((spot - exact).abs() < 0.2 * exact);
+    // Goal 20 %; the samples lie every 0.05 mm and the shells are about 0.05 mm wide there.
+    assert!((sampled - exact).abs() < 0.05 * exact);
+    assert!((spot - exact).abs() < 0.05 * exact);
     let v = run.field.burn_volumes();
     // The coagulated volume is the half ball of that radius (to the shells' resolution).
     let half_ball = 2.0 / 3.0 * std::f64::consts::PI * (spot.powi(3) - RADIUS.powi(3));
@@ -293,11 +305,167 @@ fn thirty_watts_boil_and_vaporize_only_where_tissue_reached_boiling() {
     let half_shell = 2.0 / 3.0 * std::f64::consts::PI * (crater.powi(3) - RADIUS.powi(3));
     println!("crater radius {:.2} mm", crater * 1e3);
     assert!(crater > RADIUS);
-    assert!((half_shell - vaporized[3]).abs() < 1e-9 * half_shell);
+    assert!(half_shell >= vaporized[3] * (1.0 - 1e-9));
+    // Vaporizing takes at least the water's latent heat, and the tissue's heating to
+    // boiling: no more can vaporize than 60 J pay for.
+    let per_volume = p.vaporization.water_fraction * p.density * p.vaporization.latent_heat
+        + p.density * p.specific_heat * (p.vaporization.boiling_temperature - 37.0);
+    assert!(
+        vaporized[3] * per_volume <= 60.0,
+        "{} J",
+        vaporized[3] * per_volume
+    );
+    // And most of the heat went there, at 30 W into a 1 mm electrode.
+    assert!(
+        vaporized[3] * per_volume > 0.5 * 60.0,
+        "{} J",
+        vaporized[3] * per_volume
+    );
     for w in vaporized.windows(2) {
         assert!(w[1] > w[0], "vaporized volume did not grow: {vaporized:?}");
     }
     // The heat taken by boiling counts in the energy: 30 W for 2 s.
     let delivered = run.field.heat_content() - q0;
     assert!((delivered - 60.0).abs() < 1e-9 * 60.0, "{delivered}");
+}
+
+/// A cube of liver 8 mm across meshed at 1 mm, an electrode of 1 mm at 30 W on the centre
+/// of its top face, pressed down into the crater it burns. Tetrahedra wholly inside a crater leave the mesh by the cut's topology
+/// change: the body stays valid (every element positive, its boundary 2-manifold, mass by
+/// volume), the removed volume grows with time, no more is removed than the energy
+/// delivered can vaporize, and tissue farther than 4 mm from the electrode stays.
+#[test]
+fn vaporized_tissue_leaves_the_mesh_and_the_electrode_sinks_in() {
+    use soft_tissue_core::boundary::Boundary;
+    use soft_tissue_core::contact::ContactConfig;
+    use soft_tissue_core::material::{FemParams, MsdParams};
+    use soft_tissue_core::mesh::generate::block;
+    use soft_tissue_core::precision::BodySettings;
+    use soft_tissue_core::world::{SimBody, WorldConfig};
+    use std::sync::Arc;
+    let side = 0.008;
+    let mesh = block(Vec3::zeros(), Vec3::repeat(side), [8, 8, 8]).unwrap();
+    let density = 1079.0;
+    let fem = FemParams {
+        young_modulus: 2.0e4,
+        poisson_ratio: 0.45,
+        mass: density * mesh.volume(),
+        damping: 1.0,
+    };
+    let msd = MsdParams {
+        stiffness: 100.0,
+        mass: fem.mass,
+        damping: 0.1,
+    };
+    let mut s = BodySettings::new(fem, msd, DT);
+    s.boundary = Boundary::fixed_below(mesh.positions(), 1, 0.01);
+    let heat = HeatParams {
+        meters_per_unit: 1.0,
+        ..HeatParams::liver()
+    };
+    let original: Vec<Vec3> = mesh.positions().to_vec();
+    let volume0 = mesh.volume();
+    let body = SimBody::new(
+        "cube",
+        Arc::new(mesh),
+        s,
+        Some((heat, HeatBoundary::insulated())),
+    )
+    .unwrap();
+    let mut w = SoftTissueWorld::new(WorldConfig {
+        dt: DT,
+        contact: ContactConfig::for_scale(side),
+    })
+    .unwrap();
+    w.add_body(body).unwrap();
+    let start = Vec3::new(0.5 * side, side, 0.5 * side);
+    let mut centres = vec![start];
+    let mut removed_at = Vec::new();
+    let p = heat;
+    let per_volume = p.vaporization.water_fraction * p.density * p.vaporization.latent_heat
+        + p.density * p.specific_heat * (p.vaporization.boiling_temperature - 37.0);
+    for k in 1..=128 {
+        // The electrode is pressed down the vertical axis through where it started: it
+        // sits on the highest node left on that axis (the crater's floor, once there is
+        // one) and heats through it.
+        let b = &mut w.bodies_mut()[0];
+        let x = b.mesh().positions();
+        let on_axis = |q: &Vec3| (q.x - start.x).abs() < 1e-9 && (q.z - start.z).abs() < 1e-9;
+        let node = (0..x.len())
+            .filter(|&a| on_axis(&x[a]))
+            .max_by(|&a, &c| x[a].y.total_cmp(&x[c].y))
+            .unwrap();
+        let centre = x[node];
+        if (centre - *centres.last().unwrap()).norm() > 0.0 {
+            centres.push(centre);
+        }
+        let source = ElectrodeSource {
+            center: centre,
+            watts: 30.0,
+            radius: RADIUS,
+            tissue_fraction: 0.5,
+        };
+        b.heat_mut()
+            .unwrap()
+            .add_electrode(&source, &[(node, 1.0)])
+            .unwrap();
+        w.step_fixed().unwrap();
+        let volume: f64 = w.bodies().iter().map(|b| b.mesh().volume()).sum();
+        if k % 32 == 0 {
+            removed_at.push(volume0 - volume);
+        }
+    }
+    let removed = *removed_at.last().unwrap();
+    let depth = start.y - centres.iter().map(|c| c.y).fold(f64::INFINITY, f64::min);
+    println!(
+        "removed {:?} mm^3 after 0.5, 1, 1.5, 2 s; the electrode sank {:.2} mm; {} bodies, {} tetrahedra",
+        removed_at.iter().map(|v| v * 1e9).collect::<Vec<_>>(),
+        depth * 1e3,
+        w.bodies().len(),
+        w.bodies()[0].mesh().tet_count()
+    );
+    assert!(removed > 0.0, "nothing was removed");
+    assert!(
+        removed_at.windows(2).all(|v| v[1] >= v[0]) && removed_at[3] > removed_at[1],
+        "{removed_at:?}"
+    );
+    assert!(depth > 0.0, "the electrode did not sink in");
+    // No more than 60 J can vaporize.
+    assert!(removed * per_volume <= 60.0, "{} J", removed * per_volume);
+    for b in w.bodies() {
+        let m = b.mesh();
+        assert!(m.tet_volumes().iter().all(|&v| v > 0.0));
+        let mut edges: Vec<(u32, u32)> = m
+            .surface()
+            .triangles()
+            .iter()
+            .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+            .map(|(a, c)| (a.min(c), a.max(c)))
+            .collect();
+        edges.sort_unstable();
+        assert!(edges.chunk_by(|a, c| a == c).all(|r| r.len() == 2));
+    }
+    // Mass goes with the volume removed.
+    let mass: f64 = w
+        .bodies()
+        .iter()
+        .map(|b| b.body().settings().fem.mass)
+        .sum();
+    let volume: f64 = w.bodies().iter().map(|b| b.mesh().volume()).sum();
+    assert!(
+        (mass - density * volume).abs() < 1e-9 * mass,
+        "{mass} {}",
+        density * volume
+    );
+    // Tissue 4 mm or more from every place the electrode sat is all there.
+    let kept = w.bodies()[0].mesh().positions();
+    for q in original
+        .iter()
+        .filter(|q| centres.iter().all(|c| (*q - c).norm() >= 0.004))
+    {
+        assert!(
+            kept.iter().any(|k| (k - q).norm() < 1e-12),
+            "{q:?} was removed"
+        );
+    }
 }

@@ -345,11 +345,11 @@ impl Tool {
     /// sub-grid model). Default [`DEFAULT_ELECTRODE_RADIUS`].
     pub fn set_electrode_radius(&mut self, radius: Option<f64>) -> Result<(), ContactError> {
         if let Some(r) = radius
-            && !(r.is_finite() && r > 0.0)
+            && !crate::heat::ELECTRODE_RADIUS_RANGE.contains(&r)
         {
             return Err(ContactError::BadTool {
                 tool: self.name.clone(),
-                what: "electrode radius (must be > 0 m)",
+                what: "electrode radius (must be from 1e-5 to 0.05 m)",
                 value: r,
             });
         }

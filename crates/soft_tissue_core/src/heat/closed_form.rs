@@ -12,6 +12,9 @@ pub fn erfc(x: f64) -> f64 {
     if x.is_nan() {
         return f64::NAN;
     }
+    if x.is_infinite() {
+        return if x > 0.0 { 0.0 } else { 2.0 };
+    }
     if x < 0.0 {
         return 2.0 - erfc(-x);
     }
@@ -127,6 +130,7 @@ mod tests {
             assert!((erfc(x) - v).abs() <= 1e-13 * v, "erfc({x}) = {}", erfc(x));
         }
         assert!((erfc(-1.0) - (2.0 - 0.157_299_207_050_285_13)).abs() < 1e-15);
+        assert_eq!((erfc(f64::INFINITY), erfc(f64::NEG_INFINITY)), (0.0, 2.0));
         // Continuity where the two methods meet.
         let below = erfc(2.0 - 1e-12);
         assert!((below - erfc(2.0)).abs() < 1e-11 * erfc(2.0));

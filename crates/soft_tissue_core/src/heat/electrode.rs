@@ -2,7 +2,7 @@
 //! field keeps them, and the points where temperature and damage are followed finer than
 //! the mesh.
 
-use super::spot::{RETIRE_KELVIN, arrhenius};
+use super::spot::{ELECTRODE_RADIUS_RANGE, RETIRE_KELVIN, arrhenius};
 use super::*;
 
 impl HeatField {
@@ -50,17 +50,22 @@ impl HeatField {
                 expected: "at least one node",
             });
         }
-        for &(node, w) in nodes {
+        for &(node, _) in nodes {
             if node >= n {
                 return Err(HeatError::BadNode { node, nodes: n });
             }
-            if !w.is_finite() {
-                return Err(HeatError::NonFinite {
-                    what: "electrode weight",
-                    node,
-                    value: w,
-                });
-            }
+        }
+        check_weights(
+            nodes.iter().map(|&(i, w)| (i, w)),
+            "electrode weights",
+            true,
+        )?;
+        if !ELECTRODE_RADIUS_RANGE.contains(&source.radius) {
+            return Err(HeatError::BadParameter {
+                field: "electrode radius",
+                value: source.radius,
+                expected: "from 1e-5 to 0.05 m",
+            });
         }
         if source.watts == 0.0 {
             return Ok(());
@@ -78,6 +83,8 @@ impl HeatField {
                     && let Some(old) = self.spots.iter().position(|p| p.power == 0.0)
                 {
                     self.retire(old);
+                    self.changed = true;
+                    self.version += 1;
                 }
                 let grid = match self.grids.iter().find(|g| g.radius == source.radius) {
                     Some(g) => g.clone(),
@@ -88,7 +95,7 @@ impl HeatField {
                     }
                 };
                 let nodes: Vec<(u32, f64)> = nodes.iter().map(|&(i, w)| (i as u32, w)).collect();
-                let base = interpolate(&self.temperature, &nodes);
+                let base = self.temperature_at_unchecked(&source.center, &nodes);
                 self.spots.push(Spot::new(
                     source.center,
                     nodes,
@@ -114,8 +121,35 @@ impl HeatField {
     }
 
     /// Temperature at `position` (rest, scene units) where the coarse field is interpolated
-    /// by `nodes`: the coarse value plus the excess of every spot, C.
-    pub fn temperature_at(&self, position: &Vec3, nodes: &[(u32, f64)]) -> f64 {
+    /// by `nodes`: the coarse value plus the excess of every spot, C. A node out of range
+    /// is refused by name.
+    pub fn temperature_at(&self, position: &Vec3, nodes: &[(u32, f64)]) -> Result<f64, HeatError> {
+        let n = self.temperature.len();
+        if let Some(&(node, _)) = nodes.iter().find(|x| x.0 as usize >= n) {
+            return Err(HeatError::BadNode {
+                node: node as usize,
+                nodes: n,
+            });
+        }
+        Ok(self.temperature_at_unchecked(position, nodes))
+    }
+
+    /// The base temperature of spot `k`: the coarse field and the other spots at its centre
+    /// (as of the last step).
+    pub(super) fn spot_base(&self, k: usize) -> f64 {
+        let s = self.params.meters_per_unit;
+        let spot = &self.spots[k];
+        interpolate(&self.temperature, &spot.nodes)
+            + self
+                .spots
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != k)
+                .map(|(_, p)| p.excess_at(&spot.center, s))
+                .sum::<f64>()
+    }
+
+    fn temperature_at_unchecked(&self, position: &Vec3, nodes: &[(u32, f64)]) -> f64 {
         let s = self.params.meters_per_unit;
         interpolate(&self.temperature, nodes)
             + self
@@ -159,6 +193,47 @@ impl HeatField {
         self.spots.iter().map(|p| p.crater_radius()).collect()
     }
 
+    /// The nodes' temperatures with every spot's excess heat given to its nodes (what
+    /// [`HeatField::absorb_spots`] would leave), C.
+    pub fn temperatures_with_spots(&self) -> Vec<f64> {
+        let mut t = self.temperature.clone();
+        for spot in &self.spots {
+            self.spread(spot, &mut t);
+        }
+        t
+    }
+
+    /// Adds `spot`'s excess heat to the node temperatures `t` where it lies: each free node
+    /// within its reach by the excess at the node times its capacity, scaled so the heat
+    /// added is the spot's (at the spot's own nodes where no node is within reach).
+    fn spread(&self, spot: &Spot, t: &mut [f64]) {
+        let energy = spot.sensible_energy();
+        let s = self.params.meters_per_unit;
+        let share = |i: usize| {
+            if self.fixed[i].is_some() {
+                0.0
+            } else {
+                spot.excess_at(&self.positions[i], s).max(0.0) * self.capacity[i]
+            }
+        };
+        let total: f64 = (0..t.len()).map(share).sum();
+        if total > 0.0 && total.is_finite() {
+            for (i, ti) in t.iter_mut().enumerate() {
+                let w = share(i);
+                if w > 0.0 {
+                    *ti += energy * (w / total) / self.capacity[i];
+                }
+            }
+        } else {
+            for &(node, w) in &spot.nodes {
+                let i = node as usize;
+                if self.fixed[i].is_none() {
+                    t[i] += w * energy / self.capacity[i];
+                }
+            }
+        }
+    }
+
     /// Ends every spot: their excess heat goes into their coarse nodes (a mesh about to
     /// change keeps the heat in its nodes' field).
     pub fn absorb_spots(&mut self) {
@@ -172,26 +247,43 @@ impl HeatField {
         self.version += 1;
     }
 
+    /// The craters the electrodes vaporized: each spot's centre (rest, scene units) and
+    /// crater radius (m), where it is larger than the electrode.
+    pub fn craters(&self) -> Vec<(Vec3, f64)> {
+        self.spots
+            .iter()
+            .filter(|p| p.crater_radius() > p.grid.radius * (1.0 + 1e-9))
+            .map(|p| (p.center, p.crater_radius()))
+            .collect()
+    }
+
+    /// Whether an electrode has vaporized a crater (cheap: no allocation).
+    pub fn has_craters(&self) -> bool {
+        self.spots
+            .iter()
+            .any(|p| p.crater_radius() > p.grid.radius * (1.0 + 1e-9))
+    }
+
     /// Follows temperature, damage and peak temperature at `samples` (see [`HeatSample`]);
     /// replaces the points followed before. Their damage starts at zero.
     pub fn set_samples(&mut self, samples: Vec<HeatSample>) -> Result<(), HeatError> {
         let n = self.temperature.len();
         for p in &samples {
-            for &(node, w) in &p.nodes {
+            for &(node, _) in &p.nodes {
                 if node as usize >= n {
                     return Err(HeatError::BadNode {
                         node: node as usize,
                         nodes: n,
                     });
                 }
-                if !w.is_finite() {
-                    return Err(HeatError::NonFinite {
-                        what: "sample weight",
-                        node: node as usize,
-                        value: w,
-                    });
-                }
             }
+            // A point slightly outside its tetrahedron has a negative weight (an embedded
+            // surface's vertex): allowed here.
+            check_weights(
+                p.nodes.iter().map(|&(i, w)| (i as usize, w)),
+                "sample weights",
+                false,
+            )?;
             if !p.position.iter().all(|c| c.is_finite()) {
                 return Err(HeatError::NonFinite {
                     what: "sample position",
@@ -202,7 +294,7 @@ impl HeatField {
         }
         self.sample_temperature = samples
             .iter()
-            .map(|p| self.temperature_at(&p.position, &p.nodes))
+            .map(|p| self.temperature_at_unchecked(&p.position, &p.nodes))
             .collect();
         self.sample_peak = self.sample_temperature.clone();
         self.sample_damage = vec![0.0; samples.len()];
@@ -232,16 +324,27 @@ impl HeatField {
         }
         self.changed = true;
         let dt = self.dt;
-        let mut k = 0;
-        while k < self.spots.len() {
-            let spot = &mut self.spots[k];
-            let powered = spot.power > 0.0;
-            let base = interpolate(&self.temperature, &spot.nodes);
-            spot.commit(&self.params, base, dt);
-            if !powered && spot.max_excess() < RETIRE_KELVIN {
+        // The bases first: each spot commits against the others' excess of the last step.
+        let mut bases = std::mem::take(&mut self.spot_bases);
+        bases.clear();
+        bases.extend((0..self.spots.len()).map(|k| self.spot_base(k)));
+        let mut powered = 0u64;
+        for (k, spot) in self.spots.iter_mut().enumerate() {
+            if spot.power > 0.0 && k < 64 {
+                powered |= 1 << k;
+            }
+            spot.commit(&self.params, bases[k], dt);
+        }
+        self.spot_bases = bases;
+        // Spots without power whose excess faded end (a NaN excess does not: the next
+        // solve reports it).
+        let mut k = self.spots.len();
+        while k > 0 {
+            k -= 1;
+            let excess = self.spots[k].max_excess();
+            let was_powered = k < 64 && powered & (1 << k) != 0;
+            if !was_powered && excess.is_finite() && excess < RETIRE_KELVIN {
                 self.retire(k);
-            } else {
-                k += 1;
             }
         }
     }
@@ -250,13 +353,9 @@ impl HeatField {
     /// heat are kept.
     fn retire(&mut self, k: usize) {
         let spot = self.spots.remove(k);
-        let energy = spot.sensible_energy();
-        for &(node, w) in &spot.nodes {
-            let i = node as usize;
-            if self.fixed[i].is_none() {
-                self.temperature[i] += w * energy / self.capacity[i];
-            }
-        }
+        let mut t = std::mem::take(&mut self.temperature);
+        self.spread(&spot, &mut t);
+        self.temperature = t;
         self.retired += spot.volumes(&self.params);
         self.retired_boiled += spot.boiled_energy();
     }
@@ -284,4 +383,31 @@ impl HeatField {
             }
         }
     }
+}
+
+/// Weights of a point: finite, at least 0 where `non_negative`, summing to 1 (to 1e-6).
+fn check_weights(
+    weights: impl Iterator<Item = (usize, f64)>,
+    what: &'static str,
+    non_negative: bool,
+) -> Result<(), HeatError> {
+    let mut sum = 0.0;
+    for (node, w) in weights {
+        if !w.is_finite() || (non_negative && w < 0.0) {
+            return Err(HeatError::NonFinite {
+                what,
+                node,
+                value: w,
+            });
+        }
+        sum += w;
+    }
+    if (sum - 1.0).abs() > 1e-6 {
+        return Err(HeatError::BadParameter {
+            field: what,
+            value: sum,
+            expected: "summing to 1",
+        });
+    }
+    Ok(())
 }

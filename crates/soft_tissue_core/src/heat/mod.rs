@@ -30,7 +30,8 @@ mod electrode;
 mod spot;
 
 pub use spot::{
-    BurnVolumes, CELLS as SPOT_SHELLS, ElectrodeSource, MIN_OUTER_RADIUS, RETIRE_KELVIN,
+    BurnVolumes, CELLS as SPOT_SHELLS, ELECTRODE_RADIUS_RANGE, ElectrodeSource, MAX_SUBSTEPS,
+    MIN_OUTER_RADIUS, RETIRE_KELVIN,
 };
 use spot::{RadialGrid, Spot};
 
@@ -208,10 +209,7 @@ impl HeatParams {
         }
         let p = &self.perfusion;
         let v = &self.vaporization;
-        let non_negative = [
-            ("perfusion.rate", p.rate),
-            ("vaporization.water_fraction", v.water_fraction),
-        ];
+        let non_negative = [("perfusion.rate", p.rate)];
         for (field, value) in non_negative {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(HeatError::BadParameter {
@@ -225,6 +223,8 @@ impl HeatParams {
             ("perfusion.blood_density", p.blood_density),
             ("perfusion.blood_specific_heat", p.blood_specific_heat),
             ("vaporization.latent_heat", v.latent_heat),
+            // Dry tissue at an electrode would heat without bound.
+            ("vaporization.water_fraction", v.water_fraction),
         ];
         for (field, value) in positive {
             if !(value.is_finite() && value > 0.0) {
@@ -368,10 +368,14 @@ pub struct HeatField {
     power: Vec<f64>,
     rhs: Vec<f64>,
     time: f64,
+    /// Rest position of every node, scene units (where a spot's heat goes when it ends).
+    positions: Vec<Vec3>,
     /// Perfusion conductance to arterial blood per node, W/K (empty without perfusion).
     perfusion: Vec<f64>,
     /// The electrodes' sub-grid fields, oldest first.
     spots: Vec<Spot>,
+    /// Each spot's base temperature at its commit (scratch).
+    spot_bases: Vec<f64>,
     grids: Vec<Arc<RadialGrid>>,
     /// Burnt volumes of spots that ended, m^3, and the heat their water took, J.
     retired: BurnVolumes,
@@ -495,8 +499,10 @@ impl HeatField {
             time: 0.0,
             changed: false,
             version: 0,
+            positions: mesh.positions().to_vec(),
             perfusion,
             spots: Vec::new(),
+            spot_bases: Vec::new(),
             grids: Vec::new(),
             retired: BurnVolumes::default(),
             retired_boiled: 0.0,
@@ -662,8 +668,9 @@ impl HeatField {
         }
         // The spots step first; what crosses their outer radius enters the coarse field in
         // this step.
-        for spot in &mut self.spots {
-            let base = interpolate(&self.temperature, &spot.nodes);
+        for k in 0..self.spots.len() {
+            let base = self.spot_base(k);
+            let spot = &mut self.spots[k];
             spot.solve(&self.params, base);
             for &(node, w) in &spot.nodes {
                 if self.fixed[node as usize].is_none() {

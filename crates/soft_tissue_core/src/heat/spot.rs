@@ -38,6 +38,10 @@ pub const CELLS: usize = 64;
 pub const SUBSTEP: f64 = 2e-3;
 /// Smallest outer radius of a spot, m.
 pub const MIN_OUTER_RADIUS: f64 = 0.02;
+/// Most substeps of a spot in one step (a step over 20 s takes longer substeps).
+pub const MAX_SUBSTEPS: usize = 10_000;
+/// Electrode radii a spot models, m.
+pub const ELECTRODE_RADIUS_RANGE: std::ops::RangeInclusive<f64> = 1e-5..=0.05;
 /// A spot with no power whose largest excess is below this, K, hands its heat to the coarse
 /// field and ends.
 pub const RETIRE_KELVIN: f64 = 0.05;
@@ -100,7 +104,7 @@ impl RadialGrid {
             .iter()
             .map(|vol| v.water_fraction * params.density * vol * v.latent_heat)
             .collect();
-        let substeps = (dt / SUBSTEP).ceil().max(1.0) as usize;
+        let substeps = (dt / SUBSTEP).ceil().clamp(1.0, MAX_SUBSTEPS as f64) as usize;
         let h = dt / substeps as f64;
         let perfusion = params.perfusion.coefficient();
         // A_ii = C_i / h + W_i + G_{i-1} + G_i, A_{i,i+1} = -G_i, A_{i,i-1} = -G_{i-1}.
@@ -357,7 +361,7 @@ impl Spot {
 
     /// Largest excess, K.
     pub(crate) fn max_excess(&self) -> f64 {
-        self.u.iter().copied().fold(0.0, f64::max)
+        self.u.iter().copied().fold(0.0, crate::state::nan_max)
     }
 
     /// Heat it holds (tissue share): its excess and the heat its water took, J.
@@ -394,7 +398,7 @@ impl Spot {
             if self.damage[i] >= 1.0 {
                 v.coagulated += share;
             }
-            if self.peak[i] >= boil {
+            if self.boiled[i] > 0.0 || self.peak[i] >= boil {
                 v.charred += share;
             }
             if g.latent[i] > 0.0 && self.boiled[i] >= g.latent[i] * (1.0 - 1e-12) {

@@ -19,6 +19,8 @@ pub struct SimBody {
     pub(crate) cut: Option<super::cut::CutRecord>,
     /// Pieces this body gave off in cuts (their names count on from it).
     pub(crate) pieces_made: usize,
+    /// Vaporized tetrahedra whose removal was tried and did not land.
+    pub(crate) vaporize_tried: usize,
     /// A piece that came loose in a cut (a world's reset removes it).
     pub(crate) loose: bool,
     pub(crate) rest_surface: Vec<Vec3>,
@@ -148,6 +150,7 @@ impl SimBody {
             heat_boundary,
             cut: None,
             pieces_made: 0,
+            vaporize_tried: 0,
             loose: false,
             friction: Friction::default(),
             touched: false,

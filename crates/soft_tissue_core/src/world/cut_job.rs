@@ -11,7 +11,7 @@ use super::cut::{
 use super::*;
 use crate::mesh::cut::{CutHistory, CutOptions, CutTriangle, NodeOrigin, recut_within};
 use crate::mesh::pieces::pieces;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// A cut begun by [`SimBody::begin_cut`], to land with [`SimBody::finish_cut`].
 #[derive(Debug)]
@@ -28,12 +28,44 @@ pub struct CutJob {
 enum Work {
     Ready(Prepared),
     Thread(std::thread::JoinHandle<Prepared>),
-    /// On one thread of the world's pool (the others step).
-    /// (In a mutex so a job can sit in shared state, a Bevy resource.)
-    Pool(
-        std::sync::Mutex<std::sync::mpsc::Receiver<Prepared>>,
-        Arc<AtomicBool>,
-    ),
+    /// On one thread of the world's pool (the others step): the input waits in `slot`
+    /// until that thread or the landing step takes it.
+    Pool {
+        slot: PoolSlot,
+        /// (In a mutex so a job can sit in shared state, a Bevy resource.)
+        rx: std::sync::Mutex<std::sync::mpsc::Receiver<Prepared>>,
+        done: Arc<AtomicBool>,
+    },
+}
+
+/// A pool preparation's input, until taken. A job dropped before its thread started (a
+/// reset) takes it back, so the thread does nothing.
+#[derive(Debug)]
+struct PoolSlot(Arc<std::sync::Mutex<Option<Input>>>);
+
+impl PoolSlot {
+    fn take(&self) -> Option<Input> {
+        self.0.lock().ok().and_then(|mut s| s.take())
+    }
+}
+
+impl Drop for PoolSlot {
+    fn drop(&mut self) {
+        drop(self.take());
+    }
+}
+
+/// Where a cut is prepared ([`SimBody::begin_cut_at`]).
+#[derive(Debug, Clone, Copy)]
+pub enum CutPlace<'a> {
+    /// Within the call.
+    Here,
+    /// On a thread of its own at a lower priority (nice 10).
+    Thread,
+    /// On a thread lent by this pool ([`crate::parallel::Threads::lend`]): the steps go
+    /// on on its other threads. On a thread of its own where the pool has none to spare (or
+    /// is a single thread).
+    Pool(&'a crate::parallel::Threads),
 }
 
 // A job sits in shared state (a Bevy resource): it must stay Send and Sync.
@@ -42,67 +74,50 @@ const _: fn() = || {
     shareable::<CutJob>();
 };
 
-/// Pool threads busy preparing cuts, in every pool of the process (a pool keeps at least
-/// one thread for the steps).
-static POOL_CUTS: AtomicUsize = AtomicUsize::new(0);
-
 impl CutJob {
     /// Whether its preparation is done (landing it does not wait).
     pub fn is_ready(&self) -> bool {
         match &self.work {
             Work::Ready(_) => true,
             Work::Thread(h) => h.is_finished(),
-            Work::Pool(_, done) => done.load(Ordering::Acquire),
+            Work::Pool { done, .. } => done.load(Ordering::Acquire),
         }
     }
 }
 
-/// Prepares `input` on one of the pool's threads when the caller runs in a pool with a
-/// thread to spare (the steps go on, on the others, and share no core with it); `Err` gives
-/// the input back otherwise.
-fn prepare_in_pool(input: Input) -> Result<Work, Box<Input>> {
-    let threads = rayon::current_num_threads();
-    if rayon::current_thread_index().is_none() || threads < 2 {
-        return Err(Box::new(input));
-    }
-    let taken = POOL_CUTS.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
-        (n + 1 < threads).then_some(n + 1)
-    });
-    if taken.is_err() {
-        return Err(Box::new(input));
-    }
+/// Prepares `input` on a thread `threads` lends; `Err` gives it back where none is spare.
+fn prepare_in_pool(threads: &crate::parallel::Threads, input: Input) -> Result<Work, Box<Input>> {
+    let slot = Arc::new(std::sync::Mutex::new(Some(input)));
     let (tx, rx) = std::sync::mpsc::channel();
     let done = Arc::new(AtomicBool::new(false));
-    let flag = done.clone();
-    rayon::spawn(move || {
-        // A panic must not reach the pool (it would abort the process): the landing step
-        // sees the channel close instead.
-        let prepared = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            crate::parallel::sequential(|| prepare(input))
-        }));
-        POOL_CUTS.fetch_sub(1, Ordering::AcqRel);
-        if let Ok(p) = prepared {
-            let _ = tx.send(p);
+    let (theirs, flag) = (slot.clone(), done.clone());
+    let lent = threads.lend(move || {
+        let input = theirs.lock().ok().and_then(|mut s| s.take());
+        if let Some(input) = input {
+            // A panic ends here: the landing step sees the channel close.
+            if let Ok(p) = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| prepare(input)))
+            {
+                let _ = tx.send(p);
+            }
         }
         flag.store(true, Ordering::Release);
     });
-    Ok(Work::Pool(std::sync::Mutex::new(rx), done))
-}
-
-/// The preparation on a pool thread, waited for: a pool thread that waits runs the pool's
-/// queued work meanwhile (the preparation itself, if no thread has taken it yet).
-fn wait_in_pool(rx: std::sync::mpsc::Receiver<Prepared>) -> Option<Prepared> {
-    loop {
-        match rx.try_recv() {
-            Ok(p) => return Some(p),
-            Err(std::sync::mpsc::TryRecvError::Disconnected) => return None,
-            Err(std::sync::mpsc::TryRecvError::Empty) => {}
-        }
-        if !matches!(rayon::yield_now(), Some(rayon::Yield::Executed)) {
-            match rx.recv_timeout(std::time::Duration::from_micros(200)) {
-                Ok(p) => return Some(p),
-                Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return None,
-                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+    match lent {
+        Ok(()) => Ok(Work::Pool {
+            slot: PoolSlot(slot),
+            rx: std::sync::Mutex::new(rx),
+            done,
+        }),
+        Err(job) => {
+            // Not lent: the job never ran and its copy of the slot goes with it.
+            drop(job);
+            let input = match Arc::try_unwrap(slot) {
+                Ok(m) => m.into_inner().unwrap_or_else(|e| e.into_inner()),
+                Err(shared) => shared.lock().unwrap_or_else(|e| e.into_inner()).take(),
+            };
+            match input {
+                Some(input) => Err(Box::new(input)),
+                None => Ok(Work::Ready(Prepared::Missed)),
             }
         }
     }
@@ -119,10 +134,21 @@ struct Input {
     history: Option<CutHistory>,
     origin: (String, f64, u32),
     pieces_made: usize,
-    blade: Vec<CutTriangle>,
-    region: Vec<CutTriangle>,
-    incision: u64,
+    change: Change,
     options: CutOptions,
+}
+
+/// What a prepared change of the mesh does.
+#[derive(Debug, Clone)]
+enum Change {
+    /// A blade's strips cut (see [`recut_within`]).
+    Blade {
+        blade: Vec<CutTriangle>,
+        region: Vec<CutTriangle>,
+        incision: u64,
+    },
+    /// Tetrahedra leave the mesh (vaporized).
+    Remove(Vec<u32>),
 }
 
 /// A prepared cut.
@@ -190,6 +216,23 @@ impl SimBody {
         options: &CutOptions,
         background: bool,
     ) -> Result<Option<CutJob>, WorldError> {
+        let place = if background {
+            CutPlace::Thread
+        } else {
+            CutPlace::Here
+        };
+        self.begin_cut_at(blade, region, incision, options, place)
+    }
+
+    /// [`SimBody::begin_cut`], prepared where `place` says.
+    pub fn begin_cut_at(
+        &mut self,
+        blade: &[CutTriangle],
+        region: &[CutTriangle],
+        incision: u64,
+        options: &CutOptions,
+        place: CutPlace<'_>,
+    ) -> Result<Option<CutJob>, WorldError> {
         let err = |b: &SimBody, reason: String| WorldError::Cut {
             body: b.label(),
             reason,
@@ -204,6 +247,47 @@ impl SimBody {
         if blade.is_empty() || !self.blade_reaches(blade) {
             return Ok(None);
         }
+        let change = Change::Blade {
+            blade: blade.to_vec(),
+            region: region.to_vec(),
+            incision,
+        };
+        self.begin_change(change, options, place).map(Some)
+    }
+
+    /// Begins removing the tetrahedra `tets` (tissue an electrode vaporized; see
+    /// [`SimBody::vaporized_tets`]) as a cut changes the mesh: prepared where `place` says,
+    /// landed by [`SimBody::finish_cut`], the pieces left (usually one) in the state of the
+    /// step it lands in, their masses by their share of the volume (the mass of what was
+    /// removed leaves). `None` when `tets` is empty.
+    pub fn begin_vaporize(
+        &mut self,
+        tets: Vec<u32>,
+        options: &CutOptions,
+        place: CutPlace<'_>,
+    ) -> Result<Option<CutJob>, WorldError> {
+        if tets.is_empty() {
+            return Ok(None);
+        }
+        if let Some(&t) = tets.iter().find(|&&t| t as usize >= self.mesh.tet_count()) {
+            return Err(WorldError::Cut {
+                body: self.label(),
+                reason: format!(
+                    "tetrahedron {t} to remove is out of range (the body has {})",
+                    self.mesh.tet_count()
+                ),
+            });
+        }
+        self.begin_change(Change::Remove(tets), options, place)
+            .map(Some)
+    }
+
+    fn begin_change(
+        &mut self,
+        change: Change,
+        options: &CutOptions,
+        place: CutPlace<'_>,
+    ) -> Result<CutJob, WorldError> {
         let (x, _) = self.body.node_state().map_err(|e| self.precision_err(e))?;
         let input = Input {
             name: self.name.clone(),
@@ -220,9 +304,7 @@ impl SimBody {
                 |c| (c.origin.clone(), c.origin_volume, c.cuts),
             ),
             pieces_made: self.pieces_made,
-            blade: blade.to_vec(),
-            region: region.to_vec(),
-            incision,
+            change,
             options: *options,
         };
         let (mesh, settings, heat) = (
@@ -230,21 +312,20 @@ impl SimBody {
             input.settings.clone(),
             input.heat.clone(),
         );
-        let pooled = if background {
-            prepare_in_pool(input)
-        } else {
-            Err(Box::new(input))
+        let pooled = match place {
+            CutPlace::Pool(threads) => prepare_in_pool(threads, input),
+            _ => Err(Box::new(input)),
         };
         let work = match pooled {
             Ok(work) => work,
-            Err(input) => self.prepare_elsewhere(*input, background),
+            Err(input) => self.prepare_elsewhere(*input, !matches!(place, CutPlace::Here)),
         };
-        Ok(Some(CutJob {
+        Ok(CutJob {
             mesh,
             settings,
             heat,
             work,
-        }))
+        })
     }
 
     /// A cut's preparation in the step, or (`background`) on a thread of its own.
@@ -300,15 +381,19 @@ impl SimBody {
                     return Ok(BladeOutcome::Missed);
                 }
             },
-            Work::Pool(rx, _) => match rx.into_inner().ok().and_then(wait_in_pool) {
-                Some(p) => p,
-                None => {
-                    log::warn!(
-                        "body `{}`: not cut: the pool thread preparing the cut failed",
-                        self.name
-                    );
-                    return Ok(BladeOutcome::Missed);
-                }
+            Work::Pool { slot, rx, .. } => match slot.take() {
+                // Not started yet: prepared here, now.
+                Some(input) => prepare(input),
+                None => match rx.into_inner().ok().and_then(|rx| rx.recv().ok()) {
+                    Some(p) => p,
+                    None => {
+                        log::warn!(
+                            "body `{}`: not cut: the pool thread preparing the cut failed",
+                            self.name
+                        );
+                        return Ok(BladeOutcome::Missed);
+                    }
+                },
             },
         };
         let cut = match prepared {
@@ -361,14 +446,11 @@ impl SimBody {
                 return Ok(BladeOutcome::Crossed);
             }
         }
-        let heat_all = self.heat.as_mut().map(|h| {
-            // The electrodes' spots give their heat to the nodes first (the pieces start
-            // without spots; burnt volumes start again in them).
-            h.absorb_spots();
-            let t: Vec<f64> = origins
-                .iter()
-                .map(|o| o.interpolate(h.temperatures()))
-                .collect();
+        let heat_all = self.heat.as_ref().map(|h| {
+            // The electrodes' spots give their heat to the nodes (the pieces start without
+            // spots; burnt volumes and the heat the water took start again in them).
+            let now = h.temperatures_with_spots();
+            let t: Vec<f64> = origins.iter().map(|o| o.interpolate(&now)).collect();
             let d: Vec<f64> = origins.iter().map(|o| o.interpolate(h.damage())).collect();
             (t, d)
         });
@@ -521,15 +603,23 @@ fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
     let fail = |why: String| (name.clone(), why);
     // Where its elements are turned inside out the body has no shape to cut along.
     let now = upright(input.x, input.mesh.tets(), "its shape now").map_err(fail)?;
-    let cut = recut_within(
-        &now,
-        input.history.as_ref(),
-        &input.blade,
-        &input.region,
-        input.incision,
-        &input.options,
-    )
-    .map_err(|e| fail(e.to_string()))?;
+    let cut = match &input.change {
+        Change::Blade {
+            blade,
+            region,
+            incision,
+        } => recut_within(
+            &now,
+            input.history.as_ref(),
+            blade,
+            region,
+            *incision,
+            &input.options,
+        )
+        .map_err(|e| fail(e.to_string()))?,
+        Change::Remove(tets) => crate::mesh::cut::remove_tets(&now, input.history.as_ref(), tets)
+            .map_err(|e| fail(format!("removing vaporized tissue: {e}")))?,
+    };
     if cut.separated == 0 {
         return Ok(if cut.bisected > 0 {
             Prepared::Crossed

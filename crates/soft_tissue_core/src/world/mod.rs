@@ -26,6 +26,7 @@
 //! Everything runs on one thread in index order, so a run is bit-for-bit repeatable.
 
 mod body;
+mod burn;
 mod cut;
 mod cut_job;
 mod scene;
@@ -34,7 +35,7 @@ mod soft_world;
 
 pub use body::{SETTLE_STEPS, SimBody};
 pub use cut::{BladeCut, BladeOutcome, CutRecord, Incision, remap_grips, swept_triangles};
-pub use cut_job::CutJob;
+pub use cut_job::{CutJob, CutPlace};
 pub use soft_world::SoftTissueWorld;
 
 pub use crate::contact::{ContactState, ContactStats, detect_contacts, solve_contacts};

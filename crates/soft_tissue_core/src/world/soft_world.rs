@@ -37,6 +37,8 @@ struct InFlight {
     /// The step it lands in.
     due: u64,
     job: super::CutJob,
+    /// Vaporized tetrahedra it removes (0: a blade's cut).
+    vaporized: usize,
 }
 
 impl SoftTissueWorld {
@@ -163,7 +165,12 @@ impl SoftTissueWorld {
     fn cut_stage(&mut self) -> Result<(), WorldError> {
         self.incisions.resize(self.tools.len(), None);
         let cutting = |t: &Tool| t.cutting() && t.blade_sweep().is_some();
-        if self.in_flight.is_empty() && !self.tools.iter().any(cutting) {
+        // An electrode's crater (tissue to remove) is checked without allocating.
+        let craters = self
+            .bodies
+            .iter()
+            .any(|b| b.heat.as_ref().is_some_and(|h| h.has_craters()));
+        if self.in_flight.is_empty() && !self.tools.iter().any(cutting) && !craters {
             // Nothing to cut (and nothing allocated for it).
             self.incisions.iter_mut().for_each(|i| *i = None);
             return Ok(());
@@ -192,7 +199,11 @@ impl SoftTissueWorld {
             }
             let f = self.in_flight.remove(k);
             let outcome = self.bodies[f.body].finish_cut(f.job)?;
-            self.cut_landed(f.tool, f.incision, f.body, f.mark, outcome);
+            if f.vaporized > 0 {
+                self.vaporize_landed(f.body, f.vaporized, outcome);
+            } else {
+                self.cut_landed(f.tool, f.incision, f.body, f.mark, outcome);
+            }
         }
         let background = self.cut_options.background_steps;
         for (t, stroke) in strokes.iter().enumerate() {
@@ -209,13 +220,13 @@ impl SoftTissueWorld {
                 if strips.is_empty() {
                     continue;
                 }
-                let job = self.bodies[i].begin_cut(
-                    &strips,
-                    stroke,
-                    id,
-                    &self.cut_options,
-                    background > 0,
-                )?;
+                let place = if background > 0 {
+                    super::CutPlace::Pool(&self.threads)
+                } else {
+                    super::CutPlace::Here
+                };
+                let job =
+                    self.bodies[i].begin_cut_at(&strips, stroke, id, &self.cut_options, place)?;
                 match job {
                     None => self.cut_landed(t, id, i, mark, super::BladeOutcome::Missed),
                     Some(job) if background == 0 => {
@@ -229,11 +240,61 @@ impl SoftTissueWorld {
                         mark,
                         due: self.steps + background as u64,
                         job,
+                        vaporized: 0,
                     }),
                 }
             }
         }
+        if craters {
+            self.vaporize_stage(count)?;
+        }
         Ok(())
+    }
+
+    /// Tissue electrodes vaporized leaves the bodies (see [`SimBody::vaporized_tets`]), as a
+    /// cut changes them: in the step or in the background like a blade's cuts.
+    fn vaporize_stage(&mut self, count: usize) -> Result<(), WorldError> {
+        let background = self.cut_options.background_steps;
+        for i in 0..count {
+            if self.in_flight.iter().any(|f| f.body == i) {
+                continue;
+            }
+            let tets = self.bodies[i].vaporized_tets();
+            let n = tets.len();
+            let place = if background > 0 {
+                super::CutPlace::Pool(&self.threads)
+            } else {
+                super::CutPlace::Here
+            };
+            let Some(job) = self.bodies[i].begin_vaporize(tets, &self.cut_options, place)? else {
+                continue;
+            };
+            if background == 0 {
+                let outcome = self.bodies[i].finish_cut(job)?;
+                self.vaporize_landed(i, n, outcome);
+            } else {
+                self.in_flight.push(InFlight {
+                    body: i,
+                    tool: usize::MAX,
+                    incision: 0,
+                    mark: 0,
+                    due: self.steps + background as u64,
+                    job,
+                    vaporized: n,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The removal of `count` vaporized tetrahedra of body `body` came to `outcome`.
+    fn vaporize_landed(&mut self, body: usize, count: usize, outcome: super::BladeOutcome) {
+        match outcome {
+            super::BladeOutcome::Cut(c) => {
+                self.add_cut(body, *c);
+            }
+            _ => self.bodies[body].vaporize_refused(count),
+        }
     }
 
     /// A cut of body `body` by tool `tool`'s incision `incision` with its strips up to

@@ -38,9 +38,11 @@ use std::collections::HashMap;
 
 mod bisect;
 mod check;
+mod remove;
 mod separate;
 
 pub use check::{CutCheck, check};
+pub use remove::{RemoveError, remove_tets};
 
 use thiserror::Error;
 
