@@ -1,6 +1,6 @@
 //! The inspector (feature `inspector`, bevy_egui): every body (by its `Name`, else its mesh's
 //! file name: see [`body_label`]) with its level, precise method
-//! (switchable), Young's modulus (editable: the body's [`TissueMaterial`]), step time, switches, last jump, temperature range, shadow error and
+//! (switchable), Young's modulus (editable: the body's [`TissueMaterial`]), step time, switches, last jump, temperature range, burnt volumes (coagulated / charred / vaporized, mm^3), shadow error and
 //! unconverged solves, cut area and pieces; the simulation's rate, the last step's time and the median, 99th
 //! percentile and largest of the whole step and of each stage over the last steps, the error
 //! of a failed step, pause / single step / reset, the simulation's speed; and a live plot of each body's step time
@@ -168,115 +168,137 @@ fn inspector_panel(
             if let Some(e) = &status.error {
                 ui.colored_label(egui::Color32::LIGHT_RED, e.to_string());
             }
-            egui::Grid::new("bodies").striped(true).show(ui, |ui| {
-                for h in [
-                    "body", "level", "method", "E", "mu", "step us", "contacts", "pen. %",
-                    "switches", "jump %", "C", "cage %", "unconv.", "cut area", "pieces",
-                ] {
-                    ui.strong(h);
-                }
-                ui.end_row();
-                let mut rows: Vec<_> = bodies.iter_mut().collect();
-                rows.sort_by_key(|r| r.0);
-                for (e, name, mut body, mut material, level, diag, temp) in rows {
-                    ui.label(body_label(e, name, Some(&*body), &server));
-                    let (text, colour) = match level.level {
-                        Level::Cage => ("cage", egui::Color32::from_rgb(90, 170, 255)),
-                        Level::Precise => ("precise", egui::Color32::from_rgb(255, 150, 60)),
-                    };
-                    ui.colored_label(colour, text);
-                    let mut method = body.method;
-                    egui::ComboBox::from_id_salt(("method", e))
-                        .selected_text(method.name())
-                        .show_ui(ui, |ui| {
-                            for m in PreciseMethod::ALL {
-                                ui.selectable_value(&mut method, m, m.name());
+            // Wide tables scroll sideways: the window stays clear of the scene.
+            egui::ScrollArea::horizontal()
+                .id_salt("bodies-scroll")
+                .max_width(600.0)
+                .show(ui, |ui| {
+                    egui::Grid::new("bodies").striped(true).show(ui, |ui| {
+                        for h in [
+                            "body",
+                            "level",
+                            "method",
+                            "E",
+                            "mu",
+                            "step us",
+                            "contacts",
+                            "pen. %",
+                            "switches",
+                            "jump %",
+                            "C",
+                            "burnt mm3",
+                            "cage %",
+                            "unconv.",
+                            "cut area",
+                            "pieces",
+                        ] {
+                            ui.strong(h);
+                        }
+                        ui.end_row();
+                        let mut rows: Vec<_> = bodies.iter_mut().collect();
+                        rows.sort_by_key(|r| r.0);
+                        for (e, name, mut body, mut material, level, diag, temp) in rows {
+                            ui.label(body_label(e, name, Some(&*body), &server));
+                            let (text, colour) = match level.level {
+                                Level::Cage => ("cage", egui::Color32::from_rgb(90, 170, 255)),
+                                Level::Precise => {
+                                    ("precise", egui::Color32::from_rgb(255, 150, 60))
+                                }
+                            };
+                            ui.colored_label(colour, text);
+                            let mut method = body.method;
+                            egui::ComboBox::from_id_salt(("method", e))
+                                .selected_text(method.name())
+                                .show_ui(ui, |ui| {
+                                    for m in PreciseMethod::ALL {
+                                        ui.selectable_value(&mut method, m, m.name());
+                                    }
+                                });
+                            if method != body.method {
+                                body.method = method;
                             }
-                        });
-                    if method != body.method {
-                        body.method = method;
-                    }
-                    // Young's modulus: the material is the body's data, edited in place.
-                    let mut young = material.fem.young_modulus;
-                    if ui
-                        .add(
-                            egui::DragValue::new(&mut young)
-                                .speed(1.0)
-                                .range(1e-3..=1e9),
-                        )
-                        .changed()
-                    {
-                        material.fem.young_modulus = young;
-                    }
-                    // Friction (static; the kinetic one kept at most the static).
-                    let mut mu = material.friction.static_coefficient;
-                    if ui
-                        .add(egui::DragValue::new(&mut mu).speed(0.01).range(0.0..=2.0))
-                        .changed()
-                    {
-                        let f = &mut material.friction;
-                        f.static_coefficient = mu;
-                        f.kinetic_coefficient = f.kinetic_coefficient.min(mu);
-                    }
-                    ui.label(format!("{:.0}", diag.step_us));
-                    ui.label(format!("{}", diag.contacts));
-                    ui.label(format!("{:.4}", 100.0 * diag.penetration_ratio));
-                    ui.label(format!("{}", level.switches));
-                    ui.label(
-                        level
-                            .last_jump_ratio
-                            .map_or("-".into(), |r| format!("{:.3}", 100.0 * r)),
-                    );
-                    ui.label(temp.map_or("-".into(), |t| {
-                        let range = format!("{:.1}..{:.1}", t.min, t.max);
-                        if t.coagulated_mm3 > 0.0 || t.charred_mm3 > 0.0 {
-                            // Burnt at the electrodes' scale: coagulated / charred /
-                            // vaporized.
-                            format!(
-                                "{range}, burnt {:.1} / {:.1} / {:.1} mm3",
-                                t.coagulated_mm3, t.charred_mm3, t.vaporized_mm3
-                            )
-                        } else {
-                            range
+                            // Young's modulus: the material is the body's data, edited in place.
+                            let mut young = material.fem.young_modulus;
+                            if ui
+                                .add(
+                                    egui::DragValue::new(&mut young)
+                                        .speed(1.0)
+                                        .range(1e-3..=1e9),
+                                )
+                                .changed()
+                            {
+                                material.fem.young_modulus = young;
+                            }
+                            // Friction (static; the kinetic one kept at most the static).
+                            let mut mu = material.friction.static_coefficient;
+                            if ui
+                                .add(egui::DragValue::new(&mut mu).speed(0.01).range(0.0..=2.0))
+                                .changed()
+                            {
+                                let f = &mut material.friction;
+                                f.static_coefficient = mu;
+                                f.kinetic_coefficient = f.kinetic_coefficient.min(mu);
+                            }
+                            ui.label(format!("{:.0}", diag.step_us));
+                            ui.label(format!("{}", diag.contacts));
+                            ui.label(format!("{:.4}", 100.0 * diag.penetration_ratio));
+                            ui.label(format!("{}", level.switches));
+                            ui.label(
+                                level
+                                    .last_jump_ratio
+                                    .map_or("-".into(), |r| format!("{:.3}", 100.0 * r)),
+                            );
+                            ui.label(
+                                temp.map_or("-".into(), |t| format!("{:.1}..{:.1}", t.min, t.max)),
+                            );
+                            // Burnt at the electrodes' scale: coagulated / charred / vaporized.
+                            ui.label(
+                                temp.filter(|t| t.coagulated_mm3 > 0.0 || t.charred_mm3 > 0.0)
+                                    .map_or("-".into(), |t| {
+                                        format!(
+                                            "{:.0}/{:.0}/{:.0}",
+                                            t.coagulated_mm3, t.charred_mm3, t.vaporized_mm3
+                                        )
+                                    }),
+                            );
+                            ui.label(
+                                diag.shadow_error_ratio
+                                    .map_or("-".into(), |r| format!("{:.2}", 100.0 * r)),
+                            );
+                            // Solves stopped at their cap: shown in red, they are inexact steps.
+                            if diag.unconverged_solves > 0 {
+                                ui.colored_label(
+                                    egui::Color32::LIGHT_RED,
+                                    format!("{}", diag.unconverged_solves),
+                                );
+                            } else {
+                                ui.label("0");
+                            }
+                            // Cuts: the area of this body's cut sides, and the pieces of the body it
+                            // came from (itself and those cut loose from it).
+                            if diag.cut_faces > 0 {
+                                ui.label(format!("{:.3e}", diag.cut_area));
+                            } else {
+                                ui.label("-");
+                            }
+                            // The uncut body: follow the pieces back to it.
+                            let root = |mut x: Entity| {
+                                while let Ok(p) = pieces.get(x) {
+                                    x = p.from;
+                                }
+                                x
+                            };
+                            let from = root(e);
+                            let count = pieces.iter().filter(|p| root(p.from) == from).count();
+                            ui.label(if count > 0 {
+                                format!("{}", count + 1)
+                            } else {
+                                "-".into()
+                            });
+                            ui.end_row();
                         }
-                    }));
-                    ui.label(
-                        diag.shadow_error_ratio
-                            .map_or("-".into(), |r| format!("{:.2}", 100.0 * r)),
-                    );
-                    // Solves stopped at their cap: shown in red, they are inexact steps.
-                    if diag.unconverged_solves > 0 {
-                        ui.colored_label(
-                            egui::Color32::LIGHT_RED,
-                            format!("{}", diag.unconverged_solves),
-                        );
-                    } else {
-                        ui.label("0");
-                    }
-                    // Cuts: the area of this body's cut sides, and the pieces of the body it
-                    // came from (itself and those cut loose from it).
-                    if diag.cut_faces > 0 {
-                        ui.label(format!("{:.3e}", diag.cut_area));
-                    } else {
-                        ui.label("-");
-                    }
-                    // The uncut body: follow the pieces back to it.
-                    let root = |mut x: Entity| {
-                        while let Ok(p) = pieces.get(x) {
-                            x = p.from;
-                        }
-                        x
-                    };
-                    let from = root(e);
-                    let count = pieces.iter().filter(|p| root(p.from) == from).count();
-                    ui.label(if count > 0 {
-                        format!("{}", count + 1)
-                    } else {
-                        "-".into()
                     });
-                    ui.end_row();
-                }
-            });
+                });
             // Tools: the contact force the step balanced, and the jaws of a grasper.
             egui::Grid::new("tools").striped(true).show(ui, |ui| {
                 for h in ["tool", "force", "|F|", "contacts", "grips", "jaws", "mu"] {

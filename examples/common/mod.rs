@@ -18,7 +18,8 @@
 //! renders N frames and saves a PNG of the window, then exits (with `--mouse`, the mouse keeps
 //! driving the tool: `scripts/mouse-check.sh` moves it with xdotool under Xvfb). `--smooth L` draws each body
 //! with its simulation surface refined by L rounds of Loop subdivision and embedded in its
-//! tetrahedra (default 2; 0 draws the simulation surface itself).
+//! tetrahedra (default 2; 0 draws the simulation surface itself). `--close-up` puts the camera
+//! close above where the scripted tool works, without the inspector (the burn it leaves).
 
 mod camera;
 mod keys;
@@ -154,7 +155,16 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
                 ..default()
             }),
     )
-    .add_plugins(SoftTissuePlugins::default())
+    // The close-up leaves the inspector out (egui stays, for the controls panel): the burn
+    // (or cut) fills the view.
+    .add_plugins(if options.close_up {
+        SoftTissuePlugins::default()
+            .build()
+            .disable::<bevy_soft_tissue::inspector::SoftTissueInspectorPlugin>()
+            .add(bevy_egui::EguiPlugin::default())
+    } else {
+        SoftTissuePlugins::default().build()
+    })
     // One simulation step per fixed run, at the scene's step.
     .insert_resource(SoftTissueConfig {
         drive_fixed_timestep: true,
@@ -248,7 +258,7 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
             match work_at.filter(|_| close_up) {
                 Some(at) => Orbit {
                     focus: at,
-                    yaw: 0.3,
+                    yaw: 0.0,
                     pitch: -1.1,
                     distance: 0.35 * scale,
                 },
