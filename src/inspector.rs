@@ -256,7 +256,7 @@ fn inspector_panel(
                                 temp.filter(|t| t.coagulated_mm3 > 0.0 || t.charred_mm3 > 0.0)
                                     .map_or("-".into(), |t| {
                                         format!(
-                                            "{:.0}/{:.0}/{:.0}",
+                                            "{:.1}/{:.1}/{:.1}",
                                             t.coagulated_mm3, t.charred_mm3, t.vaporized_mm3
                                         )
                                     }),

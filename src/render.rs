@@ -617,11 +617,19 @@ mod tests {
     }
 
     #[test]
-    fn tissue_colours_go_from_white_to_red_to_grey() {
+    fn tissue_colours_go_from_white_to_red_to_white_grey_to_char() {
         assert_eq!(tissue_colour(37.0, 0.0), [1.0, 1.0, 1.0, 1.0]);
         let hot = tissue_colour(60.0, 0.0);
         assert!(hot[0] > hot[1] && hot[0] > hot[2]);
-        let burnt = tissue_colour(60.0, 1.0);
-        assert!((burnt[0] - 0.55).abs() < 1e-6 && (burnt[2] - 0.40).abs() < 1e-6);
+        // Coagulated: white-grey whatever the temperature.
+        let coagulated = tissue_colour(60.0, 1.0);
+        assert_eq!(coagulated, tissue_colour(37.0, 1.0));
+        assert!(coagulated[..3].iter().all(|&c| (0.7..0.9).contains(&c)));
+        // Charred: dark, from 90 C up to boiling.
+        assert_eq!(charred_fraction(89.0, 100.0), 0.0);
+        assert_eq!(charred_fraction(100.0, 100.0), 1.0);
+        let char = burn_colour(100.0, 1.0, charred_fraction(100.0, 100.0));
+        assert!(char[..3].iter().all(|&c| c < 0.15));
+        assert_eq!(burn_colour(50.0, 0.3, 0.0), tissue_colour(50.0, 0.3));
     }
 }

@@ -155,7 +155,8 @@ pub(super) fn cut_stage(
             continue;
         };
         let outcome = list[i].2.body.finish_cut(job.job);
-        if job.vaporized > 0 && !matches!(outcome, Ok(BladeOutcome::Cut(_))) {
+        // Refused by the mesh: tried again once more vaporized (dropped for now: next step).
+        if job.vaporized > 0 && matches!(outcome, Ok(BladeOutcome::Missed)) {
             list[i].2.body.vaporize_refused(job.vaporized);
         }
         if !land!(i, outcome, (job.blade, job.incision, job.mark)) {
@@ -250,7 +251,7 @@ pub(super) fn cut_stage(
                 }
                 Err(e) => Err(e),
             };
-            if !matches!(outcome, Ok(BladeOutcome::Cut(_))) {
+            if matches!(outcome, Ok(BladeOutcome::Missed)) {
                 list[i].2.body.vaporize_refused(n);
             }
             if !land!(i, outcome, (Entity::PLACEHOLDER, 0, 0)) {

@@ -166,9 +166,8 @@ impl HeatField {
             .iter()
             .copied()
             .fold(f64::NEG_INFINITY, crate::state::nan_max);
-        self.spots
-            .iter()
-            .map(|p| interpolate(&self.temperature, &p.nodes) + p.max_excess())
+        (0..self.spots.len())
+            .map(|k| self.spot_base(k) + self.spots[k].max_excess())
             .fold(coarse, crate::state::nan_max)
     }
 
@@ -193,8 +192,10 @@ impl HeatField {
         self.spots.iter().map(|p| p.crater_radius()).collect()
     }
 
-    /// The nodes' temperatures with every spot's excess heat given to its nodes (what
-    /// [`HeatField::absorb_spots`] would leave), C.
+    /// The nodes' temperatures with every spot's excess heat given to the free nodes within
+    /// its reach, by its excess at each times its capacity (to the spot's own nodes where
+    /// none is within reach; a share on a fixed-temperature node leaves) — what
+    /// [`HeatField::absorb_spots`] would leave, C.
     pub fn temperatures_with_spots(&self) -> Vec<f64> {
         let mut t = self.temperature.clone();
         for spot in &self.spots {
@@ -234,8 +235,8 @@ impl HeatField {
         }
     }
 
-    /// Ends every spot: their excess heat goes into their coarse nodes (a mesh about to
-    /// change keeps the heat in its nodes' field).
+    /// Ends every spot: its excess heat goes into the nodes where it lies (see
+    /// [`HeatField::temperatures_with_spots`]).
     pub fn absorb_spots(&mut self) {
         if self.spots.is_empty() {
             return;
@@ -262,6 +263,17 @@ impl HeatField {
         self.spots
             .iter()
             .any(|p| p.crater_radius() > p.grid.radius * (1.0 + 1e-9))
+    }
+
+    /// Takes `other`'s burns as its own history (a body's field after a cut or a removal
+    /// of vaporized tissue): its burnt volumes and the heat its water took, of its spots and
+    /// of those that ended, so the totals go on.
+    pub fn carry_burns_from(&mut self, other: &HeatField) {
+        self.retired = other.burn_volumes();
+        self.retired_boiled =
+            other.retired_boiled + other.spots.iter().map(Spot::boiled_energy).sum::<f64>();
+        self.changed = true;
+        self.version += 1;
     }
 
     /// Follows temperature, damage and peak temperature at `samples` (see [`HeatSample`]);
@@ -328,11 +340,7 @@ impl HeatField {
         let mut bases = std::mem::take(&mut self.spot_bases);
         bases.clear();
         bases.extend((0..self.spots.len()).map(|k| self.spot_base(k)));
-        let mut powered = 0u64;
         for (k, spot) in self.spots.iter_mut().enumerate() {
-            if spot.power > 0.0 && k < 64 {
-                powered |= 1 << k;
-            }
             spot.commit(&self.params, bases[k], dt);
         }
         self.spot_bases = bases;
@@ -342,15 +350,14 @@ impl HeatField {
         while k > 0 {
             k -= 1;
             let excess = self.spots[k].max_excess();
-            let was_powered = k < 64 && powered & (1 << k) != 0;
-            if !was_powered && excess.is_finite() && excess < RETIRE_KELVIN {
+            if !self.spots[k].powered && excess.is_finite() && excess < RETIRE_KELVIN {
                 self.retire(k);
             }
         }
     }
 
-    /// Ends spot `k`: its excess heat goes into its coarse nodes, its volumes and boiled
-    /// heat are kept.
+    /// Ends spot `k`: its excess heat goes into the nodes where it lies, its volumes and
+    /// boiled heat are kept.
     fn retire(&mut self, k: usize) {
         let spot = self.spots.remove(k);
         let mut t = std::mem::take(&mut self.temperature);

@@ -221,6 +221,8 @@ pub(crate) struct Spot {
     scratch: Vec<f64>,
     /// Tissue power queued for the next step, W.
     pub(crate) power: f64,
+    /// Whether the last committed step had power.
+    pub(crate) powered: bool,
     /// Heat that crosses the outer radius in the solved step (tissue share), J.
     pub(crate) outflow: f64,
     /// Heat the perfusion carried away in the solved step (tissue share), J.
@@ -248,6 +250,7 @@ impl Spot {
             peak: vec![base; CELLS],
             scratch: vec![0.0; CELLS],
             power: 0.0,
+            powered: false,
             outflow: 0.0,
             perfused: 0.0,
         }
@@ -341,6 +344,7 @@ impl Spot {
     pub(crate) fn commit(&mut self, params: &HeatParams, base: f64, dt: f64) {
         std::mem::swap(&mut self.u, &mut self.next);
         std::mem::swap(&mut self.boiled, &mut self.boiled_next);
+        self.powered = self.power > 0.0;
         self.power = 0.0;
         for i in 0..CELLS {
             let t = base + self.u[i];

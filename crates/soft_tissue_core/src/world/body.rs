@@ -299,6 +299,7 @@ impl SimBody {
     /// Gives the body a new temperature field, or removes it (`None`). A new field starts
     /// at its parameters' initial temperature, with no damage.
     pub fn set_heat(&mut self, heat: Option<(HeatParams, HeatBoundary)>) -> Result<(), WorldError> {
+        self.vaporize_tried = 0;
         self.heat = match heat {
             Some((params, boundary)) => {
                 let field = HeatField::new(&self.mesh, params, self.body.settings().dt, &boundary)
@@ -386,6 +387,7 @@ impl SimBody {
         if let Some(h) = &mut self.heat {
             h.reset();
         }
+        self.vaporize_tried = 0;
         self.collider.reset_motion(self.body.node_positions());
         self.touched = false;
         self.contacts = 0;

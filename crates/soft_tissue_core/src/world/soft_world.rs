@@ -293,7 +293,11 @@ impl SoftTissueWorld {
             super::BladeOutcome::Cut(c) => {
                 self.add_cut(body, *c);
             }
-            _ => self.bodies[body].vaporize_refused(count),
+            // Refused by the mesh (a warning said why): tried again once more vaporized.
+            super::BladeOutcome::Missed => self.bodies[body].vaporize_refused(count),
+            // Dropped for now (the body was built again, or moved so an element would
+            // invert): tried again next step.
+            super::BladeOutcome::Crossed => {}
         }
     }
 
@@ -323,7 +327,7 @@ impl SoftTissueWorld {
         }
     }
 
-    /// Cuts being prepared on threads of their own (see
+    /// Cuts (and removals of vaporized tissue) being prepared beside the steps (see
     /// [`crate::mesh::cut::CutOptions::background_steps`]).
     pub fn cuts_in_flight(&self) -> usize {
         self.in_flight.len()
