@@ -188,12 +188,7 @@ pub(super) fn cut_stage(
                 continue;
             }
             let background = options.background_steps > 0;
-            // On a thread the solver stage's pool lends, where it has one to spare.
-            let place = match (background, &threads.threads) {
-                (false, _) => CutPlace::Here,
-                (true, Some((_, pool))) => CutPlace::Pool(pool),
-                (true, None) => CutPlace::Thread,
-            };
+            let place = cut_place(background, &threads);
             let sim = &mut list[i].2;
             let outcome = match sim.body.begin_cut_at(&strips, stroke, *id, &options, place) {
                 Ok(None) => Ok(BladeOutcome::Missed),
@@ -228,11 +223,7 @@ pub(super) fn cut_stage(
             let tets = list[i].2.body.vaporized_tets();
             let n = tets.len();
             let background = options.background_steps > 0;
-            let place = match (background, &threads.threads) {
-                (false, _) => CutPlace::Here,
-                (true, Some((_, pool))) => CutPlace::Pool(pool),
-                (true, None) => CutPlace::Thread,
-            };
+            let place = cut_place(background, &threads);
             let sim = &mut list[i].2;
             let outcome = match sim.body.begin_vaporize(tets, &options, place) {
                 Ok(None) => continue,
@@ -309,6 +300,16 @@ pub(super) fn cut_stage(
         }
     }
     status.times.cut_us = t.elapsed().as_secs_f64() * 1e6;
+}
+
+/// Where a cut is prepared: in the step, or (`background`) on a thread the solver stage's
+/// pool lends where it has one to spare.
+fn cut_place(background: bool, threads: &SoftTissueThreads) -> CutPlace<'_> {
+    match (background, &threads.threads) {
+        (false, _) => CutPlace::Here,
+        (true, Some((_, pool))) => CutPlace::Pool(pool),
+        (true, None) => CutPlace::Thread,
+    }
 }
 
 /// Body `list[i]`'s cut by the incision `(blade, id, mark)` came to `outcome`: the kept

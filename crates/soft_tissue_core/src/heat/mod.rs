@@ -47,6 +47,13 @@ pub const GAS_CONSTANT: f64 = 8.314_462_618;
 /// 0 C in kelvin.
 pub const KELVIN_OFFSET: f64 = 273.15;
 
+const POSITIVE: &str = "finite and > 0";
+const ABOVE_ZERO: &str = "finite and above absolute zero";
+const NON_NEGATIVE: &str = "finite and >= 0";
+
+/// A parameter check: field, value, the test it must pass, what is expected.
+type Rule = (&'static str, f64, fn(f64) -> bool, &'static str);
+
 /// Thermal parameters of a tissue (SI units, temperatures in degrees Celsius).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "bevy_reflect", derive(bevy_reflect::Reflect))]
@@ -178,88 +185,86 @@ impl HeatParams {
 
     /// Checks every field; the error names it.
     pub fn validate(&self) -> Result<(), HeatError> {
-        let positive = [
-            ("conductivity", self.conductivity),
-            ("density", self.density),
-            ("specific_heat", self.specific_heat),
-            ("meters_per_unit", self.meters_per_unit),
-            ("damage_activation_energy", self.damage_activation_energy),
-        ];
-        for (field, value) in positive {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(HeatError::BadParameter {
-                    field,
-                    value,
-                    expected: "finite and > 0",
-                });
-            }
-        }
-        let finite = [
-            ("initial_temperature", self.initial_temperature),
-            ("damage_threshold", self.damage_threshold),
-        ];
-        for (field, value) in finite {
-            if !value.is_finite() || value <= -KELVIN_OFFSET {
-                return Err(HeatError::BadParameter {
-                    field,
-                    value,
-                    expected: "finite and above absolute zero",
-                });
-            }
-        }
-        let p = &self.perfusion;
-        let v = &self.vaporization;
-        let non_negative = [("perfusion.rate", p.rate)];
-        for (field, value) in non_negative {
-            if !(value.is_finite() && value >= 0.0) {
-                return Err(HeatError::BadParameter {
-                    field,
-                    value,
-                    expected: "finite and >= 0",
-                });
-            }
-        }
-        let positive = [
-            ("perfusion.blood_density", p.blood_density),
-            ("perfusion.blood_specific_heat", p.blood_specific_heat),
-            ("vaporization.latent_heat", v.latent_heat),
+        let (p, v) = (&self.perfusion, &self.vaporization);
+        let above_zero = |t: f64| t.is_finite() && t > -KELVIN_OFFSET;
+        let positive = |x: f64| x.is_finite() && x > 0.0;
+        let non_negative = |x: f64| x.is_finite() && x >= 0.0;
+        let rules: [Rule; 15] = [
+            ("conductivity", self.conductivity, positive, POSITIVE),
+            ("density", self.density, positive, POSITIVE),
+            ("specific_heat", self.specific_heat, positive, POSITIVE),
+            ("meters_per_unit", self.meters_per_unit, positive, POSITIVE),
+            (
+                "damage_activation_energy",
+                self.damage_activation_energy,
+                positive,
+                POSITIVE,
+            ),
+            (
+                "initial_temperature",
+                self.initial_temperature,
+                above_zero,
+                ABOVE_ZERO,
+            ),
+            (
+                "damage_threshold",
+                self.damage_threshold,
+                above_zero,
+                ABOVE_ZERO,
+            ),
+            (
+                "damage_frequency",
+                self.damage_frequency,
+                non_negative,
+                NON_NEGATIVE,
+            ),
+            ("perfusion.rate", p.rate, non_negative, NON_NEGATIVE),
+            (
+                "perfusion.blood_density",
+                p.blood_density,
+                positive,
+                POSITIVE,
+            ),
+            (
+                "perfusion.blood_specific_heat",
+                p.blood_specific_heat,
+                positive,
+                POSITIVE,
+            ),
+            (
+                "perfusion.arterial_temperature",
+                p.arterial_temperature,
+                above_zero,
+                ABOVE_ZERO,
+            ),
+            (
+                "vaporization.latent_heat",
+                v.latent_heat,
+                positive,
+                POSITIVE,
+            ),
             // Dry tissue at an electrode would heat without bound.
-            ("vaporization.water_fraction", v.water_fraction),
+            (
+                "vaporization.water_fraction",
+                v.water_fraction,
+                |x| x > 0.0 && x <= 1.0,
+                "in (0, 1]",
+            ),
+            (
+                "vaporization.boiling_temperature",
+                v.boiling_temperature,
+                above_zero,
+                ABOVE_ZERO,
+            ),
         ];
-        for (field, value) in positive {
-            if !(value.is_finite() && value > 0.0) {
+        for (field, value, ok, expected) in rules {
+            if !ok(value) {
                 return Err(HeatError::BadParameter {
                     field,
                     value,
-                    expected: "finite and > 0",
+                    expected,
                 });
             }
-        }
-        if v.water_fraction > 1.0 {
-            return Err(HeatError::BadParameter {
-                field: "vaporization.water_fraction",
-                value: v.water_fraction,
-                expected: "at most 1",
-            });
-        }
-        for (field, value) in [
-            ("perfusion.arterial_temperature", p.arterial_temperature),
-            ("vaporization.boiling_temperature", v.boiling_temperature),
-        ] {
-            if !value.is_finite() || value <= -KELVIN_OFFSET {
-                return Err(HeatError::BadParameter {
-                    field,
-                    value,
-                    expected: "finite and above absolute zero",
-                });
-            }
-        }
-        if !(self.damage_frequency.is_finite() && self.damage_frequency >= 0.0) {
-            return Err(HeatError::BadParameter {
-                field: "damage_frequency",
-                value: self.damage_frequency,
-                expected: "finite and >= 0",
-            });
         }
         Ok(())
     }

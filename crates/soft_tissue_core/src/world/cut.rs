@@ -296,24 +296,7 @@ pub fn remap_grips<T: BorrowMut<Tool>, B: Borrow<SimBody>>(
 
 /// Whether every edge of `triangles` is in exactly two of them.
 pub(super) fn surface_closed(triangles: &[[u32; 3]]) -> bool {
-    let mut edges: Vec<(u32, u32)> = triangles
-        .iter()
-        .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
-        .map(|(a, b)| (a.min(b), a.max(b)))
-        .collect();
-    edges.sort_unstable();
-    let mut i = 0;
-    while i < edges.len() {
-        let mut j = i;
-        while j < edges.len() && edges[j] == edges[i] {
-            j += 1;
-        }
-        if j - i != 2 {
-            return false;
-        }
-        i = j;
-    }
-    true
+    crate::mesh::cut::manifold(triangles)
 }
 
 /// A quarter of the volume of every tetrahedron around each node.

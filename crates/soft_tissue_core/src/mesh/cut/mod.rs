@@ -42,6 +42,7 @@ mod remove;
 mod separate;
 
 pub use check::{CutCheck, check};
+pub(crate) use remove::manifold;
 pub use remove::{RemoveError, remove_tets};
 
 use thiserror::Error;

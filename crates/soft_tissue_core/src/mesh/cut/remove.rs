@@ -139,8 +139,8 @@ fn face_key(tet: &[u32; 4], corner: usize) -> [u32; 3] {
     f
 }
 
-/// Every edge of `triangles` in exactly two of them.
-fn manifold(triangles: &[[u32; 3]]) -> bool {
+/// Every edge of `triangles` in exactly two of them (a closed, edge-manifold surface).
+pub(crate) fn manifold(triangles: &[[u32; 3]]) -> bool {
     let mut edges: Vec<(u32, u32)> = triangles
         .iter()
         .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
