@@ -194,8 +194,8 @@ impl HeatField {
 
     /// The nodes' temperatures with every spot's excess heat given to the free nodes within
     /// its reach, by its excess at each times its capacity (to the spot's own nodes where
-    /// none is within reach; a share on a fixed-temperature node leaves) — what
-    /// [`HeatField::absorb_spots`] would leave, C.
+    /// none is within reach; a share on a fixed-temperature node leaves): what a cut hands
+    /// to the pieces, C.
     pub fn temperatures_with_spots(&self) -> Vec<f64> {
         let mut t = self.temperature.clone();
         for spot in &self.spots {
@@ -235,34 +235,19 @@ impl HeatField {
         }
     }
 
-    /// Ends every spot: its excess heat goes into the nodes where it lies (see
-    /// [`HeatField::temperatures_with_spots`]).
-    pub fn absorb_spots(&mut self) {
-        if self.spots.is_empty() {
-            return;
-        }
-        while !self.spots.is_empty() {
-            self.retire(0);
-        }
-        self.changed = true;
-        self.version += 1;
-    }
-
     /// The craters the electrodes vaporized: each spot's centre (rest, scene units) and
     /// crater radius (m), where it is larger than the electrode.
     pub fn craters(&self) -> Vec<(Vec3, f64)> {
         self.spots
             .iter()
-            .filter(|p| p.crater_radius() > p.grid.radius * (1.0 + 1e-9))
+            .filter(|p| p.has_crater())
             .map(|p| (p.center, p.crater_radius()))
             .collect()
     }
 
     /// Whether an electrode has vaporized a crater (cheap: no allocation).
     pub fn has_craters(&self) -> bool {
-        self.spots
-            .iter()
-            .any(|p| p.crater_radius() > p.grid.radius * (1.0 + 1e-9))
+        self.spots.iter().any(Spot::has_crater)
     }
 
     /// Takes `other`'s burns as its own history (a body's field after a cut or a removal
@@ -377,7 +362,7 @@ impl HeatField {
         let p = self.params;
         for k in 0..self.samples.len() {
             let sample = &self.samples[k];
-            let mut t = interpolate4(&self.temperature, &sample.nodes);
+            let mut t = interpolate(&self.temperature, &sample.nodes);
             for spot in &self.spots {
                 t += spot.excess_at(&sample.position, s);
             }

@@ -734,7 +734,7 @@ impl HeatField {
         self.sample_damage.fill(0.0);
         self.sample_peak.fill(self.params.initial_temperature);
         for k in 0..self.samples.len() {
-            self.sample_temperature[k] = interpolate4(&self.temperature, &self.samples[k].nodes);
+            self.sample_temperature[k] = interpolate(&self.temperature, &self.samples[k].nodes);
         }
         self.time = 0.0;
         self.changed = true;
@@ -744,8 +744,4 @@ impl HeatField {
 
 fn interpolate(t: &[f64], nodes: &[(u32, f64)]) -> f64 {
     nodes.iter().map(|&(n, w)| w * t[n as usize]).sum()
-}
-
-fn interpolate4(t: &[f64], nodes: &[(u32, f64); 4]) -> f64 {
-    interpolate(t, nodes)
 }

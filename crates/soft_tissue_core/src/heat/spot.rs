@@ -340,6 +340,11 @@ impl Spot {
         g.radius * g.ratio.powi(i as i32)
     }
 
+    /// Whether it vaporized beyond the electrode.
+    pub(crate) fn has_crater(&self) -> bool {
+        self.crater_radius() > self.grid.radius * (1.0 + 1e-9)
+    }
+
     /// Takes the solved step: damage and peaks at `base` + excess, the power spent.
     pub(crate) fn commit(&mut self, params: &HeatParams, base: f64, dt: f64) {
         std::mem::swap(&mut self.u, &mut self.next);

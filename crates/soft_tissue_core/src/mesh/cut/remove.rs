@@ -2,7 +2,7 @@
 //! change as a cut: a new mesh with the origin of every node, the faces it opened marked as
 //! cut sides, and the cut history carried).
 
-use super::{CutError, CutHistory, CutMesh, NodeOrigin};
+use super::{CutError, CutHistory, CutMesh, NodeOrigin, face_key};
 use crate::mesh::TetMesh;
 
 /// Why tetrahedra could not be removed.
@@ -123,20 +123,6 @@ pub fn remove_tets(
         taken_back: 0,
         smallest_volume_ratio: 1.0,
     })
-}
-
-/// The face of `tet` opposite `corner`, as a sorted key.
-fn face_key(tet: &[u32; 4], corner: usize) -> [u32; 3] {
-    let mut f = [0u32; 3];
-    let mut k = 0;
-    for (c, &v) in tet.iter().enumerate() {
-        if c != corner {
-            f[k] = v;
-            k += 1;
-        }
-    }
-    f.sort_unstable();
-    f
 }
 
 /// Every edge of `triangles` in exactly two of them (a closed, edge-manifold surface).
