@@ -384,11 +384,14 @@ pub enum SceneLoadError {
     /// A body's mesh path leaves the assets folder (the message names the body and path).
     #[error(transparent)]
     Path(#[from] WorldError),
-    /// A body's mesh did not load (the error names the file).
-    #[error("body `{body}`: {source}")]
+    /// A body's mesh did not load (the error names the file). No entity exists yet: the
+    /// body is named by its place in the scene file's `bodies` and its name there.
+    #[error("body `{name}` (bodies[{body}]): {source}")]
     Mesh {
-        /// The body.
-        body: String,
+        /// The body's index in the scene file's `bodies` (from 0).
+        body: usize,
+        /// The body's name in the scene file.
+        name: String,
         /// Why.
         source: TetMeshLoadError,
     },
@@ -447,7 +450,8 @@ impl AssetLoader for SceneLoader {
         for (i, body) in scene.bodies.iter().enumerate() {
             check_mesh_path(body, options)?;
             let mesh_err = |source| SceneLoadError::Mesh {
-                body: body.name.clone(),
+                body: i,
+                name: body.name.clone(),
                 source,
             };
             let mesh = match &body.mesh {

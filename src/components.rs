@@ -351,27 +351,53 @@ impl VisualMesh {
 }
 
 /// Why a body's [`VisualMesh`] could not be used (the body is drawn with its simulation
-/// surface instead; the reason is also logged).
+/// surface instead; the reason is also logged). Each variant names the body's entity, which
+/// the error sits on, and its display name (its [`Name`], else the entity) for messages.
 #[derive(Component, Reflect, Clone, Debug, PartialEq, thiserror::Error)]
 #[reflect(Component)]
 pub enum VisualMeshError {
     /// The mesh is not a triangle list, or its indices or positions are unusable.
-    #[error("visual mesh of soft body `{body}`: {message}")]
+    #[error("visual mesh of soft body `{name}` (entity {body}): {message}")]
     BadMesh {
-        /// The body's name (or entity).
-        body: String,
+        /// The body's entity.
+        body: Entity,
+        /// The body's name (its [`Name`], else the entity).
+        name: String,
         /// What is wrong.
         message: String,
     },
     /// Vertices could not be embedded in the body's tetrahedra (too far, or the
     /// subdivision failed).
-    #[error("visual mesh of soft body `{body}` cannot follow its tetrahedra: {message}")]
+    #[error(
+        "visual mesh of soft body `{name}` (entity {body}) cannot follow its tetrahedra: \
+         {message}"
+    )]
     Embedding {
-        /// The body's name (or entity).
-        body: String,
+        /// The body's entity.
+        body: Entity,
+        /// The body's name (its [`Name`], else the entity).
+        name: String,
         /// What is wrong.
         message: String,
     },
+}
+
+impl VisualMeshError {
+    /// The entity of the body whose visual mesh was refused.
+    pub fn body(&self) -> Entity {
+        match self {
+            VisualMeshError::BadMesh { body, .. } | VisualMeshError::Embedding { body, .. } => {
+                *body
+            }
+        }
+    }
+
+    /// The body's name as the message gives it (its [`Name`], else the entity).
+    pub fn name(&self) -> &str {
+        match self {
+            VisualMeshError::BadMesh { name, .. } | VisualMeshError::Embedding { name, .. } => name,
+        }
+    }
 }
 
 /// Runs a shadow precise simulation beside the body's cage level while present, to measure

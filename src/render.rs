@@ -159,14 +159,17 @@ fn visual_mesh(
     visual: &VisualMesh,
     sim: &SimulatedBody,
     meshes: &Assets<Mesh>,
-    body_name: &str,
+    entity: Entity,
+    name: &str,
 ) -> Result<Option<(Mesh, EmbeddedVisual)>, VisualMeshError> {
     let bad = |message: String| VisualMeshError::BadMesh {
-        body: body_name.to_owned(),
+        body: entity,
+        name: name.to_owned(),
         message,
     };
     let embed = |message: String| VisualMeshError::Embedding {
-        body: body_name.to_owned(),
+        body: entity,
+        name: name.to_owned(),
         message,
     };
     let body = sim.body();
@@ -375,7 +378,7 @@ fn create_meshes(
             && !failed
         {
             let name = name.map_or_else(|| format!("{entity}"), |n| n.to_string());
-            match visual_mesh(visual, sim, &meshes, &name) {
+            match visual_mesh(visual, sim, &meshes, entity, &name) {
                 Ok(None) => continue,
                 Ok(Some((mesh, embedded))) => {
                     let rendered = RenderedSurface {

@@ -3,28 +3,61 @@
 use super::*;
 
 /// A body that could not be built, and why (the entity keeps its [`SoftBody`]; writing
-/// any of its inputs tries again).
+/// any of its inputs tries again). Each variant names the body's entity, which the error
+/// sits on, and its display name (its [`Name`], else the entity) for messages: two bodies
+/// of one name are told apart by `body`.
 #[derive(Component, Debug, thiserror::Error)]
 pub enum SoftBodyError {
     /// The mesh could not be placed at the entity's global transform.
-    #[error("soft body `{body}`: placing its mesh: {message}")]
+    #[error("soft body `{name}` (entity {body}): placing its mesh: {message}")]
     Placement {
-        /// The body's name (or entity).
-        body: String,
+        /// The body's entity.
+        body: Entity,
+        /// The body's name (its [`Name`], else the entity).
+        name: String,
         /// What is wrong.
         message: String,
     },
     /// A setting is out of range (the message names it).
-    #[error("soft body `{body}`: {message}")]
+    #[error("soft body `{name}` (entity {body}): {message}")]
     Settings {
-        /// The body's name (or entity).
-        body: String,
+        /// The body's entity.
+        body: Entity,
+        /// The body's name (its [`Name`], else the entity).
+        name: String,
         /// What is wrong.
         message: String,
     },
     /// The core refused to build it (its error names the level and what failed).
-    #[error(transparent)]
-    Build(#[from] WorldError),
+    #[error("soft body `{name}` (entity {body}): {source}")]
+    Build {
+        /// The body's entity.
+        body: Entity,
+        /// The body's name (its [`Name`], else the entity).
+        name: String,
+        /// The core's error.
+        source: WorldError,
+    },
+}
+
+impl SoftBodyError {
+    /// The entity of the body that was not built.
+    pub fn body(&self) -> Entity {
+        match self {
+            SoftBodyError::Placement { body, .. }
+            | SoftBodyError::Settings { body, .. }
+            | SoftBodyError::Build { body, .. } => *body,
+        }
+    }
+
+    /// The body's name as the message gives it (its [`Name`], else the entity).
+    pub fn name(&self) -> &str {
+        match self {
+            SoftBodyError::Placement { name, .. }
+            | SoftBodyError::Settings { name, .. }
+            | SoftBodyError::Build { name, .. } => name,
+        }
+    }
 }
 
 /// The body's mesh with `placement` applied (the same `Arc` when it is the identity).
@@ -146,34 +179,39 @@ pub(super) fn build_bodies(
         let name = name.map_or_else(|| format!("{entity}"), |n| n.as_str().to_owned());
         // Computed now, not the one propagated at the end of the last frame.
         let placement = poses.compute_global_transform(entity).unwrap_or_default();
+        // Built once per body, not per step: the error's size (the core's error beside the
+        // entity and name) costs nothing here.
+        #[allow(clippy::result_large_err)]
         let result = (|| -> Result<SimBody, SoftBodyError> {
+            let settings_err = |message| SoftBodyError::Settings {
+                body: entity,
+                name: name.clone(),
+                message,
+            };
+            let build_err = |source| SoftBodyError::Build {
+                body: entity,
+                name: name.clone(),
+                source,
+            };
             let mesh =
                 placed(&asset.0, &placement).map_err(|message| SoftBodyError::Placement {
-                    body: name.clone(),
+                    body: entity,
+                    name: name.clone(),
                     message,
                 })?;
             let settings = body_settings(spec, material, tuning, &mesh, dt, config.gravity)
-                .map_err(|message| SoftBodyError::Settings {
-                    body: name.clone(),
-                    message,
-                })?;
+                .map_err(settings_err)?;
             let heat = heat.map(|h| (h.0, HeatBoundary::insulated()));
-            let mut body = SimBody::new(name.clone(), mesh, settings, heat)?;
+            let mut body = SimBody::new(name.clone(), mesh, settings, heat).map_err(build_err)?;
             body.set_friction(material.friction)
-                .map_err(|e| SoftBodyError::Settings {
-                    body: name.clone(),
-                    message: format!("friction: {e}"),
-                })?;
+                .map_err(|e| settings_err(format!("friction: {e}")))?;
             if shadow {
-                body.set_shadow(true)?;
+                body.set_shadow(true).map_err(build_err)?;
             }
             if let Some(p) = pin {
                 body.body_mut()
                     .pin(Some(p.0))
-                    .map_err(|e| SoftBodyError::Settings {
-                        body: name.clone(),
-                        message: format!("pinning: {e}"),
-                    })?;
+                    .map_err(|e| settings_err(format!("pinning: {e}")))?;
             }
             Ok(body)
         })();

@@ -331,3 +331,45 @@ fn contacts_name_entities() {
     assert!(body_seen, "A was pushed into B");
     assert!(touched.contains(&a) && touched.contains(&b));
 }
+
+#[test]
+fn build_errors_name_the_entity_among_namesakes() {
+    let mut app = app(0.02);
+    let mesh = cylinder_asset(&mut app);
+    // Three bodies of one name: one builds, one has a setting out of range, one a
+    // transform that flattens its mesh.
+    let twin = || Name::new("twin");
+    let good = app
+        .world_mut()
+        .spawn((twin(), SoftBody::new(mesh.clone())))
+        .id();
+    let bad_anchor = SoftBody::new(mesh.clone()).with_anchor(Anchor::FixedBottom { fraction: 2.0 });
+    let settings = app
+        .world_mut()
+        .spawn((twin(), bad_anchor, Transform::from_xyz(3.0, 0.0, 0.0)))
+        .id();
+    let flat = Transform::from_xyz(-3.0, 0.0, 0.0).with_scale(Vec3::new(1.0, 1.0, 0.0));
+    let placement = app
+        .world_mut()
+        .spawn((twin(), SoftBody::new(mesh), flat))
+        .id();
+    app.update();
+    app.update();
+    let w = app.world();
+    assert!(w.get::<SimulatedBody>(good).is_some());
+    assert!(w.get::<SoftBodyError>(good).is_none());
+    let err = w.get::<SoftBodyError>(settings).expect("refused");
+    assert!(matches!(err, SoftBodyError::Settings { .. }), "{err:?}");
+    assert_eq!((err.body(), err.name()), (settings, "twin"));
+    let text = err.to_string();
+    assert!(
+        text.contains("`twin`")
+            && text.contains(&settings.to_string())
+            && text.contains("fraction"),
+        "{text}"
+    );
+    let err = w.get::<SoftBodyError>(placement).expect("refused");
+    assert!(matches!(err, SoftBodyError::Placement { .. }), "{err:?}");
+    assert_eq!((err.body(), err.name()), (placement, "twin"));
+    assert!(err.to_string().contains(&placement.to_string()), "{err}");
+}

@@ -122,9 +122,15 @@ fn visual_meshes_are_placed_with_the_body_and_mismatched_ones_refused() {
     let fine = fine_cylinder(1.0, y_to_z(), Vec3::ZERO);
     let want: Vec<[f32; 3]> = mesh_positions(&fine);
     let fine = app.world_mut().resource_mut::<Assets<Mesh>>().add(fine);
+    // Both bodies share a name: the error names the refused one's entity.
     let placed = app
         .world_mut()
-        .spawn((SoftBody::new(mesh.clone()), place, VisualMesh::mesh(fine)))
+        .spawn((
+            Name::new("wrong"),
+            SoftBody::new(mesh.clone()),
+            place,
+            VisualMesh::mesh(fine),
+        ))
         .id();
     // Ten times too large: most vertices are far outside the body.
     let huge = app
@@ -145,9 +151,16 @@ fn visual_meshes_are_placed_with_the_body_and_mismatched_ones_refused() {
     assert!(off < 1e-4, "{off}");
     assert!(app.world().get::<VisualMeshError>(placed).is_none());
     let error = app.world().get::<VisualMeshError>(wrong).expect("refused");
+    assert!(
+        matches!(error, VisualMeshError::Embedding { .. }),
+        "{error:?}"
+    );
+    assert_eq!((error.body(), error.name()), (wrong, "wrong"));
     let text = error.to_string();
     assert!(
-        text.contains("`wrong`") && text.contains("farther than the limit"),
+        text.contains("`wrong`")
+            && text.contains(&wrong.to_string())
+            && text.contains("farther than the limit"),
         "{text}"
     );
     // The refused body is drawn with its simulation surface.
