@@ -167,46 +167,9 @@ impl Work {
             if !inside(tri, &p) {
                 continue;
             }
-            let node = self.positions.len() as u32;
-            self.positions.push(p);
-            self.marked.push(self.incision);
-            let (oa, ob) = (
-                self.node_origin[e.0 as usize],
-                self.node_origin[e.1 as usize],
-            );
-            self.node_origin.push(NodeOrigin::blend(oa, ob, s));
+            let node = self.split_edge(e, s, &mut candidates);
             distance.insert(node, 0.0);
             on_plane.insert(node, true);
-            self.bisected += 1;
-            let holders: Vec<u32> = candidates
-                .iter()
-                .copied()
-                .filter(|&t| {
-                    let tet = &self.tets[t as usize];
-                    tet.contains(&e.0) && tet.contains(&e.1)
-                })
-                .collect();
-            for t in holders {
-                let tet = self.tets[t as usize];
-                let i = tet.iter().position(|&v| v == e.0).expect("holds the edge");
-                let j = tet.iter().position(|&v| v == e.1).expect("holds the edge");
-                let mut first = tet;
-                first[j] = node;
-                let mut second = tet;
-                second[i] = node;
-                // The face between the children is new and inside; the others are parts
-                // of the parent's.
-                let flags = self.cut[t as usize];
-                let (mut f1, mut f2) = (flags, flags);
-                f1[i] = false;
-                f2[j] = false;
-                self.tets[t as usize] = first;
-                self.cut[t as usize] = f1;
-                self.tets.push(second);
-                self.cut.push(f2);
-                self.tet_origin.push(self.tet_origin[t as usize]);
-                candidates.push(self.tets.len() as u32 - 1);
-            }
         }
         if self.incision != 0 {
             for (&v, &on) in &on_plane {
@@ -353,5 +316,52 @@ impl Work {
         for f in &separate {
             chosen.entry(*f).or_insert_with(|| faces[f].clone());
         }
+    }
+
+    /// Bisects edge `e` at `(1 - s) e.0 + s e.1`: a new node there (marked by the incision
+    /// cutting now), and every tetrahedron among `candidates` holding the edge split in two
+    /// by it, the second child appended to the mesh and to `candidates`. Each child keeps
+    /// its parent's orientation and cut sides on the parts of its faces. Returns the node.
+    pub(super) fn split_edge(&mut self, e: (u32, u32), s: f64, candidates: &mut Vec<u32>) -> u32 {
+        let p = self.positions[e.0 as usize] * (1.0 - s) + self.positions[e.1 as usize] * s;
+        let node = self.positions.len() as u32;
+        self.positions.push(p);
+        self.marked.push(self.incision);
+        let (oa, ob) = (
+            self.node_origin[e.0 as usize],
+            self.node_origin[e.1 as usize],
+        );
+        self.node_origin.push(NodeOrigin::blend(oa, ob, s));
+        self.bisected += 1;
+        let holders: Vec<u32> = candidates
+            .iter()
+            .copied()
+            .filter(|&t| {
+                let tet = &self.tets[t as usize];
+                tet.contains(&e.0) && tet.contains(&e.1)
+            })
+            .collect();
+        for t in holders {
+            let tet = self.tets[t as usize];
+            let i = tet.iter().position(|&v| v == e.0).expect("holds the edge");
+            let j = tet.iter().position(|&v| v == e.1).expect("holds the edge");
+            let mut first = tet;
+            first[j] = node;
+            let mut second = tet;
+            second[i] = node;
+            // The face between the children is new and inside; the others are parts of the
+            // parent's.
+            let flags = self.cut[t as usize];
+            let (mut f1, mut f2) = (flags, flags);
+            f1[i] = false;
+            f2[j] = false;
+            self.tets[t as usize] = first;
+            self.cut[t as usize] = f1;
+            self.tets.push(second);
+            self.cut.push(f2);
+            self.tet_origin.push(self.tet_origin[t as usize]);
+            candidates.push(self.tets.len() as u32 - 1);
+        }
+        node
     }
 }

@@ -37,10 +37,12 @@
 use std::collections::HashMap;
 
 mod bisect;
+mod carve;
 mod check;
 mod remove;
 mod separate;
 
+pub use carve::{Ball, CARVE_SPACING, MAX_CARVE_TETS, OUTWARD_SNAP, carve};
 pub use check::{CutCheck, check};
 pub(crate) use remove::manifold;
 pub use remove::{RemoveError, remove_tets};
@@ -281,26 +283,7 @@ pub fn recut_within(
     }
     check_blade(blade)?;
     check_blade(region)?;
-    let mut work = Work {
-        positions: mesh.positions().to_vec(),
-        tets: mesh.tets().to_vec(),
-        node_origin: (0..mesh.node_count() as u32)
-            .map(NodeOrigin::node)
-            .collect(),
-        tet_origin: (0..mesh.tet_count() as u32).collect(),
-        cut: match history {
-            Some(h) if h.sides.len() == mesh.tet_count() => h.sides.clone(),
-            _ => vec![[false; 4]; mesh.tet_count()],
-        },
-        marked: match history {
-            Some(h) if h.on_blade.len() == mesh.node_count() => h.on_blade.clone(),
-            _ => vec![0; mesh.node_count()],
-        },
-        incision,
-        bisected: 0,
-        separated: 0,
-        taken_back: 0,
-    };
+    let mut work = Work::new(mesh, history, incision);
     // Every triangle bisects first, then each separates: a face one triangle's
     // bisections made on a coplanar neighbour's part of the blade is separated by that
     // neighbour, so a blade of several triangles cuts as one surface.
@@ -411,6 +394,33 @@ struct Work {
     bisected: usize,
     separated: usize,
     taken_back: usize,
+}
+
+impl Work {
+    /// `mesh` as it is, with what `history` remembers of its cuts (ignored where its sizes
+    /// do not fit), to be cut by incision `incision` (0: none).
+    fn new(mesh: &TetMesh, history: Option<&CutHistory>, incision: u64) -> Work {
+        Work {
+            positions: mesh.positions().to_vec(),
+            tets: mesh.tets().to_vec(),
+            node_origin: (0..mesh.node_count() as u32)
+                .map(NodeOrigin::node)
+                .collect(),
+            tet_origin: (0..mesh.tet_count() as u32).collect(),
+            cut: match history {
+                Some(h) if h.sides.len() == mesh.tet_count() => h.sides.clone(),
+                _ => vec![[false; 4]; mesh.tet_count()],
+            },
+            marked: match history {
+                Some(h) if h.on_blade.len() == mesh.node_count() => h.on_blade.clone(),
+                _ => vec![0; mesh.node_count()],
+            },
+            incision,
+            bisected: 0,
+            separated: 0,
+            taken_back: 0,
+        }
+    }
 }
 
 /// The nodes near a blade triangle: signed distances to its plane and which count as on

@@ -23,6 +23,23 @@ pub enum RemoveError {
     /// none before).
     #[error("removing them would leave a boundary edge outside two triangles")]
     NotManifold,
+    /// A ball to carve is not finite or has no size.
+    #[error("ball {index}: {reason}")]
+    BadBall {
+        /// Index of the ball.
+        index: usize,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
+    /// Following a ball's sphere would take more than [`super::MAX_CARVE_TETS`] new
+    /// tetrahedra (a ball far finer than the mesh).
+    #[error("a ball of radius {radius:e} would need more than {added} tetrahedra")]
+    TooFine {
+        /// Radius of the ball.
+        radius: f64,
+        /// Tetrahedra when refused.
+        added: usize,
+    },
     /// The mesh left failed to build.
     #[error(transparent)]
     Cut(#[from] CutError),

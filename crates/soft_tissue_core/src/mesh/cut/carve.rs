@@ -1,0 +1,517 @@
+//! Carving balls out of a tetrahedral mesh: the tissue an electrode vaporized leaves the
+//! mesh even where the crater is far smaller than the elements.
+//!
+//! Removing whole elements cannot follow a millimetre crater in centimetre elements, so a
+//! carve first makes the mesh fine where the ball's sphere passes and then cuts along it,
+//! with the cut's own moves (edge bisection, snapping):
+//!
+//! 1. **Refinement.** While an element the sphere passes through (its corners neither all
+//!    inside nor its nearest point outside) has an edge longer than
+//!    [`CARVE_SPACING`] of the radius, the longest such edge of all is bisected at its
+//!    middle, splitting every element around it (bisecting the longest edge first keeps the
+//!    elements' shapes within a bounded number of classes; Rivara 1984). The mesh stays
+//!    conforming, and every child lies in its parent, so volume and mass are unchanged.
+//! 2. **The sphere as a cut.** Each edge whose ends lie on opposite sides of the sphere is
+//!    bisected where it crosses it (the exact crossing on the straight edge), a crossing
+//!    within `snap` of an end putting that end on the sphere instead (as a blade's cut
+//!    does; [`OUTWARD_SNAP`] of it for an end outside, which bounds how far beyond the
+//!    radius tissue leaves), so no edge crosses it after.
+//! 3. **Removal.** The elements with every corner inside or on the sphere and their centre
+//!    inside leave the mesh ([`super::remove_tets`]). Elements around an edge that would
+//!    lie in more than two boundary triangles are kept (the crater shrinks there rather than
+//!    the surface pinching), and a loose crumb the crater would cut off near it goes with it.
+//!
+//! The removed volume is that of the ball's part inside the mesh, up to the polyhedral
+//! sphere's error (its vertices lie on the sphere, within `snap` of an edge where snapped).
+
+use std::collections::{BinaryHeap, HashMap};
+
+use super::{CutHistory, CutMesh, RemoveError, Work, face_key, remove_tets};
+use crate::Vec3;
+use crate::geometry::point_triangle_distance;
+use crate::mesh::{TetMesh, tet_signed_volume};
+
+/// A ball to carve out (scene units).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ball {
+    /// Centre.
+    pub centre: Vec3,
+    /// Radius (> 0).
+    pub radius: f64,
+}
+
+/// Elements the sphere passes through are refined until their edges are at most this
+/// fraction of its radius.
+pub const CARVE_SPACING: f64 = 0.75;
+
+/// A node outside the sphere counts as on it only within this fraction of the cut's snap
+/// of its shortest edge (inside, within the whole snap): a carve removes nothing farther from
+/// the centre than `radius * (1 + OUTWARD_SNAP * snap * CARVE_SPACING)`, at the price of
+/// children as thin as that fraction of an edge just outside the crater.
+pub const OUTWARD_SNAP: f64 = 0.5;
+
+/// Most tetrahedra one carve may add by refinement (a ball far finer than the mesh is
+/// refused rather than refined without end).
+pub const MAX_CARVE_TETS: usize = 40_000;
+
+/// `mesh` with the balls `balls` carved out (see the module docs), with where every node and
+/// tetrahedron came from; `history` (that of earlier cuts) is carried and the crater's walls
+/// are marked as cut sides. A carve that removes nothing returns the mesh unchanged (no
+/// bisection, nothing separated). `snap` is a cut's [`super::CutOptions::snap`].
+pub fn carve(
+    mesh: &TetMesh,
+    history: Option<&CutHistory>,
+    balls: &[Ball],
+    snap: f64,
+) -> Result<CutMesh, RemoveError> {
+    if !(super::MIN_SNAP..0.5).contains(&snap) {
+        return Err(super::CutError::BadSnap(snap).into());
+    }
+    for (index, b) in balls.iter().enumerate() {
+        if !b.centre.iter().all(|c| c.is_finite()) {
+            return Err(RemoveError::BadBall {
+                index,
+                reason: "its centre is not finite",
+            });
+        }
+        if !(b.radius.is_finite() && b.radius > 0.0) {
+            return Err(RemoveError::BadBall {
+                index,
+                reason: "its radius is not finite and positive",
+            });
+        }
+    }
+    let history = history
+        .filter(|h| h.sides.len() == mesh.tet_count() && h.on_blade.len() == mesh.node_count());
+    let mut work = Work::new(mesh, history, 0);
+    let start = work.tets.len();
+    let size = mesh.bbox().diagonal();
+    if let Some(b) = balls.iter().find(|b| b.radius < 1e-6 * size) {
+        return Err(RemoveError::TooFine {
+            radius: b.radius,
+            added: 0,
+        });
+    }
+    // The tetrahedra at each node, kept through every split (so a split finds every
+    // tetrahedron around its edge, wherever it lies).
+    let mut around: Vec<Vec<u32>> = vec![Vec::new(); work.positions.len()];
+    for (t, tet) in work.tets.iter().enumerate() {
+        for &v in tet {
+            around[v as usize].push(t as u32);
+        }
+    }
+    let mut on_sphere: Vec<Vec<bool>> = Vec::with_capacity(balls.len());
+    for ball in balls {
+        let mut candidates: Vec<u32> = (0..work.tets.len() as u32)
+            .filter(|&t| work.box_meets(t, ball))
+            .collect();
+        work.refine_near(ball, &mut candidates, &mut around, start + MAX_CARVE_TETS)?;
+        on_sphere.push(work.bisect_sphere(ball, snap, &mut candidates, &mut around));
+    }
+    for flags in &mut on_sphere {
+        flags.resize(work.positions.len(), false);
+    }
+    // What leaves: every corner inside or on a sphere, the centre inside it.
+    let mut gone: Vec<bool> = work
+        .tets
+        .iter()
+        .map(|tet| {
+            balls.iter().zip(&on_sphere).any(|(b, on)| {
+                let p = tet.map(|v| work.positions[v as usize]);
+                let centre = (p[0] + p[1] + p[2] + p[3]) / 4.0;
+                (centre - b.centre).norm() < b.radius
+                    && tet
+                        .iter()
+                        .zip(&p)
+                        .all(|(&v, q)| on[v as usize] || (q - b.centre).norm() <= b.radius)
+            })
+        })
+        .collect();
+    if !gone.iter().any(|&g| g) {
+        return Ok(unchanged(mesh, history));
+    }
+    let closed_before = super::manifold(mesh.surface().triangles());
+    keep_manifold(&work.tets, &mut gone, closed_before);
+    drop_crumbs(&work, balls, &mut gone);
+    let removed: Vec<u32> = (0..gone.len() as u32)
+        .filter(|&t| gone[t as usize])
+        .collect();
+    if removed.is_empty() {
+        return Ok(unchanged(mesh, history));
+    }
+    let mut smallest_volume_ratio = f64::INFINITY;
+    for (t, tet) in work.tets.iter().enumerate() {
+        let child = tet_signed_volume(&tet.map(|i| work.positions[i as usize]));
+        let parent = mesh.tets()[work.tet_origin[t] as usize].map(|i| mesh.positions()[i as usize]);
+        let ratio = child / tet_signed_volume(&parent);
+        if ratio.is_nan() || ratio <= 0.0 {
+            return Err(super::CutError::Inverted { tet: t, ratio }.into());
+        }
+        smallest_volume_ratio = smallest_volume_ratio.min(ratio);
+    }
+    let refined = TetMesh::new(
+        work.positions.clone(),
+        work.tets.iter().map(|t| t.map(|i| i as usize)).collect(),
+    )
+    .map_err(super::CutError::from)?;
+    let refined_history = CutHistory {
+        sides: work.cut.clone(),
+        on_blade: work.marked.clone(),
+    };
+    let mut out = remove_tets(&refined, Some(&refined_history), &removed)?;
+    // Origins through both changes: the removal's are single nodes of the refined mesh.
+    for o in &mut out.node_origin {
+        *o = work.node_origin[o.nodes[0] as usize];
+    }
+    for t in &mut out.tet_origin {
+        *t = work.tet_origin[*t as usize];
+    }
+    out.bisected = work.bisected;
+    out.smallest_volume_ratio = smallest_volume_ratio;
+    Ok(out)
+}
+
+/// The mesh as it was (a carve that removes nothing).
+fn unchanged(mesh: &TetMesh, history: Option<&CutHistory>) -> CutMesh {
+    CutMesh {
+        mesh: mesh.clone(),
+        node_origin: (0..mesh.node_count() as u32)
+            .map(super::NodeOrigin::node)
+            .collect(),
+        tet_origin: (0..mesh.tet_count() as u32).collect(),
+        cut_faces: Vec::new(),
+        history: history.cloned().unwrap_or_else(|| CutHistory {
+            sides: vec![[false; 4]; mesh.tet_count()],
+            on_blade: vec![0; mesh.node_count()],
+        }),
+        bisected: 0,
+        separated: 0,
+        taken_back: 0,
+        smallest_volume_ratio: 1.0,
+    }
+}
+
+impl Work {
+    /// Corners of tetrahedron `t`.
+    fn corners(&self, t: u32) -> [Vec3; 4] {
+        self.tets[t as usize].map(|v| self.positions[v as usize])
+    }
+
+    /// Whether tetrahedron `t`'s box meets the ball's.
+    fn box_meets(&self, t: u32, ball: &Ball) -> bool {
+        let p = self.corners(t);
+        let lo = p[0].inf(&p[1]).inf(&p[2]).inf(&p[3]);
+        let hi = p[0].sup(&p[1]).sup(&p[2]).sup(&p[3]);
+        (0..3)
+            .all(|k| lo[k] <= ball.centre[k] + ball.radius && hi[k] >= ball.centre[k] - ball.radius)
+    }
+
+    /// Whether the ball's sphere passes through tetrahedron `t`: some corner outside, and
+    /// its nearest point to the centre inside.
+    fn sphere_passes(&self, t: u32, ball: &Ball) -> bool {
+        let p = self.corners(t);
+        let c = ball.centre;
+        if p.iter().all(|q| (q - c).norm() <= ball.radius) {
+            return false;
+        }
+        let faces = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]];
+        // Inside the tetrahedron: on the inner side of every face.
+        let inside = faces.iter().all(|f| {
+            let [a, b, d] = f.map(|i| p[i]);
+            (b - a).cross(&(d - a)).dot(&(c - a)) <= 0.0
+        });
+        inside
+            || faces.iter().any(|f| {
+                let [a, b, d] = f.map(|i| p[i]);
+                point_triangle_distance(&c, &a, &b, &d) < ball.radius
+            })
+    }
+
+    /// The longest edge of tetrahedron `t` and its length.
+    fn longest_edge(&self, t: u32) -> ((u32, u32), f64) {
+        let tet = self.tets[t as usize];
+        let mut best = ((tet[0], tet[1]), -1.0);
+        for i in 0..4 {
+            for j in i + 1..4 {
+                let (a, b) = (tet[i].min(tet[j]), tet[i].max(tet[j]));
+                let l = (self.positions[a as usize] - self.positions[b as usize]).norm();
+                if l > best.1 {
+                    best = ((a, b), l);
+                }
+            }
+        }
+        best
+    }
+
+    /// [`Work::split_edge`] of edge `e` at `s` among the tetrahedra `around` says hold it,
+    /// keeping `around` true; children whose boxes meet `ball`'s join `candidates`.
+    /// Returns the new node and the tetrahedra changed (the parents, now first children, and
+    /// the second children).
+    fn split_around(
+        &mut self,
+        e: (u32, u32),
+        s: f64,
+        ball: &Ball,
+        candidates: &mut Vec<u32>,
+        around: &mut Vec<Vec<u32>>,
+    ) -> (u32, Vec<u32>) {
+        let mut holders: Vec<u32> = around[e.0 as usize]
+            .iter()
+            .copied()
+            .filter(|&t| self.tets[t as usize].contains(&e.1))
+            .collect();
+        let parents = holders.len();
+        let before = self.tets.len() as u32;
+        let node = self.split_edge(e, s, &mut holders);
+        around.push(Vec::new());
+        // A parent now holds the node in place of e.1.
+        for &t in &holders[..parents] {
+            around[e.1 as usize].retain(|&u| u != t);
+            around[node as usize].push(t);
+        }
+        for t in before..self.tets.len() as u32 {
+            for &v in &self.tets[t as usize] {
+                around[v as usize].push(t);
+            }
+            if self.box_meets(t, ball) {
+                candidates.push(t);
+            }
+        }
+        (node, holders)
+    }
+
+    /// Move 1: bisects the longest edge of the elements the sphere passes through, longest
+    /// first, until none is longer than [`CARVE_SPACING`] of the radius. `candidates` (the
+    /// tetrahedra whose boxes meet the ball's) gains the children.
+    fn refine_near(
+        &mut self,
+        ball: &Ball,
+        candidates: &mut Vec<u32>,
+        around: &mut Vec<Vec<u32>>,
+        limit: usize,
+    ) -> Result<(), RemoveError> {
+        let h = CARVE_SPACING * ball.radius;
+        // Lengths are finite and non-negative: their bits order as they do.
+        let mut heap: BinaryHeap<(u64, u32, [u32; 4])> = BinaryHeap::new();
+        let push = |w: &Work, heap: &mut BinaryHeap<(u64, u32, [u32; 4])>, t: u32| {
+            let (_, l) = w.longest_edge(t);
+            if l > h && w.sphere_passes(t, ball) {
+                heap.push((l.to_bits(), t, w.tets[t as usize]));
+            }
+        };
+        for &t in candidates.iter() {
+            push(self, &mut heap, t);
+        }
+        while let Some((_, t, corners)) = heap.pop() {
+            if self.tets[t as usize] != corners {
+                continue; // split since
+            }
+            if self.tets.len() > limit {
+                return Err(RemoveError::TooFine {
+                    radius: ball.radius,
+                    added: self.tets.len(),
+                });
+            }
+            let (e, _) = self.longest_edge(t);
+            let (_, changed) = self.split_around(e, 0.5, ball, candidates, around);
+            for u in changed {
+                push(self, &mut heap, u);
+            }
+        }
+        Ok(())
+    }
+
+    /// Move 2: bisects the edges among `candidates` that cross the ball's sphere where they
+    /// cross it (a crossing within `snap` of an end puts that end on it instead). Returns
+    /// which nodes count as on the sphere.
+    fn bisect_sphere(
+        &mut self,
+        ball: &Ball,
+        snap: f64,
+        candidates: &mut Vec<u32>,
+        around: &mut Vec<Vec<u32>>,
+    ) -> Vec<bool> {
+        let c = ball.centre;
+        let r = ball.radius;
+        let mut phi: HashMap<u32, f64> = HashMap::new();
+        let mut shortest: HashMap<u32, f64> = HashMap::new();
+        let mut edges: Vec<(u32, u32)> = Vec::new();
+        for &t in candidates.iter() {
+            let tet = self.tets[t as usize];
+            for i in 0..4 {
+                phi.entry(tet[i])
+                    .or_insert_with(|| (self.positions[tet[i] as usize] - c).norm() - r);
+                for j in i + 1..4 {
+                    let (a, b) = (tet[i].min(tet[j]), tet[i].max(tet[j]));
+                    edges.push((a, b));
+                    let l = (self.positions[a as usize] - self.positions[b as usize]).norm();
+                    for v in [a, b] {
+                        let e = shortest.entry(v).or_insert(f64::INFINITY);
+                        *e = e.min(l);
+                    }
+                }
+            }
+        }
+        edges.sort_unstable();
+        edges.dedup();
+        // Outside the sphere a node snaps onto it only within a quarter of `snap`: tissue
+        // beyond the radius leaves by no more than that (see [`OUTWARD_SNAP`]).
+        let outward = OUTWARD_SNAP * snap;
+        let mut on = vec![false; self.positions.len()];
+        for (&v, &d) in &phi {
+            let reach = if d > 0.0 { outward } else { snap };
+            on[v as usize] = d == 0.0 || d.abs() < reach * shortest[&v];
+        }
+        // Where edge (a, b) crosses the sphere, as a fraction from a (None: it does not,
+        // or an end is on it).
+        let crossing = |w: &Work, on: &[bool], (a, b): (u32, u32)| -> Option<f64> {
+            if on[a as usize] || on[b as usize] || (phi[&a] > 0.0) == (phi[&b] > 0.0) {
+                return None;
+            }
+            let f = w.positions[a as usize] - c;
+            let d = w.positions[b as usize] - w.positions[a as usize];
+            let (qa, qb, qc) = (d.dot(&d), 2.0 * f.dot(&d), f.dot(&f) - r * r);
+            let root = (qb * qb - 4.0 * qa * qc).max(0.0).sqrt();
+            // From inside (qc < 0) the far root; from outside the near one.
+            let s = if qc < 0.0 {
+                (-qb + root) / (2.0 * qa)
+            } else {
+                (-qb - root) / (2.0 * qa)
+            };
+            Some(s.clamp(0.0, 1.0))
+        };
+        loop {
+            let mut changed = false;
+            for &e in &edges {
+                let Some(s) = crossing(self, &on, e) else {
+                    continue;
+                };
+                let (near_a, near_b) = if phi[&e.0] > 0.0 {
+                    (outward, snap)
+                } else {
+                    (snap, outward)
+                };
+                if s < near_a {
+                    on[e.0 as usize] = true;
+                    changed = true;
+                } else if s > 1.0 - near_b {
+                    on[e.1 as usize] = true;
+                    changed = true;
+                }
+            }
+            if !changed {
+                break;
+            }
+        }
+        for &e in &edges {
+            let Some(s) = crossing(self, &on, e) else {
+                continue;
+            };
+            let (node, _) = self.split_around(e, s, ball, candidates, around);
+            on.resize(self.positions.len(), false);
+            on[node as usize] = true;
+        }
+        on
+    }
+}
+
+/// Keeps (does not remove) the tetrahedra around each edge that the boundary left would have
+/// in more than two triangles, until there is none (where the mesh's boundary was closed).
+fn keep_manifold(tets: &[[u32; 4]], gone: &mut [bool], closed_before: bool) {
+    if !closed_before {
+        return;
+    }
+    for _ in 0..16 {
+        let bad = bad_edges(tets, gone);
+        if bad.is_empty() {
+            return;
+        }
+        for (t, tet) in tets.iter().enumerate() {
+            if gone[t]
+                && bad
+                    .iter()
+                    .any(|&(a, b)| tet.contains(&a) && tet.contains(&b))
+            {
+                gone[t] = false;
+            }
+        }
+    }
+}
+
+/// Edges of the boundary of the tetrahedra not `gone` that lie in other than two of its
+/// triangles, sorted.
+fn bad_edges(tets: &[[u32; 4]], gone: &[bool]) -> Vec<(u32, u32)> {
+    let mut faces: HashMap<[u32; 3], u32> = HashMap::new();
+    for (t, tet) in tets.iter().enumerate() {
+        if !gone[t] {
+            for o in 0..4 {
+                *faces.entry(face_key(tet, o)).or_insert(0) += 1;
+            }
+        }
+    }
+    let mut edges: Vec<(u32, u32)> = faces
+        .iter()
+        .filter(|&(_, &n)| n == 1)
+        .flat_map(|(f, _)| [(f[0], f[1]), (f[1], f[2]), (f[0], f[2])])
+        .collect();
+    edges.sort_unstable();
+    edges
+        .chunk_by(|a, b| a == b)
+        .filter(|run| run.len() != 2)
+        .map(|run| run[0])
+        .collect()
+}
+
+/// Removes too the pieces the removal cuts loose (joined through faces) that lie wholly
+/// within twice a ball's radius of its centre: crumbs of the crater's rim, not tissue
+/// a body goes on with.
+fn drop_crumbs(work: &Work, balls: &[Ball], gone: &mut [bool]) {
+    let n = work.tets.len();
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn root(p: &mut [usize], mut x: usize) -> usize {
+        while p[x] != x {
+            p[x] = p[p[x]];
+            x = p[x];
+        }
+        x
+    }
+    let mut owner: HashMap<[u32; 3], usize> = HashMap::new();
+    for (t, tet) in work.tets.iter().enumerate() {
+        if gone[t] {
+            continue;
+        }
+        for o in 0..4 {
+            if let Some(&u) = owner.get(&face_key(tet, o)) {
+                let (a, b) = (root(&mut parent, t), root(&mut parent, u));
+                parent[a] = b;
+            } else {
+                owner.insert(face_key(tet, o), t);
+            }
+        }
+    }
+    // Components that the carve made: those within reach of a ball.
+    let mut near: HashMap<usize, bool> = HashMap::new();
+    for (t, tet) in work.tets.iter().enumerate() {
+        if gone[t] {
+            continue;
+        }
+        let r = root(&mut parent, t);
+        let within = tet.iter().all(|&v| {
+            balls
+                .iter()
+                .any(|b| (work.positions[v as usize] - b.centre).norm() <= 2.0 * b.radius)
+        });
+        let e = near.entry(r).or_insert(true);
+        *e &= within;
+    }
+    // Only where some piece goes on (a mesh wholly within reach is left to the removal's
+    // own check).
+    if near.len() < 2 || near.values().all(|&n| n) {
+        return;
+    }
+    for t in 0..n {
+        if !gone[t] && near[&root(&mut parent, t)] {
+            gone[t] = true;
+        }
+    }
+}

@@ -1,0 +1,261 @@
+//! Carving a ball out of a mesh whose elements are far larger than it (a crater an
+//! electrode vaporized): against the ball's own geometry, not numbers of the code.
+//!
+//! Checked: tissue farther than the radius from the centre all stays; tissue well inside the
+//! ball is all gone; the removed volume is the ball's part inside the mesh (a half ball at a
+//! flat face) to the polyhedral sphere's error; what is left is a valid mesh (every element
+//! positive, its boundary closed and 2-manifold); every node's origin gives its position.
+
+use std::path::Path;
+
+use soft_tissue_core::Vec3;
+use soft_tissue_core::mesh::TetMesh;
+use soft_tissue_core::mesh::cut::{Ball, CARVE_SPACING, CutMesh, OUTWARD_SNAP, RemoveError, carve};
+use soft_tissue_core::mesh::generate::block;
+use soft_tissue_core::scenario::Scene;
+use soft_tissue_core::world::SoftTissueWorld;
+
+const SNAP: f64 = 0.3;
+
+/// Whether `p` lies in some tetrahedron of `mesh` (within a relative tolerance).
+fn inside(mesh: &TetMesh, p: &Vec3) -> bool {
+    let x = mesh.positions();
+    mesh.tets().iter().any(|t| {
+        let [a, b, c, d] = t.map(|i| x[i as usize]);
+        let m = nalgebra::Matrix3::from_columns(&[b - a, c - a, d - a]);
+        let Some(inv) = m.try_inverse() else {
+            return false;
+        };
+        let w = inv * (p - a);
+        let tol = -1e-9;
+        w.x >= tol && w.y >= tol && w.z >= tol && w.x + w.y + w.z <= 1.0 - tol
+    })
+}
+
+/// Every element positive and every boundary edge in exactly two boundary triangles.
+fn assert_valid(mesh: &TetMesh) {
+    assert!(
+        mesh.tet_volumes().iter().all(|&v| v > 0.0),
+        "an element is not positive"
+    );
+    let tris = mesh.surface().triangles().len();
+    let mut edges: Vec<(u32, u32)> = mesh
+        .surface()
+        .triangles()
+        .iter()
+        .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+        .map(|(a, b)| (a.min(b), a.max(b)))
+        .collect();
+    edges.sort_unstable();
+    let bad: Vec<_> = edges
+        .chunk_by(|a, b| a == b)
+        .filter(|r| r.len() != 2)
+        .map(|r| (r[0], r.len()))
+        .collect();
+    assert!(
+        bad.is_empty(),
+        "the boundary ({tris} triangles) is not closed and 2-manifold at {bad:?}"
+    );
+}
+
+/// Every node's origin, interpolated on the mesh before, gives its position.
+fn assert_origins(before: &TetMesh, cut: &CutMesh) {
+    let scale = before.bbox().diagonal();
+    for (o, p) in cut.node_origin.iter().zip(cut.mesh.positions()) {
+        let q = o.interpolate(before.positions());
+        assert!(
+            (q - p).norm() <= 1e-12 * scale,
+            "origin {q:?} of node at {p:?}"
+        );
+    }
+}
+
+/// Points on a grid of spacing `h` in the box of `mesh`.
+fn grid(mesh: &TetMesh, h: f64) -> Vec<Vec3> {
+    let b = mesh.bbox();
+    let n = ((b.max - b.min) / h).map(|v| v.ceil() as usize);
+    let mut out = Vec::new();
+    for i in 0..=n.x {
+        for j in 0..=n.y {
+            for k in 0..=n.z {
+                out.push(b.min + Vec3::new(i as f64, j as f64, k as f64) * h);
+            }
+        }
+    }
+    out
+}
+
+/// Smallest dihedral angle of `mesh`'s elements, degrees.
+fn smallest_angle(mesh: &TetMesh) -> f64 {
+    mesh.tets()
+        .iter()
+        .flat_map(|t| {
+            soft_tissue_core::mesh::tet_dihedral_angles(&t.map(|i| mesh.positions()[i as usize]))
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// Carves `ball` out of `mesh` and checks it against the ball: returns the removed volume.
+fn carve_and_check(mesh: &TetMesh, ball: Ball, probe: f64) -> (f64, CutMesh) {
+    let started = std::time::Instant::now();
+    let cut = carve(mesh, None, &[ball], SNAP).unwrap();
+    let ms = started.elapsed().as_secs_f64() * 1e3;
+    let before = smallest_angle(mesh);
+    let after = smallest_angle(&cut.mesh);
+    println!(
+        "carve: {} -> {} tetrahedra, smallest dihedral angle {before:.1} -> {after:.1} deg, {ms:.1} ms",
+        mesh.tet_count(),
+        cut.mesh.tet_count(),
+    );
+    // Refinement and the sphere's cut keep elements usable: no angle below 2 degrees
+    // (the outward snap's thinnest children) unless the mesh had smaller.
+    assert!(
+        after >= before.min(2.0),
+        "smallest dihedral angle {after} deg"
+    );
+    assert_valid(&cut.mesh);
+    assert_origins(mesh, &cut);
+    let removed = mesh.volume() - cut.mesh.volume();
+    // Probes near the ball: outside the radius (but for what snapping may take, a few %)
+    // they stay, well inside they are gone.
+    let mut stayed = 0;
+    let mut gone = 0;
+    for p in grid(mesh, probe) {
+        let r = (p - ball.centre).norm();
+        if r > 2.0 * ball.radius || !inside(mesh, &p) {
+            continue;
+        }
+        if r > ball.radius * (1.0 + OUTWARD_SNAP * SNAP * CARVE_SPACING) {
+            assert!(
+                inside(&cut.mesh, &p),
+                "tissue at {r:e} from the centre was removed"
+            );
+            stayed += 1;
+        } else if r < 0.7 * ball.radius {
+            assert!(
+                !inside(&cut.mesh, &p),
+                "tissue at {r:e} from the centre stayed"
+            );
+            gone += 1;
+        }
+    }
+    assert!(stayed > 50 && gone > 5, "too few probes: {stayed} {gone}");
+    (removed, cut)
+}
+
+/// A block of 10 mm elements; a ball of 2.5 mm carved at a point of its top face that is
+/// not a node: half a ball leaves.
+#[test]
+fn a_half_ball_leaves_a_face_of_coarse_elements() {
+    let mesh = block(Vec3::zeros(), Vec3::repeat(0.04), [4, 4, 4]).unwrap();
+    let r = 0.0025;
+    let ball = Ball {
+        centre: Vec3::new(0.0172, 0.04, 0.0231),
+        radius: r,
+    };
+    let (removed, cut) = carve_and_check(&mesh, ball, r / 8.0);
+    let half = 2.0 / 3.0 * std::f64::consts::PI * r.powi(3);
+    println!(
+        "removed {:.3} mm^3 of a half ball of {:.3} mm^3 ({:+.1} %), {} bisections",
+        removed * 1e9,
+        half * 1e9,
+        100.0 * (removed / half - 1.0),
+        cut.bisected,
+    );
+    assert!((removed / half - 1.0).abs() < 0.25, "{removed} vs {half}");
+    assert!(
+        !cut.cut_faces.is_empty(),
+        "the crater's walls are not cut sides"
+    );
+}
+
+/// A ball wholly inside one element (no node or edge near it) is carved out all the same,
+/// leaving a cavity with a closed inner surface.
+#[test]
+fn a_ball_inside_one_element_leaves_a_cavity() {
+    let mesh = block(Vec3::zeros(), Vec3::repeat(0.04), [2, 2, 2]).unwrap();
+    let r = 0.002;
+    let ball = Ball {
+        centre: Vec3::new(0.013, 0.011, 0.0087),
+        radius: r,
+    };
+    let (removed, _) = carve_and_check(&mesh, ball, r / 8.0);
+    let whole = 4.0 / 3.0 * std::f64::consts::PI * r.powi(3);
+    println!(
+        "cavity {:.3} mm^3 of a ball of {:.3} mm^3 ({:+.1} %)",
+        removed * 1e9,
+        whole * 1e9,
+        100.0 * (removed / whole - 1.0),
+    );
+    assert!((removed / whole - 1.0).abs() < 0.25, "{removed} vs {whole}");
+}
+
+/// On the organs scene's liver, a 2 mm ball at its highest node.
+#[test]
+fn a_crater_on_the_liver() {
+    let assets = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets"));
+    let w = SoftTissueWorld::from_scene(&Scene::paper_organs(), assets).unwrap();
+    let i = w.body_index("Liver").unwrap();
+    let mesh = (**w.bodies()[i].mesh()).clone();
+    let s = w.bodies()[i]
+        .heat()
+        .map_or(0.01, |h| h.params().meters_per_unit);
+    let x = mesh.positions();
+    let top = x
+        .iter()
+        .copied()
+        .max_by(|a, b| a.y.total_cmp(&b.y))
+        .unwrap();
+    let r = 0.002 / s;
+    let ball = Ball {
+        centre: top,
+        radius: r,
+    };
+    let (removed, cut) = carve_and_check(&mesh, ball, r / 6.0);
+    let whole = 4.0 / 3.0 * std::f64::consts::PI * r.powi(3);
+    println!(
+        "liver: removed {:.3} mm^3 ({:.2} of the ball); {} -> {} tetrahedra",
+        removed * s.powi(3) * 1e9,
+        removed / whole,
+        mesh.tet_count(),
+        cut.mesh.tet_count()
+    );
+    assert!(removed > 0.0 && removed < whole);
+}
+
+/// A ball that misses the mesh changes nothing; bad balls are refused by name.
+#[test]
+fn misses_and_bad_balls() {
+    let mesh = block(Vec3::zeros(), Vec3::repeat(1.0), [2, 2, 2]).unwrap();
+    let far = Ball {
+        centre: Vec3::repeat(5.0),
+        radius: 0.5,
+    };
+    let cut = carve(&mesh, None, &[far], SNAP).unwrap();
+    assert_eq!((cut.separated, cut.bisected), (0, 0));
+    assert_eq!(cut.mesh.tet_count(), mesh.tet_count());
+    let nan = Ball {
+        centre: Vec3::new(f64::NAN, 0.0, 0.0),
+        radius: 0.1,
+    };
+    assert!(matches!(
+        carve(&mesh, None, &[far, nan], SNAP),
+        Err(RemoveError::BadBall { index: 1, .. })
+    ));
+    let flat = Ball {
+        centre: Vec3::repeat(0.5),
+        radius: 0.0,
+    };
+    assert!(matches!(
+        carve(&mesh, None, &[flat], SNAP),
+        Err(RemoveError::BadBall { index: 0, .. })
+    ));
+    let tiny = Ball {
+        centre: Vec3::new(0.31, 1.0, 0.47),
+        radius: 1e-9,
+    };
+    assert!(matches!(
+        carve(&mesh, None, &[tiny], SNAP),
+        Err(RemoveError::TooFine { .. })
+    ));
+}
