@@ -156,8 +156,8 @@ pub(super) fn cut_stage(
         };
         let outcome = list[i].2.body.finish_cut(job.job);
         // Refused by the mesh: tried again once more vaporized (dropped for now: next step).
-        if job.vaporized > 0 && matches!(outcome, Ok(BladeOutcome::Missed)) {
-            list[i].2.body.vaporize_refused(job.vaporized);
+        if !job.vaporized.is_empty() && matches!(outcome, Ok(BladeOutcome::Missed)) {
+            list[i].2.body.vaporize_refused(&job.vaporized);
         }
         if !land!(i, outcome, (job.blade, job.incision, job.mark)) {
             failed = true;
@@ -201,7 +201,7 @@ pub(super) fn cut_stage(
                         mark,
                         due: steps + options.background_steps as u64,
                         job,
-                        vaporized: 0,
+                        vaporized: Vec::new(),
                     });
                     continue;
                 }
@@ -220,12 +220,11 @@ pub(super) fn cut_stage(
             if jobs.0.iter().any(|j| j.body == entity) {
                 continue;
             }
-            let tets = list[i].2.body.vaporized_tets();
-            let n = tets.len();
+            let balls = list[i].2.body.vaporized();
             let background = options.background_steps > 0;
             let place = cut_place(background, &threads);
             let sim = &mut list[i].2;
-            let outcome = match sim.body.begin_vaporize(tets, &options, place) {
+            let outcome = match sim.body.begin_vaporize(balls.clone(), &options, place) {
                 Ok(None) => continue,
                 Ok(Some(job)) if !background => sim.body.finish_cut(job),
                 Ok(Some(job)) => {
@@ -236,14 +235,14 @@ pub(super) fn cut_stage(
                         mark: 0,
                         due: steps + options.background_steps as u64,
                         job,
-                        vaporized: n,
+                        vaporized: balls,
                     });
                     continue;
                 }
                 Err(e) => Err(e),
             };
             if matches!(outcome, Ok(BladeOutcome::Missed)) {
-                list[i].2.body.vaporize_refused(n);
+                list[i].2.body.vaporize_refused(&balls);
             }
             if !land!(i, outcome, (Entity::PLACEHOLDER, 0, 0)) {
                 break;

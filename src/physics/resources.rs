@@ -220,6 +220,7 @@ pub(crate) struct PendingCut {
     pub(crate) mark: u64,
     pub(crate) due: u64,
     pub(crate) job: soft_tissue_core::world::CutJob,
-    /// Vaporized tetrahedra it removes (0: a blade's cut; its blade is then a placeholder).
-    pub(crate) vaporized: usize,
+    /// Balls of vaporized tissue it carves out (none: a blade's cut; for a carve its blade
+    /// is a placeholder).
+    pub(crate) vaporized: Vec<soft_tissue_core::mesh::cut::Ball>,
 }

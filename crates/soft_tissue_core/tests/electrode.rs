@@ -329,9 +329,41 @@ fn thirty_watts_boil_and_vaporize_only_where_tissue_reached_boiling() {
     assert!((delivered - 60.0).abs() < 1e-9 * 60.0, "{delivered}");
 }
 
-/// A cube of liver 8 mm across meshed at 1 mm, an electrode of 1 mm at 30 W on the centre
-/// of its top face, pressed down into the crater it burns. Tetrahedra wholly inside a crater leave the mesh by the cut's topology
-/// change: the body stays valid (every element positive, its boundary 2-manifold, mass by
+/// The highest point where the vertical line through `start` meets `mesh`'s surface, with
+/// its surface triangle's nodes and their weights there.
+fn surface_on_axis(mesh: &TetMesh, start: Vec3) -> Option<(Vec3, Vec<(usize, f64)>)> {
+    let x = mesh.positions();
+    let mut best: Option<(Vec3, Vec<(usize, f64)>)> = None;
+    for t in mesh.surface().triangles() {
+        let [a, b, c] = t.map(|i| x[i as usize]);
+        // Barycentric weights of the axis point in the triangle's projection on y = 0.
+        let d = (b.x - a.x) * (c.z - a.z) - (c.x - a.x) * (b.z - a.z);
+        if d.abs() < 1e-30 {
+            continue;
+        }
+        let (px, pz) = (start.x - a.x, start.z - a.z);
+        let wb = (px * (c.z - a.z) - (c.x - a.x) * pz) / d;
+        let wc = ((b.x - a.x) * pz - px * (b.z - a.z)) / d;
+        let wa = 1.0 - wb - wc;
+        if wa < -1e-12 || wb < -1e-12 || wc < -1e-12 {
+            continue;
+        }
+        let p = a * wa + b * wb + c * wc;
+        if best.as_ref().is_none_or(|(q, _)| p.y > q.y) {
+            let nodes = t
+                .iter()
+                .zip([wa, wb, wc])
+                .map(|(&i, w)| (i as usize, w.max(0.0)));
+            let total: f64 = [wa, wb, wc].iter().map(|w| w.max(0.0)).sum();
+            best = Some((p, nodes.map(|(i, w)| (i, w / total)).collect()));
+        }
+    }
+    best
+}
+
+/// A block of liver 8 by 16 by 8 mm meshed at 1 mm, an electrode of 1 mm at 30 W on the centre
+/// of its top face, pressed down into the crater it burns. The ball of tissue each crater
+/// vaporized is carved out of the mesh by the cut's topology change: the body stays valid (every element positive, its boundary 2-manifold, mass by
 /// volume), the removed volume grows with time, no more is removed than the energy
 /// delivered can vaporize, and tissue farther than 4 mm from the electrode stays.
 #[test]
@@ -344,7 +376,7 @@ fn vaporized_tissue_leaves_the_mesh_and_the_electrode_sinks_in() {
     use soft_tissue_core::world::{SimBody, WorldConfig};
     use std::sync::Arc;
     let side = 0.008;
-    let mesh = block(Vec3::zeros(), Vec3::repeat(side), [8, 8, 8]).unwrap();
+    let mesh = block(Vec3::zeros(), Vec3::new(side, 2.0 * side, side), [8, 16, 8]).unwrap();
     let density = 1079.0;
     let fem = FemParams {
         young_modulus: 2.0e4,
@@ -378,7 +410,7 @@ fn vaporized_tissue_leaves_the_mesh_and_the_electrode_sinks_in() {
     })
     .unwrap();
     w.add_body(body).unwrap();
-    let start = Vec3::new(0.5 * side, side, 0.5 * side);
+    let start = Vec3::new(0.5 * side, 2.0 * side, 0.5 * side);
     let mut centres = vec![start];
     let mut removed_at = Vec::new();
     let p = heat;
@@ -386,16 +418,17 @@ fn vaporized_tissue_leaves_the_mesh_and_the_electrode_sinks_in() {
         + p.density * p.specific_heat * (p.vaporization.boiling_temperature - 37.0);
     for k in 1..=128 {
         // The electrode is pressed down the vertical axis through where it started: it
-        // sits on the highest node left on that axis (the crater's floor, once there is
-        // one) and heats through it.
-        let b = &mut w.bodies_mut()[0];
-        let x = b.mesh().positions();
-        let on_axis = |q: &Vec3| (q.x - start.x).abs() < 1e-9 && (q.z - start.z).abs() < 1e-9;
-        let node = (0..x.len())
-            .filter(|&a| on_axis(&x[a]))
-            .max_by(|&a, &c| x[a].y.total_cmp(&x[c].y))
-            .unwrap();
-        let centre = x[node];
+        // sits where that axis first meets the body's surface from above (the crater's
+        // floor, once there is one) and heats through that surface triangle's nodes.
+        let (centre, nodes) = surface_on_axis(w.bodies()[0].mesh(), start)
+            .unwrap_or_else(|| {
+                panic!(
+                    "step {k}: the axis does not meet the body: {} bodies, {} tetrahedra, {:.3} mm^3; electrode at {centres:?}",
+                    w.bodies().len(),
+                    w.bodies()[0].mesh().tet_count(),
+                    w.bodies()[0].mesh().volume() * 1e9
+                )
+            });
         if (centre - *centres.last().unwrap()).norm() > 0.0 {
             centres.push(centre);
         }
@@ -405,9 +438,10 @@ fn vaporized_tissue_leaves_the_mesh_and_the_electrode_sinks_in() {
             radius: RADIUS,
             tissue_fraction: 0.5,
         };
+        let b = &mut w.bodies_mut()[0];
         b.heat_mut()
             .unwrap()
-            .add_electrode(&source, &[(node, 1.0)])
+            .add_electrode(&source, &nodes)
             .unwrap();
         w.step_fixed().unwrap();
         let volume: f64 = w.bodies().iter().map(|b| b.mesh().volume()).sum();

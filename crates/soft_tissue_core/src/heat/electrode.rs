@@ -192,6 +192,21 @@ impl HeatField {
         self.spots.iter().map(|p| p.crater_radius()).collect()
     }
 
+    /// Per spot with a crater: its centre (rest, scene units), the radius of the ball whose
+    /// volume is the tissue it vaporized, `cbrt(crater^3 - electrode^3)` (the electrode's own
+    /// place, where the rest shape still has tissue, is tissue it pushed aside, not burnt),
+    /// and the electrode's radius, m.
+    pub fn vaporized_balls(&self) -> Vec<(Vec3, f64, f64)> {
+        self.spots
+            .iter()
+            .filter(|p| p.has_crater())
+            .map(|p| {
+                let (rc, re) = (p.crater_radius(), p.grid.radius);
+                (p.center, (rc.powi(3) - re.powi(3)).max(0.0).cbrt(), re)
+            })
+            .collect()
+    }
+
     /// The nodes' temperatures with every spot's excess heat given to the free nodes within
     /// its reach, by its excess at each times its capacity (to the spot's own nodes where
     /// none is within reach; a share on a fixed-temperature node leaves): what a cut hands
@@ -250,19 +265,27 @@ impl HeatField {
         self.spots.iter().any(Spot::has_crater)
     }
 
-    /// Takes `other`'s burns as its own history (a body's field after a cut or a removal
-    /// of vaporized tissue): its burnt volumes and the heat its water took, of its spots and
-    /// of those that ended, so the totals go on.
+    /// Takes `other`'s burns as its own history (a body's field after a cut or a carve of
+    /// vaporized tissue): its burnt volumes and the heat its water took, of its spots and of
+    /// those that ended, so the totals go on, and what they burnt where (samples set later
+    /// start from it).
     pub fn carry_burns_from(&mut self, other: &HeatField) {
         self.retired = other.burn_volumes();
         self.retired_boiled =
             other.retired_boiled + other.spots.iter().map(Spot::boiled_energy).sum::<f64>();
+        self.marks = other.marks.clone();
+        self.departed = other.departed;
+        for spot in &other.spots {
+            self.keep_mark(spot.mark());
+        }
         self.changed = true;
         self.version += 1;
     }
 
     /// Follows temperature, damage and peak temperature at `samples` (see [`HeatSample`]);
-    /// replaces the points followed before. Their damage starts at zero.
+    /// replaces the points followed before. Their damage and peak start from what spots
+    /// that ended burnt there, and what the body's spots had burnt before its mesh changed
+    /// (a cut, a carve; [`HeatField::carry_burns_from`]), else at zero and the temperature now.
     pub fn set_samples(&mut self, samples: Vec<HeatSample>) -> Result<(), HeatError> {
         let n = self.temperature.len();
         for p in &samples {
@@ -295,6 +318,17 @@ impl HeatField {
             .collect();
         self.sample_peak = self.sample_temperature.clone();
         self.sample_damage = vec![0.0; samples.len()];
+        // Burns of spots that ended, or of the body before its mesh changed, show at the new
+        // samples: each starts with the most damage and highest peak a mark has there.
+        let s = self.params.meters_per_unit;
+        for (k, p) in samples.iter().enumerate() {
+            for m in &self.marks {
+                if let Some((damage, peak)) = m.at((p.position - m.center).norm() * s) {
+                    self.sample_damage[k] = self.sample_damage[k].max(damage);
+                    self.sample_peak[k] = self.sample_peak[k].max(peak);
+                }
+            }
+        }
         self.samples = samples;
         Ok(())
     }
@@ -343,6 +377,14 @@ impl HeatField {
 
     /// Ends spot `k`: its excess heat goes into the nodes where it lies, its volumes and
     /// boiled heat are kept.
+    /// Keeps `mark`, dropping the oldest beyond [`MAX_MARKS`].
+    fn keep_mark(&mut self, mark: super::spot::BurnMark) {
+        if self.marks.len() >= MAX_MARKS {
+            self.marks.remove(0);
+        }
+        self.marks.push(mark);
+    }
+
     fn retire(&mut self, k: usize) {
         let spot = self.spots.remove(k);
         let mut t = std::mem::take(&mut self.temperature);
@@ -350,6 +392,7 @@ impl HeatField {
         self.temperature = t;
         self.retired += spot.volumes(&self.params);
         self.retired_boiled += spot.boiled_energy();
+        self.keep_mark(spot.mark());
     }
 
     /// Temperatures, peaks and damage at the samples after a step.

@@ -385,6 +385,11 @@ pub struct HeatField {
     /// Burnt volumes of spots that ended, m^3, and the heat their water took, J.
     retired: BurnVolumes,
     retired_boiled: f64,
+    /// What ended spots burnt, and those of the field before a change of the mesh (newest
+    /// last, at most [`MAX_MARKS`]): where new samples start.
+    marks: Vec<spot::BurnMark>,
+    /// Heat that left with changes of the mesh, J (see [`HeatField::departed_heat`]).
+    departed: f64,
     samples: Vec<HeatSample>,
     sample_temperature: Vec<f64>,
     sample_damage: Vec<f64>,
@@ -404,6 +409,10 @@ pub struct HeatSample {
 
 /// Spots a field keeps at once; a new one ends the oldest without power.
 pub const MAX_SPOTS: usize = 32;
+
+/// Most burn marks a field keeps (what ended spots burnt; see
+/// [`HeatField::set_samples`]).
+pub const MAX_MARKS: usize = 64;
 
 impl HeatField {
     /// Builds the field on the rest shape of `mesh` at the initial temperature, factorizes the
@@ -511,6 +520,8 @@ impl HeatField {
             grids: Vec::new(),
             retired: BurnVolumes::default(),
             retired_boiled: 0.0,
+            marks: Vec::new(),
+            departed: 0.0,
             samples: Vec::new(),
             sample_temperature: Vec::new(),
             sample_damage: Vec::new(),
@@ -594,6 +605,19 @@ impl HeatField {
     /// (their excess and the heat their water took, also of spots that ended), J.
     pub fn heat_content(&self) -> f64 {
         self.coarse_heat_content() + self.subgrid_heat_content()
+    }
+
+    /// Heat that left the body's field with changes of its mesh, J: the heat of tissue an
+    /// electrode's crater carved out, and what handing the field to a cut mesh changed (the
+    /// spots' heat given to the nodes, new nodes' capacities). `heat_content` plus this
+    /// is what the sources delivered since the start, across cuts and carves.
+    pub fn departed_heat(&self) -> f64 {
+        self.departed
+    }
+
+    /// Notes that `joules` more left with a change of the mesh.
+    pub(crate) fn add_departed(&mut self, joules: f64) {
+        self.departed += joules;
     }
 
     /// The coarse field's part of [`HeatField::heat_content`], J.
@@ -731,6 +755,8 @@ impl HeatField {
         self.spots.clear();
         self.retired = BurnVolumes::default();
         self.retired_boiled = 0.0;
+        self.marks.clear();
+        self.departed = 0.0;
         self.sample_damage.fill(0.0);
         self.sample_peak.fill(self.params.initial_temperature);
         for k in 0..self.samples.len() {

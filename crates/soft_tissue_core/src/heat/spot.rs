@@ -427,6 +427,41 @@ impl Spot {
     }
 }
 
+/// What a spot burnt, by distance from its centre: kept when it ends or when the body's mesh
+/// changes (a cut, a carve), so the points a burn is drawn at start from it.
+#[derive(Debug, Clone)]
+pub(crate) struct BurnMark {
+    pub(crate) center: Vec3,
+    /// Node radius of each shell, m, and its damage and peak temperature.
+    r: Vec<f64>,
+    damage: Vec<f64>,
+    peak: Vec<f64>,
+}
+
+impl Spot {
+    /// Its burn (see [`BurnMark`]).
+    pub(crate) fn mark(&self) -> BurnMark {
+        BurnMark {
+            center: self.center,
+            r: self.grid.r.clone(),
+            damage: self.damage.clone(),
+            peak: self.peak.clone(),
+        }
+    }
+}
+
+impl BurnMark {
+    /// Damage and peak temperature at `d` m from the centre: those of the shell there (the
+    /// first within the electrode's radius); `None` beyond the last shell.
+    pub(crate) fn at(&self, d: f64) -> Option<(f64, f64)> {
+        if d > *self.r.last()? {
+            return None;
+        }
+        let i = self.r.partition_point(|&r| r < d).min(self.r.len() - 1);
+        Some((self.damage[i], self.peak[i]))
+    }
+}
+
 /// Arrhenius damage rate at `t` C, 1/s.
 pub(crate) fn arrhenius(params: &HeatParams, t: f64) -> f64 {
     params.damage_frequency

@@ -19,8 +19,8 @@ pub struct SimBody {
     pub(crate) cut: Option<super::cut::CutRecord>,
     /// Pieces this body gave off in cuts (their names count on from it).
     pub(crate) pieces_made: usize,
-    /// Vaporized tetrahedra whose removal was tried and did not land.
-    pub(crate) vaporize_tried: usize,
+    /// Balls of vaporized tissue whose carving was tried and did not land.
+    pub(crate) vaporize_tried: Vec<crate::mesh::cut::Ball>,
     /// A piece that came loose in a cut (a world's reset removes it).
     pub(crate) loose: bool,
     pub(crate) rest_surface: Vec<Vec3>,
@@ -150,7 +150,7 @@ impl SimBody {
             heat_boundary,
             cut: None,
             pieces_made: 0,
-            vaporize_tried: 0,
+            vaporize_tried: Vec::new(),
             loose: false,
             friction: Friction::default(),
             touched: false,
@@ -299,7 +299,7 @@ impl SimBody {
     /// Gives the body a new temperature field, or removes it (`None`). A new field starts
     /// at its parameters' initial temperature, with no damage.
     pub fn set_heat(&mut self, heat: Option<(HeatParams, HeatBoundary)>) -> Result<(), WorldError> {
-        self.vaporize_tried = 0;
+        self.vaporize_tried.clear();
         self.heat = match heat {
             Some((params, boundary)) => {
                 let field = HeatField::new(&self.mesh, params, self.body.settings().dt, &boundary)
@@ -387,7 +387,7 @@ impl SimBody {
         if let Some(h) = &mut self.heat {
             h.reset();
         }
-        self.vaporize_tried = 0;
+        self.vaporize_tried.clear();
         self.collider.reset_motion(self.body.node_positions());
         self.touched = false;
         self.contacts = 0;

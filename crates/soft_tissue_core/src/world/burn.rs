@@ -1,45 +1,54 @@
-//! Tissue an electrode vaporized leaves the body: the tetrahedra wholly inside a crater of
-//! its heat field's spots are removed by the same topology change as a cut
+//! Tissue an electrode vaporized leaves the body: the ball of each crater is carved out of
+//! the mesh ([`crate::mesh::cut::carve`]) by the same topology change as a cut
 //! ([`SimBody::begin_vaporize`]).
 
 use super::*;
+use crate::mesh::cut::Ball;
+
+/// A crater is carved again (after a carve that did not land) once its ball has grown by this
+/// factor.
+pub const CARVE_GROWTH: f64 = 1.25;
 
 impl SimBody {
-    /// The tetrahedra wholly inside a crater an electrode vaporized (every corner, on the
-    /// rest mesh, within the crater's radius of its spot's centre): tissue to remove. Empty
-    /// without heat or craters, and when the same number was tried before and refused.
-    pub fn vaporized_tets(&self) -> Vec<u32> {
+    /// The balls of tissue electrodes vaporized, to carve out (rest shape, scene units; see
+    /// [`crate::heat::HeatField::vaporized_balls`]): those at least as large as their
+    /// electrode, and [`CARVE_GROWTH`] times one tried before at the same place. Empty
+    /// without heat or craters (cheap then: no allocation).
+    pub fn vaporized(&self) -> Vec<Ball> {
         let Some(h) = self.heat.as_ref() else {
             return Vec::new();
         };
-        let craters = h.craters();
-        if craters.is_empty() {
+        if !h.has_craters() {
             return Vec::new();
         }
         let s = h.params().meters_per_unit;
-        let p = self.mesh.positions();
-        let inside = |t: &[u32; 4]| {
-            craters
-                .iter()
-                .any(|(c, r)| t.iter().all(|&v| (p[v as usize] - c).norm() * s <= *r))
-        };
-        let tets: Vec<u32> = self
-            .mesh
-            .tets()
-            .iter()
-            .enumerate()
-            .filter(|(_, t)| inside(t))
-            .map(|(i, _)| i as u32)
-            .collect();
-        if tets.len() <= self.vaporize_tried {
-            return Vec::new();
-        }
-        tets
+        h.vaporized_balls()
+            .into_iter()
+            .map(|(centre, r, electrode)| {
+                (
+                    Ball {
+                        centre,
+                        radius: r / s,
+                    },
+                    electrode / s,
+                )
+            })
+            .filter(|(b, electrode)| {
+                let tried = self
+                    .vaporize_tried
+                    .iter()
+                    .filter(|t| t.centre == b.centre)
+                    .map(|t| t.radius)
+                    .fold(0.0, f64::max);
+                b.radius >= electrode.max(CARVE_GROWTH * tried)
+            })
+            .map(|(b, _)| b)
+            .collect()
     }
 
-    /// Notes that removing `count` vaporized tetrahedra was tried and did not land (it is
-    /// tried again only once more are vaporized).
-    pub fn vaporize_refused(&mut self, count: usize) {
-        self.vaporize_tried = self.vaporize_tried.max(count);
+    /// Notes that carving `balls` was tried and did not land (each is tried again once it
+    /// has grown by [`CARVE_GROWTH`]).
+    pub fn vaporize_refused(&mut self, balls: &[Ball]) {
+        self.vaporize_tried.extend_from_slice(balls);
     }
 }

@@ -9,7 +9,7 @@ use super::cut::{
     single_node, surface_closed,
 };
 use super::*;
-use crate::mesh::cut::{CutHistory, CutOptions, CutTriangle, NodeOrigin, recut_within};
+use crate::mesh::cut::{Ball, CutHistory, CutOptions, CutTriangle, NodeOrigin, recut_within};
 use crate::mesh::pieces::pieces;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -147,8 +147,8 @@ enum Change {
         region: Vec<CutTriangle>,
         incision: u64,
     },
-    /// Tetrahedra leave the mesh (vaporized).
-    Remove(Vec<u32>),
+    /// Balls of vaporized tissue are carved out of the rest shape.
+    Carve(Vec<Ball>),
 }
 
 /// A prepared cut.
@@ -255,30 +255,29 @@ impl SimBody {
         self.begin_change(change, options, place).map(Some)
     }
 
-    /// Begins removing the tetrahedra `tets` (tissue an electrode vaporized; see
-    /// [`SimBody::vaporized_tets`]) as a cut changes the mesh: prepared where `place` says,
-    /// landed by [`SimBody::finish_cut`], the pieces left (usually one) in the state of the
-    /// step it lands in, their masses by their share of the volume (the mass of what was
-    /// removed leaves). `None` when `tets` is empty.
+    /// Begins carving the balls `balls` (tissue an electrode vaporized, in the rest shape;
+    /// see [`SimBody::vaporized`]) out of the body as a cut changes the mesh: prepared where
+    /// `place` says, landed by [`SimBody::finish_cut`], the pieces left (usually one) in the
+    /// state of the step it lands in, their masses by their share of the volume (the mass of
+    /// what was carved leaves). `None` when `balls` is empty.
     pub fn begin_vaporize(
         &mut self,
-        tets: Vec<u32>,
+        balls: Vec<Ball>,
         options: &CutOptions,
         place: CutPlace<'_>,
     ) -> Result<Option<CutJob>, WorldError> {
-        if tets.is_empty() {
+        if balls.is_empty() {
             return Ok(None);
         }
-        if let Some(&t) = tets.iter().find(|&&t| t as usize >= self.mesh.tet_count()) {
+        if let Some(b) = balls.iter().find(|b| {
+            !(b.radius.is_finite() && b.radius > 0.0 && b.centre.iter().all(|c| c.is_finite()))
+        }) {
             return Err(WorldError::Cut {
                 body: self.label(),
-                reason: format!(
-                    "tetrahedron {t} to remove is out of range (the body has {})",
-                    self.mesh.tet_count()
-                ),
+                reason: format!("a ball to carve is not finite or has no size: {b:?}"),
             });
         }
-        self.begin_change(Change::Remove(tets), options, place)
+        self.begin_change(Change::Carve(balls), options, place)
             .map(Some)
     }
 
@@ -503,6 +502,18 @@ impl SimBody {
             body.write_surface()?;
             built.push(body);
         }
+        // Heat the pieces do not hold left with the change (carved tissue, the spots given to
+        // the nodes): counted on the kept piece.
+        if let Some(old) = self.heat.as_ref() {
+            let now: f64 = built
+                .iter()
+                .filter_map(|b| b.heat.as_ref())
+                .map(|h| h.heat_content())
+                .sum();
+            if let Some(h) = built.first_mut().and_then(|b| b.heat.as_mut()) {
+                h.add_departed(old.heat_content() - now);
+            }
+        }
         let land_us = started.elapsed().as_secs_f64() * 1e6;
         for b in &mut built {
             if let Some(r) = b.cut.as_mut() {
@@ -625,8 +636,15 @@ fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
             &input.options,
         )
         .map_err(|e| fail(e.to_string()))?,
-        Change::Remove(tets) => crate::mesh::cut::remove_tets(&now, input.history.as_ref(), tets)
-            .map_err(|e| fail(format!("removing vaporized tissue: {e}")))?,
+        // Craters are balls of the rest shape: carved there (the state follows by the
+        // nodes' origins, as after a blade's cut).
+        Change::Carve(balls) => crate::mesh::cut::carve(
+            &input.mesh,
+            input.history.as_ref(),
+            balls,
+            input.options.snap,
+        )
+        .map_err(|e| fail(format!("carving vaporized tissue: {e}")))?,
     };
     if cut.separated == 0 {
         return Ok(if cut.bisected > 0 {

@@ -34,6 +34,7 @@ mod script;
 mod soft_world;
 
 pub use body::{SETTLE_STEPS, SimBody};
+pub use burn::CARVE_GROWTH;
 pub use cut::{BladeCut, BladeOutcome, CutRecord, Incision, remap_grips, swept_triangles};
 pub use cut_job::{CutJob, CutPlace};
 pub use soft_world::SoftTissueWorld;

@@ -38,7 +38,7 @@ struct InFlight {
     due: u64,
     job: super::CutJob,
     /// Vaporized tetrahedra it removes (0: a blade's cut).
-    vaporized: usize,
+    vaporized: Vec<crate::mesh::cut::Ball>,
 }
 
 impl SoftTissueWorld {
@@ -199,8 +199,8 @@ impl SoftTissueWorld {
             }
             let f = self.in_flight.remove(k);
             let outcome = self.bodies[f.body].finish_cut(f.job)?;
-            if f.vaporized > 0 {
-                self.vaporize_landed(f.body, f.vaporized, outcome);
+            if !f.vaporized.is_empty() {
+                self.vaporize_landed(f.body, &f.vaporized, outcome);
             } else {
                 self.cut_landed(f.tool, f.incision, f.body, f.mark, outcome);
             }
@@ -240,7 +240,7 @@ impl SoftTissueWorld {
                         mark,
                         due: self.steps + background as u64,
                         job,
-                        vaporized: 0,
+                        vaporized: Vec::new(),
                     }),
                 }
             }
@@ -251,7 +251,7 @@ impl SoftTissueWorld {
         Ok(())
     }
 
-    /// Tissue electrodes vaporized leaves the bodies (see [`SimBody::vaporized_tets`]), as a
+    /// Tissue electrodes vaporized leaves the bodies (see [`SimBody::vaporized`]), as a
     /// cut changes them: in the step or in the background like a blade's cuts.
     fn vaporize_stage(&mut self, count: usize) -> Result<(), WorldError> {
         let background = self.cut_options.background_steps;
@@ -259,19 +259,20 @@ impl SoftTissueWorld {
             if self.in_flight.iter().any(|f| f.body == i) {
                 continue;
             }
-            let tets = self.bodies[i].vaporized_tets();
-            let n = tets.len();
+            let balls = self.bodies[i].vaporized();
             let place = if background > 0 {
                 super::CutPlace::Pool(&self.threads)
             } else {
                 super::CutPlace::Here
             };
-            let Some(job) = self.bodies[i].begin_vaporize(tets, &self.cut_options, place)? else {
+            let Some(job) =
+                self.bodies[i].begin_vaporize(balls.clone(), &self.cut_options, place)?
+            else {
                 continue;
             };
             if background == 0 {
                 let outcome = self.bodies[i].finish_cut(job)?;
-                self.vaporize_landed(i, n, outcome);
+                self.vaporize_landed(i, &balls, outcome);
             } else {
                 self.in_flight.push(InFlight {
                     body: i,
@@ -280,21 +281,26 @@ impl SoftTissueWorld {
                     mark: 0,
                     due: self.steps + background as u64,
                     job,
-                    vaporized: n,
+                    vaporized: balls,
                 });
             }
         }
         Ok(())
     }
 
-    /// The removal of `count` vaporized tetrahedra of body `body` came to `outcome`.
-    fn vaporize_landed(&mut self, body: usize, count: usize, outcome: super::BladeOutcome) {
+    /// The carving of `balls` of vaporized tissue out of body `body` came to `outcome`.
+    fn vaporize_landed(
+        &mut self,
+        body: usize,
+        balls: &[crate::mesh::cut::Ball],
+        outcome: super::BladeOutcome,
+    ) {
         match outcome {
             super::BladeOutcome::Cut(c) => {
                 self.add_cut(body, *c);
             }
             // Refused by the mesh (a warning said why): tried again once more vaporized.
-            super::BladeOutcome::Missed => self.bodies[body].vaporize_refused(count),
+            super::BladeOutcome::Missed => self.bodies[body].vaporize_refused(balls),
             // Dropped for now (the body was built again, or moved so an element would
             // invert): tried again next step.
             super::BladeOutcome::Crossed => {}
