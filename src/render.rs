@@ -421,31 +421,56 @@ fn upload_meshes(
             &mut RenderedSurface,
             Option<&Temperature>,
             Option<&EmbeddedVisual>,
+            Option<&VisualMesh>,
+            Option<&Name>,
         ),
         With<SoftBodyMesh>,
     >,
     mut s: Local<Scratch>,
 ) {
-    for (entity, mut sim, handle, mut rendered, temp, visual) in &mut bodies {
+    for (entity, mut sim, handle, mut rendered, temp, visual, kind, name) in &mut bodies {
         if !sim.dirty {
             continue;
         }
         sim.dirty = false;
-        let Some(mut mesh) = meshes.get_mut(&handle.0) else {
-            continue;
-        };
-        // A cut (or a reset that undid one) changed the body's mesh: the rendered mesh is
-        // made again, from the simulation surface (an embedded visual mesh no longer fits).
+        // A cut, a carve (or a reset that undid one) changed the body's mesh: a subdivided
+        // visual mesh is made again from the new surface (its burn starts from the heat
+        // field's marks); a visual mesh of the app's own no longer fits the new shape, and
+        // the body is drawn with its simulation surface from then on.
         if rendered.shape != sim.shape {
+            if visual.is_some()
+                && let Some(kind @ VisualMesh::Subdivided { .. }) = kind
+            {
+                let name = name.map_or_else(|| format!("{entity}"), |n| n.to_string());
+                match visual_mesh(kind, &sim, &meshes, entity, &name) {
+                    Ok(Some((m, embedded))) => {
+                        if let Some(mut mesh) = meshes.get_mut(&handle.0) {
+                            *mesh = m;
+                        }
+                        rendered.shape = sim.shape;
+                        commands.entity(entity).insert(embedded);
+                        sim.dirty = true;
+                        continue;
+                    }
+                    Ok(None) => {}
+                    Err(why) => warn!("{why}; drawing its simulation surface"),
+                }
+            }
             if visual.is_some() {
                 info!("body {entity} was cut: drawn with its simulation surface from now on");
                 commands.entity(entity).remove::<EmbeddedVisual>();
             }
+            let Some(mut mesh) = meshes.get_mut(&handle.0) else {
+                continue;
+            };
             let (m, r) = surface_mesh(&sim);
             *mesh = m;
             *rendered = r;
             continue;
         }
+        let Some(mut mesh) = meshes.get_mut(&handle.0) else {
+            continue;
+        };
         // A body with heat follows its temperature and damage at the visual vertices, finer
         // than its mesh (an electrode's millimetre spot shows as one).
         if let Some(v) = visual

@@ -334,8 +334,10 @@ fn a_non_manifold_mesh_simulates_and_draws_in_the_plugin() {
 
 /// The organs' liver drawn with a subdivided visual mesh and cauterized at 30 W: the burn is
 /// drawn at the visual vertices from the heat field's samples there: a charred spot a few
-/// millimetres wide (dark), and every burnt vertex within 8 mm of it, not a tint over
-/// elements (which are centimetres across); the inspector's component has the burnt
+/// millimetres wide (dark), and every burnt vertex within 12 mm of it, not a tint over
+/// elements (which are centimetres across), also after the electrode carved its crater out
+/// of the mesh (the subdivided visual mesh is made again, its burn from the heat field's
+/// marks); the inspector's component has the burnt
 /// volumes. (At 30 W the coagulated rim around the char is a fraction of a millimetre: the
 /// heat has no time to spread.)
 #[test]
@@ -359,6 +361,18 @@ fn a_cautery_burn_is_drawn_at_the_visual_vertices_not_over_elements() {
         "{t:?}"
     );
     assert!(t.max >= 99.0, "{t:?}");
+    // The electrode carved its crater out of the mesh, and the visual mesh was made again.
+    let sim = app.world().get::<SimulatedBody>(liver).unwrap();
+    assert!(
+        sim.body().cut_record().is_some_and(|c| c.cuts > 0),
+        "nothing was carved"
+    );
+    assert!(
+        app.world()
+            .get::<bevy_soft_tissue::EmbeddedVisual>(liver)
+            .is_some(),
+        "the visual mesh was not embedded again"
+    );
     let handle = app.world().get::<Mesh3d>(liver).unwrap().0.clone();
     let meshes = app.world().resource::<Assets<Mesh>>();
     let mesh = meshes.get(&handle).unwrap();
@@ -394,8 +408,12 @@ fn a_cautery_burn_is_drawn_at_the_visual_vertices_not_over_elements() {
     // Every burnt vertex is near the char: the burn is a spot, not elements tinted.
     let burnt_spread = burnt.iter().map(|q| q.distance(centre)).fold(0.0, f32::max);
     println!("burnt within {:.1} mm of the char", burnt_spread * 100.0);
+
+    // (Under 12 mm: the crater the electrode carves makes the visual mesh again from the
+    // carved surface, and the pressing tool stretches the crater's coagulated rim; a liver
+    // element is 14 mm across.)
     assert!(
-        burnt_spread < 0.08,
+        burnt_spread < 0.12,
         "burnt vertices spread over {burnt_spread} units"
     );
 }
