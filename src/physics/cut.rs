@@ -155,7 +155,8 @@ pub(super) fn cut_stage(
             continue;
         };
         let outcome = list[i].2.body.finish_cut(job.job);
-        // Refused by the mesh: tried again once more vaporized (dropped for now: next step).
+        // Refused by the mesh: tried again once its balls have grown by `CARVE_GROWTH`
+        // (dropped for now: next step).
         if !job.vaporized.is_empty() && matches!(outcome, Ok(BladeOutcome::Missed)) {
             list[i].2.body.vaporize_refused(&job.vaporized);
         }

@@ -255,7 +255,48 @@ fn misses_and_bad_balls() {
         radius: 1e-9,
     };
     assert!(matches!(
-        carve(&mesh, None, &[tiny], SNAP),
-        Err(RemoveError::TooFine { .. })
+        carve(&mesh, None, &[far, tiny], SNAP),
+        Err(RemoveError::BadBall { index: 1, .. })
     ));
+}
+
+/// Two overlapping balls carved in one go (an electrode's path): what each cut leaves inside
+/// it goes, though the other's refinement splits it after; the union leaves.
+#[test]
+fn overlapping_balls_leave_their_union() {
+    let mesh = block(Vec3::zeros(), Vec3::repeat(0.04), [4, 4, 4]).unwrap();
+    let r = 0.0025;
+    let a = Ball {
+        centre: Vec3::new(0.0172, 0.04, 0.0231),
+        radius: r,
+    };
+    let b = Ball {
+        centre: a.centre + Vec3::new(0.0015, -0.0012, 0.0004),
+        radius: r,
+    };
+    let cut = carve(&mesh, None, &[a, b], SNAP).unwrap();
+    assert_valid(&cut.mesh);
+    assert_origins(&mesh, &cut);
+    let reach = 1.0 + OUTWARD_SNAP * SNAP * CARVE_SPACING;
+    let (mut stayed, mut gone) = (0, 0);
+    for p in grid(&mesh, r / 8.0) {
+        let d = [a, b].map(|c| (p - c.centre).norm() / c.radius);
+        if d.iter().all(|&x| x > 3.0) || !inside(&mesh, &p) {
+            continue;
+        }
+        if d.iter().all(|&x| x > reach) {
+            assert!(
+                inside(&cut.mesh, &p),
+                "tissue outside both balls was removed"
+            );
+            stayed += 1;
+        } else if d.iter().any(|&x| x < 0.7) {
+            assert!(
+                !inside(&cut.mesh, &p),
+                "tissue inside a ball stayed at {p:?}"
+            );
+            gone += 1;
+        }
+    }
+    assert!(stayed > 50 && gone > 5, "too few probes: {stayed} {gone}");
 }

@@ -319,9 +319,11 @@ impl HeatField {
         self.sample_peak = self.sample_temperature.clone();
         self.sample_damage = vec![0.0; samples.len()];
         // Burns of spots that ended, or of the body before its mesh changed, show at the new
-        // samples: each starts with the most damage and highest peak a mark has there.
+        // samples: each starts with the most damage and highest peak a mark has there (and
+        // at least the nodes' damage there).
         let s = self.params.meters_per_unit;
         for (k, p) in samples.iter().enumerate() {
+            self.sample_damage[k] = interpolate(&self.damage, &p.nodes).max(0.0);
             for m in &self.marks {
                 if let Some((damage, peak)) = m.at((p.position - m.center).norm() * s) {
                     self.sample_damage[k] = self.sample_damage[k].max(damage);
@@ -375,8 +377,6 @@ impl HeatField {
         }
     }
 
-    /// Ends spot `k`: its excess heat goes into the nodes where it lies, its volumes and
-    /// boiled heat are kept.
     /// Keeps `mark`, dropping the oldest beyond [`MAX_MARKS`].
     fn keep_mark(&mut self, mark: super::spot::BurnMark) {
         if self.marks.len() >= MAX_MARKS {
@@ -385,6 +385,8 @@ impl HeatField {
         self.marks.push(mark);
     }
 
+    /// Ends spot `k`: its excess heat goes into the nodes where it lies, its volumes and
+    /// boiled heat are kept.
     fn retire(&mut self, k: usize) {
         let spot = self.spots.remove(k);
         let mut t = std::mem::take(&mut self.temperature);

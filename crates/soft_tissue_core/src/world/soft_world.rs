@@ -37,7 +37,7 @@ struct InFlight {
     /// The step it lands in.
     due: u64,
     job: super::CutJob,
-    /// Vaporized tetrahedra it removes (0: a blade's cut).
+    /// Balls of vaporized tissue it carves out (none: a blade's cut).
     vaporized: Vec<crate::mesh::cut::Ball>,
 }
 
@@ -299,7 +299,8 @@ impl SoftTissueWorld {
             super::BladeOutcome::Cut(c) => {
                 self.add_cut(body, *c);
             }
-            // Refused by the mesh (a warning said why): tried again once more vaporized.
+            // Refused by the mesh (a warning said why, or nothing was inside): tried again once
+            // its balls have grown by `CARVE_GROWTH`.
             super::BladeOutcome::Missed => self.bodies[body].vaporize_refused(balls),
             // Dropped for now (the body was built again, or moved so an element would
             // invert): tried again next step.

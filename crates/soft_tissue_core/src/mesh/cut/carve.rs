@@ -8,9 +8,11 @@
 //! 1. **Refinement.** While an element the sphere passes through (its corners neither all
 //!    inside nor its nearest point outside) has an edge longer than
 //!    [`CARVE_SPACING`] of the radius, the longest such edge of all is bisected at its
-//!    middle, splitting every element around it (bisecting the longest edge first keeps the
-//!    elements' shapes within a bounded number of classes; Rivara 1984). The mesh stays
-//!    conforming, and every child lies in its parent, so volume and mass are unchanged.
+//!    middle, splitting every element around it (after Rivara's longest-edge bisection,
+//!    1984, without its propagation: a neighbour is split along that edge whether or not it
+//!    is its own longest, so shapes next to the crater can degrade; the tests report the
+//!    smallest dihedral angle). The mesh stays conforming, and every child lies in its
+//!    parent, so volume and mass are unchanged.
 //! 2. **The sphere as a cut.** Each edge whose ends lie on opposite sides of the sphere is
 //!    bisected where it crosses it (the exact crossing on the straight edge), a crossing
 //!    within `snap` of an end putting that end on the sphere instead (as a blade's cut
@@ -29,7 +31,7 @@ use std::collections::{BinaryHeap, HashMap};
 use super::{CutHistory, CutMesh, RemoveError, Work, face_key, remove_tets};
 use crate::Vec3;
 use crate::geometry::point_triangle_distance;
-use crate::mesh::{TetMesh, tet_signed_volume};
+use crate::mesh::TetMesh;
 
 /// A ball to carve out (scene units).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -81,74 +83,67 @@ pub fn carve(
             });
         }
     }
-    let history = history
-        .filter(|h| h.sides.len() == mesh.tet_count() && h.on_blade.len() == mesh.node_count());
-    let mut work = Work::new(mesh, history, 0);
-    let start = work.tets.len();
     let size = mesh.bbox().diagonal();
-    if let Some(b) = balls.iter().find(|b| b.radius < 1e-6 * size) {
-        return Err(RemoveError::TooFine {
-            radius: b.radius,
-            added: 0,
+    if let Some(index) = balls.iter().position(|b| b.radius < 1e-6 * size) {
+        return Err(RemoveError::BadBall {
+            index,
+            reason: "its radius is below 1e-6 of the mesh's size",
         });
     }
+    let mut work = Work::new(mesh, history, 0);
+    let history = history
+        .filter(|h| h.sides.len() == mesh.tet_count() && h.on_blade.len() == mesh.node_count());
+    let start = work.tets.len();
     // The tetrahedra at each node, kept through every split (so a split finds every
-    // tetrahedron around its edge, wherever it lies).
-    let mut around: Vec<Vec<u32>> = vec![Vec::new(); work.positions.len()];
+    // tetrahedron around its edge, wherever it lies), and which leave.
+    let mut state = Carving {
+        around: vec![Vec::new(); work.positions.len()],
+        gone: vec![false; work.tets.len()],
+    };
     for (t, tet) in work.tets.iter().enumerate() {
         for &v in tet {
-            around[v as usize].push(t as u32);
+            state.around[v as usize].push(t as u32);
         }
     }
-    let mut on_sphere: Vec<Vec<bool>> = Vec::with_capacity(balls.len());
+    // Ball by ball: what a ball's cut leaves inside it is marked before the next refines
+    // (whose splits hand the mark to the children).
     for ball in balls {
         let mut candidates: Vec<u32> = (0..work.tets.len() as u32)
             .filter(|&t| work.box_meets(t, ball))
             .collect();
-        work.refine_near(ball, &mut candidates, &mut around, start + MAX_CARVE_TETS)?;
-        on_sphere.push(work.bisect_sphere(ball, snap, &mut candidates, &mut around));
+        work.refine_near(ball, &mut candidates, &mut state, start + MAX_CARVE_TETS)?;
+        let on = work.bisect_sphere(ball, snap, &mut candidates, &mut state);
+        // What leaves: every corner inside or on the sphere, the centre inside it.
+        for &t in &candidates {
+            let tet = work.tets[t as usize];
+            let p = tet.map(|v| work.positions[v as usize]);
+            let centre = (p[0] + p[1] + p[2] + p[3]) / 4.0;
+            if (centre - ball.centre).norm() < ball.radius
+                && tet.iter().zip(&p).all(|(&v, q)| {
+                    on.get(v as usize).copied().unwrap_or(false)
+                        || (q - ball.centre).norm() <= ball.radius
+                })
+            {
+                state.gone[t as usize] = true;
+            }
+        }
     }
-    for flags in &mut on_sphere {
-        flags.resize(work.positions.len(), false);
-    }
-    // What leaves: every corner inside or on a sphere, the centre inside it.
-    let mut gone: Vec<bool> = work
-        .tets
-        .iter()
-        .map(|tet| {
-            balls.iter().zip(&on_sphere).any(|(b, on)| {
-                let p = tet.map(|v| work.positions[v as usize]);
-                let centre = (p[0] + p[1] + p[2] + p[3]) / 4.0;
-                (centre - b.centre).norm() < b.radius
-                    && tet
-                        .iter()
-                        .zip(&p)
-                        .all(|(&v, q)| on[v as usize] || (q - b.centre).norm() <= b.radius)
-            })
-        })
-        .collect();
+    let mut gone = state.gone;
     if !gone.iter().any(|&g| g) {
         return Ok(unchanged(mesh, history));
     }
     let closed_before = super::manifold(mesh.surface().triangles());
     keep_manifold(&work.tets, &mut gone, closed_before);
-    drop_crumbs(&work, balls, &mut gone);
+    if drop_crumbs(&work, balls, &mut gone) {
+        keep_manifold(&work.tets, &mut gone, closed_before);
+    }
     let removed: Vec<u32> = (0..gone.len() as u32)
         .filter(|&t| gone[t as usize])
         .collect();
     if removed.is_empty() {
         return Ok(unchanged(mesh, history));
     }
-    let mut smallest_volume_ratio = f64::INFINITY;
-    for (t, tet) in work.tets.iter().enumerate() {
-        let child = tet_signed_volume(&tet.map(|i| work.positions[i as usize]));
-        let parent = mesh.tets()[work.tet_origin[t] as usize].map(|i| mesh.positions()[i as usize]);
-        let ratio = child / tet_signed_volume(&parent);
-        if ratio.is_nan() || ratio <= 0.0 {
-            return Err(super::CutError::Inverted { tet: t, ratio }.into());
-        }
-        smallest_volume_ratio = smallest_volume_ratio.min(ratio);
-    }
+    let smallest_volume_ratio = work.smallest_volume_ratio(mesh)?;
     let refined = TetMesh::new(
         work.positions.clone(),
         work.tets.iter().map(|t| t.map(|i| i as usize)).collect(),
@@ -189,6 +184,13 @@ fn unchanged(mesh: &TetMesh, history: Option<&CutHistory>) -> CutMesh {
         taken_back: 0,
         smallest_volume_ratio: 1.0,
     }
+}
+
+/// A carve's bookkeeping kept through every split: the tetrahedra at each node, and which
+/// leave.
+struct Carving {
+    around: Vec<Vec<u32>>,
+    gone: Vec<bool>,
 }
 
 impl Work {
@@ -243,8 +245,9 @@ impl Work {
         best
     }
 
-    /// [`Work::split_edge`] of edge `e` at `s` among the tetrahedra `around` says hold it,
-    /// keeping `around` true; children whose boxes meet `ball`'s join `candidates`.
+    /// [`Work::split_edge`] of edge `e` at `s` among the tetrahedra `state.around` says hold
+    /// it, keeping `around` true and each child leaving where its parent does; children
+    /// whose boxes meet `ball`'s join `candidates`.
     /// Returns the new node and the tetrahedra changed (the parents, now first children, and
     /// the second children).
     fn split_around(
@@ -253,8 +256,9 @@ impl Work {
         s: f64,
         ball: &Ball,
         candidates: &mut Vec<u32>,
-        around: &mut Vec<Vec<u32>>,
+        state: &mut Carving,
     ) -> (u32, Vec<u32>) {
+        let around = &mut state.around;
         let mut holders: Vec<u32> = around[e.0 as usize]
             .iter()
             .copied()
@@ -268,6 +272,11 @@ impl Work {
         for &t in &holders[..parents] {
             around[e.1 as usize].retain(|&u| u != t);
             around[node as usize].push(t);
+        }
+        // The second children come in the order of their parents.
+        for &t in &holders[..parents] {
+            let g = state.gone[t as usize];
+            state.gone.push(g);
         }
         for t in before..self.tets.len() as u32 {
             for &v in &self.tets[t as usize] {
@@ -287,7 +296,7 @@ impl Work {
         &mut self,
         ball: &Ball,
         candidates: &mut Vec<u32>,
-        around: &mut Vec<Vec<u32>>,
+        state: &mut Carving,
         limit: usize,
     ) -> Result<(), RemoveError> {
         let h = CARVE_SPACING * ball.radius;
@@ -309,11 +318,11 @@ impl Work {
             if self.tets.len() > limit {
                 return Err(RemoveError::TooFine {
                     radius: ball.radius,
-                    added: self.tets.len(),
+                    added: self.tets.len() - (limit - MAX_CARVE_TETS),
                 });
             }
             let (e, _) = self.longest_edge(t);
-            let (_, changed) = self.split_around(e, 0.5, ball, candidates, around);
+            let (_, changed) = self.split_around(e, 0.5, ball, candidates, state);
             for u in changed {
                 push(self, &mut heap, u);
             }
@@ -329,7 +338,7 @@ impl Work {
         ball: &Ball,
         snap: f64,
         candidates: &mut Vec<u32>,
-        around: &mut Vec<Vec<u32>>,
+        state: &mut Carving,
     ) -> Vec<bool> {
         let c = ball.centre;
         let r = ball.radius;
@@ -354,9 +363,9 @@ impl Work {
         }
         edges.sort_unstable();
         edges.dedup();
-        // Outside the sphere a node snaps onto it only within a quarter of `snap`: tissue
-        // beyond the radius leaves by no more than that (see [`OUTWARD_SNAP`]).
-        let outward = OUTWARD_SNAP * snap;
+        // Outside the sphere a node snaps onto it only within `OUTWARD_SNAP` of `snap` (not
+        // below the smallest snap): tissue beyond the radius leaves by no more than that.
+        let outward = (OUTWARD_SNAP * snap).max(super::MIN_SNAP);
         let mut on = vec![false; self.positions.len()];
         for (&v, &d) in &phi {
             let reach = if d > 0.0 { outward } else { snap };
@@ -407,7 +416,7 @@ impl Work {
             let Some(s) = crossing(self, &on, e) else {
                 continue;
             };
-            let (node, _) = self.split_around(e, s, ball, candidates, around);
+            let (node, _) = self.split_around(e, s, ball, candidates, state);
             on.resize(self.positions.len(), false);
             on[node as usize] = true;
         }
@@ -463,9 +472,9 @@ fn bad_edges(tets: &[[u32; 4]], gone: &[bool]) -> Vec<(u32, u32)> {
 }
 
 /// Removes too the pieces the removal cuts loose (joined through faces) that lie wholly
-/// within twice a ball's radius of its centre: crumbs of the crater's rim, not tissue
-/// a body goes on with.
-fn drop_crumbs(work: &Work, balls: &[Ball], gone: &mut [bool]) {
+/// within twice a ball's radius of its centre and touch the removed tetrahedra: crumbs of
+/// the crater's rim, not tissue a body goes on with. Returns whether it removed any.
+fn drop_crumbs(work: &Work, balls: &[Ball], gone: &mut [bool]) -> bool {
     let n = work.tets.len();
     let mut parent: Vec<usize> = (0..n).collect();
     fn root(p: &mut [usize], mut x: usize) -> usize {
@@ -489,8 +498,17 @@ fn drop_crumbs(work: &Work, balls: &[Ball], gone: &mut [bool]) {
             }
         }
     }
-    // Components that the carve made: those within reach of a ball.
-    let mut near: HashMap<usize, bool> = HashMap::new();
+    // Faces of removed tetrahedra: a piece with one of them as a face touches the crater.
+    let mut opened: std::collections::HashSet<[u32; 3]> = std::collections::HashSet::new();
+    for (t, tet) in work.tets.iter().enumerate() {
+        if gone[t] {
+            for o in 0..4 {
+                opened.insert(face_key(tet, o));
+            }
+        }
+    }
+    // Components the carve made: within reach of a ball, touching the crater.
+    let mut near: HashMap<usize, (bool, bool)> = HashMap::new();
     for (t, tet) in work.tets.iter().enumerate() {
         if gone[t] {
             continue;
@@ -501,17 +519,21 @@ fn drop_crumbs(work: &Work, balls: &[Ball], gone: &mut [bool]) {
                 .iter()
                 .any(|b| (work.positions[v as usize] - b.centre).norm() <= 2.0 * b.radius)
         });
-        let e = near.entry(r).or_insert(true);
-        *e &= within;
+        let touches = (0..4).any(|o| opened.contains(&face_key(tet, o)));
+        let e = near.entry(r).or_insert((true, false));
+        e.0 &= within;
+        e.1 |= touches;
     }
+    let crumb = |e: &(bool, bool)| e.0 && e.1;
     // Only where some piece goes on (a mesh wholly within reach is left to the removal's
     // own check).
-    if near.len() < 2 || near.values().all(|&n| n) {
-        return;
+    if near.len() < 2 || near.values().all(crumb) || !near.values().any(crumb) {
+        return false;
     }
     for t in 0..n {
-        if !gone[t] && near[&root(&mut parent, t)] {
+        if !gone[t] && crumb(&near[&root(&mut parent, t)]) {
             gone[t] = true;
         }
     }
+    true
 }

@@ -329,16 +329,7 @@ pub fn recut_within(
     work.separate(&faces, &chosen, centre);
     // Orientation against the parent, before the mesh's own checks (which would turn an
     // inverted tetrahedron over).
-    let mut smallest_volume_ratio = f64::INFINITY;
-    for (t, tet) in work.tets.iter().enumerate() {
-        let child = tet_signed_volume(&tet.map(|i| work.positions[i as usize]));
-        let parent = mesh.tets()[work.tet_origin[t] as usize].map(|i| mesh.positions()[i as usize]);
-        let ratio = child / tet_signed_volume(&parent);
-        if ratio.is_nan() || ratio <= 0.0 {
-            return Err(CutError::Inverted { tet: t, ratio });
-        }
-        smallest_volume_ratio = smallest_volume_ratio.min(ratio);
-    }
+    let smallest_volume_ratio = work.smallest_volume_ratio(mesh)?;
     let tets: Vec<[usize; 4]> = work.tets.iter().map(|t| t.map(|i| i as usize)).collect();
     let new_mesh = TetMesh::new(work.positions.clone(), tets)?;
     let cut_faces = work.cut_faces();
@@ -397,6 +388,24 @@ struct Work {
 }
 
 impl Work {
+    /// The smallest signed volume of a tetrahedron over its parent's in `before` (the mesh
+    /// the work started from), checked before the mesh's own checks (which would turn an
+    /// inverted tetrahedron over): one at or below zero is refused.
+    fn smallest_volume_ratio(&self, before: &TetMesh) -> Result<f64, CutError> {
+        let mut smallest = f64::INFINITY;
+        for (t, tet) in self.tets.iter().enumerate() {
+            let child = tet_signed_volume(&tet.map(|i| self.positions[i as usize]));
+            let parent =
+                before.tets()[self.tet_origin[t] as usize].map(|i| before.positions()[i as usize]);
+            let ratio = child / tet_signed_volume(&parent);
+            if ratio.is_nan() || ratio <= 0.0 {
+                return Err(CutError::Inverted { tet: t, ratio });
+            }
+            smallest = smallest.min(ratio);
+        }
+        Ok(smallest)
+    }
+
     /// `mesh` as it is, with what `history` remembers of its cuts (ignored where its sizes
     /// do not fit), to be cut by incision `incision` (0: none).
     fn new(mesh: &TetMesh, history: Option<&CutHistory>, incision: u64) -> Work {
