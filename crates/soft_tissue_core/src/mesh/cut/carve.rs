@@ -47,8 +47,9 @@ pub struct Ball {
 pub const CARVE_SPACING: f64 = 0.75;
 
 /// A node outside the sphere counts as on it only within this fraction of the cut's snap
-/// of its shortest edge (inside, within the whole snap): a carve removes nothing farther from
-/// the centre than `radius * (1 + OUTWARD_SNAP * snap * CARVE_SPACING)`, at the price of
+/// (but not below [`super::MIN_SNAP`]) of its shortest edge (inside, within the whole snap):
+/// a carve removes nothing farther from the centre than
+/// `radius * (1 + max(OUTWARD_SNAP * snap, MIN_SNAP) * CARVE_SPACING)`, at the price of
 /// children as thin as that fraction of an edge just outside the crater.
 pub const OUTWARD_SNAP: f64 = 0.5;
 
@@ -90,9 +91,9 @@ pub fn carve(
             reason: "its radius is below 1e-6 of the mesh's size",
         });
     }
-    let mut work = Work::new(mesh, history, 0);
     let history = history
         .filter(|h| h.sides.len() == mesh.tet_count() && h.on_blade.len() == mesh.node_count());
+    let mut work = Work::new(mesh, history, 0);
     let start = work.tets.len();
     // The tetrahedra at each node, kept through every split (so a split finds every
     // tetrahedron around its edge, wherever it lies), and which leave.
