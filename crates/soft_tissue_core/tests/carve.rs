@@ -10,7 +10,9 @@ use std::path::Path;
 
 use soft_tissue_core::Vec3;
 use soft_tissue_core::mesh::TetMesh;
-use soft_tissue_core::mesh::cut::{Ball, CARVE_SPACING, CutMesh, OUTWARD_SNAP, RemoveError, carve};
+use soft_tissue_core::mesh::cut::{
+    Ball, CARVE_SPACING, CutMesh, OUTWARD_SNAP, RemoveError, carve, check,
+};
 use soft_tissue_core::mesh::generate::block;
 use soft_tissue_core::scenario::Scene;
 use soft_tissue_core::world::SoftTissueWorld;
@@ -33,29 +35,17 @@ fn inside(mesh: &TetMesh, p: &Vec3) -> bool {
 }
 
 /// Every element positive and every boundary edge in exactly two boundary triangles.
-fn assert_valid(mesh: &TetMesh) {
+fn assert_valid(before: &TetMesh, cut: &CutMesh) {
     assert!(
-        mesh.tet_volumes().iter().all(|&v| v > 0.0),
+        cut.mesh.tet_volumes().iter().all(|&v| v > 0.0),
         "an element is not positive"
     );
-    let tris = mesh.surface().triangles().len();
-    let mut edges: Vec<(u32, u32)> = mesh
-        .surface()
-        .triangles()
-        .iter()
-        .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
-        .map(|(a, b)| (a.min(b), a.max(b)))
-        .collect();
-    edges.sort_unstable();
-    let bad: Vec<_> = edges
-        .chunk_by(|a, b| a == b)
-        .filter(|r| r.len() != 2)
-        .map(|r| (r[0], r.len()))
-        .collect();
-    assert!(
-        bad.is_empty(),
-        "the boundary ({tris} triangles) is not closed and 2-manifold at {bad:?}"
+    let c = check(before, cut);
+    assert_eq!(
+        c.non_manifold_edges, 0,
+        "the boundary is not closed and 2-manifold: {c:?}"
     );
+    assert_eq!(c.orphan_nodes, 0, "{c:?}");
 }
 
 /// Every node's origin, interpolated on the mesh before, gives its position.
@@ -85,14 +75,11 @@ fn grid(mesh: &TetMesh, h: f64) -> Vec<Vec3> {
     out
 }
 
-/// Smallest dihedral angle of `mesh`'s elements, degrees.
+/// Smallest dihedral angle of `mesh`'s elements, degrees (the cut's own measure, of the
+/// mesh as it is: a carve of nothing).
 fn smallest_angle(mesh: &TetMesh) -> f64 {
-    mesh.tets()
-        .iter()
-        .flat_map(|t| {
-            soft_tissue_core::mesh::tet_dihedral_angles(&t.map(|i| mesh.positions()[i as usize]))
-        })
-        .fold(f64::INFINITY, f64::min)
+    let same = carve(mesh, None, &[], SNAP).unwrap();
+    check(mesh, &same).smallest_dihedral
 }
 
 /// Carves `ball` out of `mesh` and checks it against the ball: returns the removed volume.
@@ -113,7 +100,7 @@ fn carve_and_check(mesh: &TetMesh, ball: Ball, probe: f64) -> (f64, CutMesh) {
         after >= before.min(2.0),
         "smallest dihedral angle {after} deg"
     );
-    assert_valid(&cut.mesh);
+    assert_valid(mesh, &cut);
     assert_origins(mesh, &cut);
     let removed = mesh.volume() - cut.mesh.volume();
     // Probes near the ball: outside the radius (but for what snapping may take, a few %)
@@ -275,7 +262,7 @@ fn overlapping_balls_leave_their_union() {
         radius: r,
     };
     let cut = carve(&mesh, None, &[a, b], SNAP).unwrap();
-    assert_valid(&cut.mesh);
+    assert_valid(&mesh, &cut);
     assert_origins(&mesh, &cut);
     let reach = 1.0 + OUTWARD_SNAP * SNAP * CARVE_SPACING;
     let (mut stayed, mut gone) = (0, 0);

@@ -432,7 +432,7 @@ fn keep_manifold(tets: &[[u32; 4]], gone: &mut [bool], closed_before: bool) {
         return;
     }
     for _ in 0..16 {
-        let bad = bad_edges(tets, gone);
+        let bad = super::check::bad_edges(tets, gone);
         if bad.is_empty() {
             return;
         }
@@ -446,30 +446,6 @@ fn keep_manifold(tets: &[[u32; 4]], gone: &mut [bool], closed_before: bool) {
             }
         }
     }
-}
-
-/// Edges of the boundary of the tetrahedra not `gone` that lie in other than two of its
-/// triangles, sorted.
-fn bad_edges(tets: &[[u32; 4]], gone: &[bool]) -> Vec<(u32, u32)> {
-    let mut faces: HashMap<[u32; 3], u32> = HashMap::new();
-    for (t, tet) in tets.iter().enumerate() {
-        if !gone[t] {
-            for o in 0..4 {
-                *faces.entry(face_key(tet, o)).or_insert(0) += 1;
-            }
-        }
-    }
-    let mut edges: Vec<(u32, u32)> = faces
-        .iter()
-        .filter(|&(_, &n)| n == 1)
-        .flat_map(|(f, _)| [(f[0], f[1]), (f[1], f[2]), (f[0], f[2])])
-        .collect();
-    edges.sort_unstable();
-    edges
-        .chunk_by(|a, b| a == b)
-        .filter(|run| run.len() != 2)
-        .map(|run| run[0])
-        .collect()
 }
 
 /// Removes too the pieces the removal cuts loose (joined through faces) that lie wholly

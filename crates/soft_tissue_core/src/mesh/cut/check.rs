@@ -43,26 +43,37 @@ pub fn check(before: &TetMesh, after: &CutMesh) -> CutCheck {
             used[v as usize] = true;
         }
     }
-    let mut faces: HashMap<[u32; 3], u32> = HashMap::new();
-    for tet in m.tets() {
-        for o in 0..4 {
-            *faces.entry(face_key(tet, o)).or_default() += 1;
-        }
-    }
-    let mut edges: HashMap<(u32, u32), u32> = HashMap::new();
-    for (f, n) in &faces {
-        if *n == 1 {
-            for (a, b) in [(f[0], f[1]), (f[1], f[2]), (f[0], f[2])] {
-                *edges.entry((a, b)).or_default() += 1;
-            }
-        }
-    }
+    let non_manifold_edges = bad_edges(m.tets(), &vec![false; m.tet_count()]).len();
     CutCheck {
         volume_change: (m.volume() - before.volume()) / before.volume(),
         smallest_volume_ratio,
         smallest_dihedral,
-        non_manifold_edges: edges.values().filter(|&&n| n != 2).count(),
+        non_manifold_edges,
         orphan_nodes: used.iter().filter(|u| !**u).count(),
         pieces: m.component_count(),
     }
+}
+
+/// Edges of the boundary of the tetrahedra not `gone` that lie in other than two of its
+/// triangles, sorted.
+pub(super) fn bad_edges(tets: &[[u32; 4]], gone: &[bool]) -> Vec<(u32, u32)> {
+    let mut faces: HashMap<[u32; 3], u32> = HashMap::new();
+    for (t, tet) in tets.iter().enumerate() {
+        if !gone[t] {
+            for o in 0..4 {
+                *faces.entry(face_key(tet, o)).or_insert(0) += 1;
+            }
+        }
+    }
+    let mut edges: Vec<(u32, u32)> = faces
+        .iter()
+        .filter(|&(_, &n)| n == 1)
+        .flat_map(|(f, _)| [(f[0], f[1]), (f[1], f[2]), (f[0], f[2])])
+        .collect();
+    edges.sort_unstable();
+    edges
+        .chunk_by(|a, b| a == b)
+        .filter(|run| run.len() != 2)
+        .map(|run| run[0])
+        .collect()
 }
