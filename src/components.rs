@@ -3,7 +3,7 @@
 //! what the body uses: [`FemState`] for a FEM body, [`MsdState`] for an MSD body,
 //! [`Temperature`] when the body has heat parameters.
 //!
-//! The physics state of a body is one core [`SimBody`] in [`SimulatedBody`]; the stage
+//! The physics state of a body is one core [`WorldBody`] in [`SoftBodyState`]; the stage
 //! systems hand those to the core's stage functions. The other components are what the
 //! Writeback stage reads out of it for games, the inspector and the renderer.
 
@@ -18,8 +18,8 @@ use soft_tissue_core::material::{FemParams, MsdParams};
 use soft_tissue_core::msd::SpringStiffness;
 use soft_tissue_core::precision::{BodySettings, PrecisionPolicy};
 use soft_tissue_core::scenario::{Anchor, CageKind, ORGAN_FEM};
-use soft_tissue_core::state::NodalBody;
-use soft_tissue_core::world::SimBody;
+use soft_tissue_core::state::NodalModel;
+use soft_tissue_core::world::WorldBody;
 
 use crate::assets::TetMeshAsset;
 
@@ -58,7 +58,7 @@ impl SoftBody {
             mesh,
             method: PreciseMethod::CorotationalFem,
             cage: CageKind::BoundingBox,
-            anchor: Anchor::None,
+            anchor: Anchor::Free,
         }
     }
 
@@ -182,7 +182,7 @@ pub struct SoftBodyTuning {
 
 impl Default for SoftBodyTuning {
     fn default() -> Self {
-        let s = BodySettings::new(ORGAN_FEM.params, ORGAN_FEM_MSD, 0.01);
+        let s = BodySettings::new(ORGAN_FEM.params, PLACEHOLDER_MSD, 0.01);
         SoftBodyTuning {
             fem_integrator: s.fem_integrator,
             cage_dynamics: s.cage_dynamics,
@@ -193,7 +193,7 @@ impl Default for SoftBodyTuning {
 }
 
 /// Placeholder MSD parameters for settings built only to read their defaults.
-const ORGAN_FEM_MSD: MsdParams = MsdParams {
+const PLACEHOLDER_MSD: MsdParams = MsdParams {
     stiffness: 1.0,
     mass: 1.0,
     damping: 0.0,
@@ -407,7 +407,7 @@ impl VisualMeshError {
 #[reflect(Component)]
 pub struct ShadowSimulation;
 
-/// Energies of a body, computed when asked for ([`SimulatedBody::energies`]).
+/// Energies of a body, computed when asked for ([`SoftBodyState::energies`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Energies {
     /// Kinetic energy (scene units).
@@ -418,8 +418,8 @@ pub struct Energies {
 
 /// The physics state of a built body: the core body the stage functions step.
 #[derive(Component)]
-pub struct SimulatedBody {
-    pub(crate) body: SimBody,
+pub struct SoftBodyState {
+    pub(crate) body: WorldBody,
     /// Build order: bodies are handed to the stage functions in this order every step.
     pub(crate) order: u64,
     /// The surface changed since the rendered mesh was last written.
@@ -435,15 +435,15 @@ pub struct SimulatedBody {
     pub(crate) shape: u64,
 }
 
-impl SimulatedBody {
+impl SoftBodyState {
     /// The core body.
-    pub fn body(&self) -> &SimBody {
+    pub fn body(&self) -> &WorldBody {
         &self.body
     }
 
     /// The core body, to act on it where no component does (external loads, for example
-    /// `body_mut().body_mut().add_force(..)`, which lasts one step).
-    pub fn body_mut(&mut self) -> &mut SimBody {
+    /// `body_mut().model_mut().add_force(..)`, which lasts one step).
+    pub fn body_mut(&mut self) -> &mut WorldBody {
         self.dirty = true;
         &mut self.body
     }
@@ -459,7 +459,7 @@ impl SimulatedBody {
     /// model plus its anchors), at the cage level the cage's own (its vertices' kinetic
     /// energy and its springs').
     pub fn energies(&self) -> Energies {
-        let b = self.body.body();
+        let b = self.body.model();
         match b.level() {
             Level::Precise => {
                 let elastic = match (b.fem(), b.msd()) {
@@ -485,7 +485,7 @@ impl SimulatedBody {
 
 /// A piece that came loose from a cut body: an entity of its own, with the cut body's
 /// components (material, heat, tuning, render material...) cloned, its own [`SoftBody`]
-/// mesh (the piece's), and [`SimulatedBody`] in the state it was cut in. A
+/// mesh (the piece's), and [`SoftBodyState`] in the state it was cut in. A
 /// [`ResetSimulation`](crate::physics::ResetSimulation) despawns it.
 #[derive(Component, Reflect, Clone, Copy, Debug, PartialEq, Eq)]
 #[reflect(Component)]
@@ -519,7 +519,7 @@ impl CutShare {
 /// [`ResetSimulation`](crate::physics::ResetSimulation) puts it back.
 #[derive(Component)]
 pub struct UncutBody {
-    pub(crate) body: Option<Box<soft_tissue_core::world::SimBody>>,
+    pub(crate) body: Option<Box<soft_tissue_core::world::WorldBody>>,
     pub(crate) mesh: Handle<crate::assets::TetMeshAsset>,
     pub(crate) built_from: crate::physics::BuiltFrom,
 }

@@ -3,7 +3,7 @@
 
 use bevy::prelude::*;
 
-use crate::components::{GreenCage, SimulatedBody, SoftTool, ToolReaction};
+use crate::components::{GreenCage, SoftBodyState, SoftTool, ToolReaction};
 use crate::convert::to_bevy;
 use crate::physics::SoftTissueContacts;
 
@@ -178,7 +178,7 @@ fn draw_tools(
 fn draw_contacts(
     settings: Res<SoftTissueDebugSettings>,
     contacts: Res<SoftTissueContacts>,
-    bodies: Query<&SimulatedBody>,
+    bodies: Query<&SoftBodyState>,
     mut gizmos: Gizmos<SoftTissueContactGizmos>,
 ) {
     if !settings.contacts {

@@ -21,7 +21,7 @@ use soft_tissue_core::heat::HeatSample;
 use soft_tissue_core::mesh::embed::Embedding;
 use soft_tissue_core::mesh::subdivide::loop_subdivide;
 
-use crate::components::{SimulatedBody, Temperature, VisualMesh, VisualMeshError};
+use crate::components::{SoftBodyState, Temperature, VisualMesh, VisualMeshError};
 
 /// Creates and updates the bodies' render meshes.
 #[derive(Default)]
@@ -157,7 +157,7 @@ fn mesh_triangles(mesh: &Mesh) -> Result<Vec<[u32; 3]>, String> {
 /// is still loading.
 fn visual_mesh(
     visual: &VisualMesh,
-    sim: &SimulatedBody,
+    sim: &SoftBodyState,
     meshes: &Assets<Mesh>,
     entity: Entity,
     name: &str,
@@ -221,7 +221,7 @@ fn visual_mesh(
     let n = embedding.len();
     let mut scratch = vec![[0.0; 3]; n];
     embedding
-        .apply(body.body().node_positions(), &mut scratch)
+        .apply(body.model().node_positions(), &mut scratch)
         .map_err(|e| embed(e.to_string()))?;
     to_local(sim, &mut scratch);
     let mut normal = Vec::new();
@@ -242,7 +242,7 @@ fn visual_mesh(
 
 /// Maps world positions into the body entity's own frame (the rendered mesh is drawn with
 /// the entity's transform).
-fn to_local(sim: &SimulatedBody, positions: &mut [[f32; 3]]) {
+fn to_local(sim: &SoftBodyState, positions: &mut [[f32; 3]]) {
     if let Some(m) = sim.to_local {
         for p in positions {
             *p = m.transform_point3(Vec3::from_array(*p)).to_array();
@@ -278,7 +278,7 @@ impl RenderedSurface {
 }
 
 /// The rendered surface of `sim` (see [`RenderedSurface`]).
-fn rendered_surface(sim: &SimulatedBody) -> RenderedSurface {
+fn rendered_surface(sim: &SoftBodyState) -> RenderedSurface {
     let b = sim.body();
     let Some(cut) = b.cut_record().filter(|c| !c.surface_faces.is_empty()) else {
         return RenderedSurface {
@@ -310,7 +310,7 @@ fn rendered_surface(sim: &SimulatedBody) -> RenderedSurface {
 }
 
 /// The rendered positions of `sim` into `out` (through `r`'s sources).
-fn rendered_positions(sim: &SimulatedBody, r: &RenderedSurface, out: &mut Vec<[f32; 3]>) {
+fn rendered_positions(sim: &SoftBodyState, r: &RenderedSurface, out: &mut Vec<[f32; 3]>) {
     let surface = sim.body().surface_positions();
     out.clear();
     if r.sources.is_empty() {
@@ -322,7 +322,7 @@ fn rendered_positions(sim: &SimulatedBody, r: &RenderedSurface, out: &mut Vec<[f
 }
 
 /// The simulation surface as a render mesh, and how it was made.
-fn surface_mesh(sim: &SimulatedBody) -> (Mesh, RenderedSurface) {
+fn surface_mesh(sim: &SoftBodyState) -> (Mesh, RenderedSurface) {
     let b = sim.body();
     let r = rendered_surface(sim);
     let mut positions = Vec::new();
@@ -364,7 +364,7 @@ fn create_meshes(
     new: Query<
         (
             Entity,
-            &SimulatedBody,
+            &SoftBodyState,
             Option<&VisualMesh>,
             Option<&Name>,
             Has<VisualMeshError>,
@@ -416,7 +416,7 @@ fn upload_meshes(
     mut bodies: Query<
         (
             Entity,
-            &mut SimulatedBody,
+            &mut SoftBodyState,
             &Mesh3d,
             &mut RenderedSurface,
             Option<&Temperature>,
@@ -499,7 +499,7 @@ fn upload_meshes(
             positions.resize(n, [0.0; 3]);
             // Sizes match by construction (the embedding was built from this body's mesh).
             if v.embedding
-                .apply(b.body().node_positions(), positions)
+                .apply(b.model().node_positions(), positions)
                 .is_err()
             {
                 continue;

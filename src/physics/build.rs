@@ -162,7 +162,7 @@ pub(super) fn build_bodies(
             Option<&PinnedLevel>,
             Option<&CutShare>,
         ),
-        (Without<SimulatedBody>, Without<SoftBodyError>),
+        (Without<SoftBodyState>, Without<SoftBodyError>),
     >,
     poses: TransformHelper,
     mut next: ResMut<NextBodyOrder>,
@@ -182,7 +182,7 @@ pub(super) fn build_bodies(
         // Built once per body, not per step: the error's size (the core's error beside the
         // entity and name) costs nothing here.
         #[allow(clippy::result_large_err)]
-        let result = (|| -> Result<SimBody, SoftBodyError> {
+        let result = (|| -> Result<WorldBody, SoftBodyError> {
             let settings_err = |message| SoftBodyError::Settings {
                 body: entity,
                 name: name.clone(),
@@ -202,14 +202,14 @@ pub(super) fn build_bodies(
             let settings = body_settings(spec, material, tuning, &mesh, dt, config.gravity)
                 .map_err(settings_err)?;
             let heat = heat.map(|h| (h.0, HeatBoundary::insulated()));
-            let mut body = SimBody::new(name.clone(), mesh, settings, heat).map_err(build_err)?;
+            let mut body = WorldBody::new(name.clone(), mesh, settings, heat).map_err(build_err)?;
             body.set_friction(material.friction)
                 .map_err(|e| settings_err(format!("friction: {e}")))?;
             if shadow {
                 body.set_shadow(true).map_err(build_err)?;
             }
             if let Some(p) = pin {
-                body.body_mut()
+                body.model_mut()
                     .pin(Some(p.0))
                     .map_err(|e| settings_err(format!("pinning: {e}")))?;
             }
@@ -217,11 +217,11 @@ pub(super) fn build_bodies(
         })();
         match result {
             Ok(body) => {
-                let method = body.body().settings().precise;
+                let method = body.model().settings().precise;
                 let mut e = commands.entity(entity);
                 e.insert((
                     PrecisionLevel {
-                        level: body.body().level(),
+                        level: body.model().level(),
                         method,
                         switches: 0,
                         last_jump_ratio: None,
@@ -241,7 +241,7 @@ pub(super) fn build_bodies(
                 }
                 let to_local = (placement.affine() != bevy::math::Affine3A::IDENTITY)
                     .then(|| placement.affine().inverse());
-                e.insert(SimulatedBody {
+                e.insert(SoftBodyState {
                     body,
                     order: next.0,
                     dirty: true,

@@ -1,5 +1,5 @@
 //! The cut stage: every blade with cutting on cuts the bodies its incision crosses (the
-//! core's [`SimBody::begin_cut`] and [`SimBody::finish_cut`], in the step or on a thread of
+//! core's [`WorldBody::begin_cut`] and [`WorldBody::finish_cut`], in the step or on a thread of
 //! its own, landing `CutOptions::background_steps` steps later); the pieces that come
 //! loose become entities of their own.
 //! It runs in [`SoftTissueSystems::Prepare`] before the prepare stage, so the pieces'
@@ -29,7 +29,7 @@ fn local_mesh(mesh: &Arc<TetMesh>, placement: &GlobalTransform) -> Arc<TetMesh> 
 type BodyItem<'a> = (
     Entity,
     Mut<'a, SoftBody>,
-    Mut<'a, SimulatedBody>,
+    Mut<'a, SoftBodyState>,
     bool,
     bool,
     Option<&'a CutShare>,
@@ -42,7 +42,7 @@ type BodyItem<'a> = (
 type Made = (
     Entity,
     f64,
-    SimBody,
+    WorldBody,
     SoftBody,
     BuiltFrom,
     GlobalTransform,
@@ -56,7 +56,7 @@ pub(super) fn cut_stage(
     mut bodies: Query<(
         Entity,
         &mut SoftBody,
-        &mut SimulatedBody,
+        &mut SoftBodyState,
         Has<UncutBody>,
         Has<CutPiece>,
         Option<&CutShare>,
@@ -272,7 +272,7 @@ pub(super) fn cut_stage(
         e.insert((
             spec,
             CutShare(share),
-            SimulatedBody {
+            SoftBodyState {
                 body,
                 order,
                 dirty: true,
@@ -390,8 +390,8 @@ fn landed(
         let mut piece_spec = (**spec).clone();
         piece_spec.mesh = handle.clone();
         // A piece holding none of the body's support is free.
-        if piece.body().is_free() {
-            piece_spec.anchor = Anchor::None;
+        if piece.model().is_free() {
+            piece_spec.anchor = Anchor::Free;
         }
         let mut built_from = sim.built_from;
         built_from.mesh = handle.id();
@@ -408,7 +408,7 @@ fn landed(
         ));
     }
     // Grips on the body follow its nodes, into the pieces too.
-    let lookup: Vec<&SimBody> = list
+    let lookup: Vec<&WorldBody> = list
         .iter()
         .map(|(_, _, b, _, _, _)| &b.body)
         .chain(made.iter().map(|m| &m.2))

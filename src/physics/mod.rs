@@ -15,7 +15,7 @@ use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::precision::{BodySettings, Level};
 use soft_tissue_core::timing::StageRecorder;
 use soft_tissue_core::world::{
-    ContactState, SimBody, StageTimes, WorldError, detect_contacts, prepare, solve_contacts,
+    ContactState, StageTimes, WorldBody, WorldError, detect_contacts, prepare, solve_contacts,
     step_solvers, switch_precision,
 };
 

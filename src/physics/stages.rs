@@ -12,7 +12,7 @@ pub(super) fn reset_simulation(
     mut requests: MessageReader<ResetSimulation>,
     mut bodies: Query<(
         Entity,
-        &mut SimulatedBody,
+        &mut SoftBodyState,
         Option<&mut SoftBody>,
         Option<&mut UncutBody>,
         Has<CutPiece>,
@@ -88,7 +88,7 @@ pub(super) fn prepare_stage(
             Has<ShadowSimulation>,
             Option<&CutShare>,
         ),
-        &mut SimulatedBody,
+        &mut SoftBodyState,
     )>,
     mut tools: Query<(Entity, &SoftTool, &mut ToolState)>,
     poses: TransformHelper,
@@ -110,15 +110,15 @@ pub(super) fn prepare_stage(
             .is_ok_and(|g| !same_placement(&g, &sim.placement));
         if now != sim.built_from || moved {
             // Built again at the next step, at rest, from the inputs then.
-            commands.entity(entity).remove::<SimulatedBody>();
+            commands.entity(entity).remove::<SoftBodyState>();
             rebuilt.push(entity);
             continue;
         }
         let b = &mut sim.body;
-        if spec.method != b.body().settings().precise {
+        if spec.method != b.model().settings().precise {
             let mesh = b.mesh().clone();
-            let was_fem = b.body().settings().precise.is_fem();
-            match b.body_mut().set_precise_method(&mesh, spec.method) {
+            let was_fem = b.model().settings().precise.is_fem();
+            match b.model_mut().set_precise_method(&mesh, spec.method) {
                 // The state component follows the solver's kind.
                 Ok(()) if was_fem != spec.method.is_fem() => {
                     let mut e = commands.entity(entity);
@@ -194,15 +194,15 @@ pub(super) fn prepare_stage(
         }
         let b = &mut sim.body;
         let pinned: Option<Level> = pin.map(|p| p.0);
-        if b.body().pinned() != pinned
-            && let Err(e) = b.body_mut().pin(pinned)
+        if b.model().pinned() != pinned
+            && let Err(e) = b.model_mut().pin(pinned)
         {
             fail(
                 &mut status,
                 stage_error(SoftTissueStage::Prepare, "pinning", Some(entity), e),
             );
         }
-        if b.body().has_shadow() != shadow
+        if b.model().has_shadow() != shadow
             && let Err(e) = b.set_shadow(shadow)
         {
             fail(
@@ -325,12 +325,12 @@ pub(super) fn prepare_stage(
 /// functions take them (slices of `&mut`, so indices in the contact state stay valid).
 /// With `entities`, writes the bodies' and tools' entities in that order.
 fn in_order<'a, R>(
-    bodies: impl Iterator<Item = (Entity, Mut<'a, SimulatedBody>)>,
+    bodies: impl Iterator<Item = (Entity, Mut<'a, SoftBodyState>)>,
     tools: impl Iterator<Item = (Entity, Mut<'a, ToolState>)>,
     entities: Option<(&mut Vec<Entity>, &mut Vec<Entity>)>,
-    f: impl FnOnce(&mut [&mut SimBody], &mut [&mut Tool]) -> R,
+    f: impl FnOnce(&mut [&mut WorldBody], &mut [&mut Tool]) -> R,
 ) -> R {
-    let mut b: SmallVec<[(Entity, &mut SimulatedBody); 16]> =
+    let mut b: SmallVec<[(Entity, &mut SoftBodyState); 16]> =
         bodies.map(|(e, b)| (e, b.into_inner())).collect();
     b.sort_unstable_by_key(|(_, b)| b.order);
     let mut t: SmallVec<[(Entity, &mut ToolState); 4]> =
@@ -342,7 +342,7 @@ fn in_order<'a, R>(
         te.clear();
         te.extend(t.iter().map(|(e, _)| *e));
     }
-    let mut b: SmallVec<[&mut SimBody; 16]> = b.into_iter().map(|(_, b)| &mut b.body).collect();
+    let mut b: SmallVec<[&mut WorldBody; 16]> = b.into_iter().map(|(_, b)| &mut b.body).collect();
     let mut t: SmallVec<[&mut Tool; 4]> = t.into_iter().map(|(_, t)| &mut t.tool).collect();
     f(&mut b, &mut t)
 }
@@ -361,7 +361,7 @@ fn report<'a>(
     stage: SoftTissueStage,
     what: &'static str,
     r: Result<(), WorldError>,
-    mut bodies: impl Iterator<Item = (Entity, &'a SimulatedBody)>,
+    mut bodies: impl Iterator<Item = (Entity, &'a SoftBodyState)>,
 ) {
     if let Err(e) = r {
         let body = e
@@ -372,7 +372,7 @@ fn report<'a>(
 }
 
 pub(super) fn detect_stage(
-    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut bodies: Query<(Entity, &mut SoftBodyState)>,
     mut tools: Query<(Entity, &mut ToolState)>,
     config: Res<SoftTissueConfig>,
     mut contacts: ResMut<SoftTissueContacts>,
@@ -386,7 +386,7 @@ pub(super) fn detect_stage(
 }
 
 pub(super) fn switch_stage(
-    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut bodies: Query<(Entity, &mut SoftBodyState)>,
     mut tools: Query<(Entity, &mut ToolState)>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
@@ -405,7 +405,7 @@ pub(super) fn switch_stage(
 }
 
 pub(super) fn solve_stage(
-    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut bodies: Query<(Entity, &mut SoftBodyState)>,
     mut tools: Query<(Entity, &mut ToolState)>,
     contacts: Res<SoftTissueContacts>,
     config: Res<SoftTissueConfig>,
@@ -433,7 +433,7 @@ pub(super) fn solve_stage(
     // With every body asleep there is nothing to share out: handing the stage to the pool
     // would cost more than the step (about 45 us a step on a 2-core VM for the organs at
     // rest). The result does not depend on where it runs.
-    let awake = bodies.iter().any(|(_, b)| !b.body.body().is_asleep());
+    let awake = bodies.iter().any(|(_, b)| !b.body.model().is_asleep());
     let r = in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, tl| {
         if awake {
             threads.run(|| step_solvers(b, tl, &contacts.state))
@@ -452,7 +452,7 @@ pub(super) fn solve_stage(
 }
 
 pub(super) fn contact_stage(
-    mut bodies: Query<(Entity, &mut SimulatedBody)>,
+    mut bodies: Query<(Entity, &mut SoftBodyState)>,
     mut tools: Query<(Entity, &mut ToolState)>,
     obstacles: Res<SoftTissueObstacles>,
     config: Res<SoftTissueConfig>,
@@ -486,7 +486,7 @@ pub(super) fn contact_stage(
 pub(super) fn writeback_stage(
     mut bodies: Query<(
         Entity,
-        &mut SimulatedBody,
+        &mut SoftBodyState,
         &mut PrecisionLevel,
         &mut GreenCage,
         &mut SoftBodyDiagnostics,
@@ -513,7 +513,7 @@ pub(super) fn writeback_stage(
         }
         let b = &sim.body;
         let d = *b.diagnostics();
-        let lb = b.body();
+        let lb = b.model();
         let new_level = PrecisionLevel {
             level: d.level,
             method: lb.settings().precise,

@@ -130,7 +130,7 @@ fn a_body_without_a_name_is_called_by_its_mesh_file() {
         app.update();
         if [unnamed, named, in_code]
             .iter()
-            .all(|&e| app.world().get::<SimulatedBody>(e).is_some())
+            .all(|&e| app.world().get::<SoftBodyState>(e).is_some())
         {
             break;
         }
@@ -139,7 +139,7 @@ fn a_body_without_a_name_is_called_by_its_mesh_file() {
     let world = app.world();
     let sim_name = |e: Entity| {
         world
-            .get::<SimulatedBody>(e)
+            .get::<SoftBodyState>(e)
             .unwrap()
             .body()
             .name()
@@ -210,12 +210,12 @@ fn surface_becomes_a_cached_body(file: &str, tag: &str) {
             .id();
         for _ in 0..3000 {
             app.update();
-            if app.world().get::<SimulatedBody>(body).is_some() {
+            if app.world().get::<SoftBodyState>(body).is_some() {
                 break;
             }
             std::thread::sleep(Duration::from_millis(2));
         }
-        let sim = app.world().get::<SimulatedBody>(body).expect("built");
+        let sim = app.world().get::<SoftBodyState>(body).expect("built");
         counts.push((
             sim.body().mesh().node_count(),
             sim.body().mesh().tet_count(),

@@ -50,7 +50,7 @@ fn a_body_comes_to_rest_on_an_obstacle_entity() {
         Level::Cage,
         "at rest on the table: its cage"
     );
-    let sim = app.world().get::<SimulatedBody>(body).unwrap();
+    let sim = app.world().get::<SoftBodyState>(body).unwrap();
     let lowest = sim
         .body()
         .surface_positions()

@@ -83,7 +83,7 @@ fn a_blade_cuts_a_body_in_two_like_the_core_world_and_a_reset_makes_it_whole() {
         entities.extend(piece);
         assert_eq!(world.bodies().len(), entities.len(), "step {k}");
         for (e, b) in entities.iter().zip(world.bodies()) {
-            let plugin = app.world().get::<SimulatedBody>(*e).unwrap().body();
+            let plugin = app.world().get::<SoftBodyState>(*e).unwrap().body();
             assert_eq!(plugin.name(), b.name());
             assert_eq!(
                 plugin.surface_positions(),
@@ -114,7 +114,7 @@ fn a_blade_cuts_a_body_in_two_like_the_core_world_and_a_reset_makes_it_whole() {
     app.world_mut().write_message(ResetSimulation);
     app.update();
     assert!(app.world().get_entity(piece).is_err(), "the piece is gone");
-    let sim = app.world().get::<SimulatedBody>(a).unwrap();
+    let sim = app.world().get::<SoftBodyState>(a).unwrap();
     assert_eq!(sim.body().mesh().node_count(), nodes);
     assert!(sim.body().cut_record().is_none());
 }

@@ -26,7 +26,7 @@ fn bodies_get_only_the_components_they_use() {
     app.update();
     let w = app.world();
     for e in [fem, msd, hot] {
-        assert!(w.get::<SimulatedBody>(e).is_some());
+        assert!(w.get::<SoftBodyState>(e).is_some());
         assert!(w.get::<PrecisionLevel>(e).is_some());
         assert!(w.get::<GreenCage>(e).is_some());
         assert!(w.get::<Mesh3d>(e).is_some(), "the render mesh is created");
@@ -44,7 +44,7 @@ fn bodies_get_only_the_components_they_use() {
         *w.get::<Transform>(msd).unwrap(),
         Transform::from_xyz(3.0, 0.0, 0.0)
     );
-    let sim = w.get::<SimulatedBody>(msd).unwrap().body();
+    let sim = w.get::<SoftBodyState>(msd).unwrap().body();
     let cx = sim.mesh().bbox().min.x + 0.5 * sim.mesh().bbox().extent().x;
     assert!((cx - 3.0).abs() < 0.1, "centre x {cx}");
     let drawn = w.get::<Mesh3d>(msd).unwrap().0.clone();
@@ -59,13 +59,13 @@ fn bodies_get_only_the_components_they_use() {
     // A body with a setting out of range is refused, naming it.
     let err = w.get::<SoftBodyError>(bad).expect("refused");
     assert!(err.to_string().contains("fraction"), "{err}");
-    assert!(w.get::<SimulatedBody>(bad).is_none());
+    assert!(w.get::<SoftBodyState>(bad).is_none());
 }
 
 /// The mesh of the body `e` in world coordinates now (its simulated nodes).
 fn nodes(app: &App, e: Entity) -> Vec<bevy_soft_tissue::core::Vec3> {
-    let sim = app.world().get::<SimulatedBody>(e).unwrap().body();
-    sim.body().node_positions().to_vec()
+    let sim = app.world().get::<SoftBodyState>(e).unwrap().body();
+    sim.model().node_positions().to_vec()
 }
 
 fn centre(p: &[bevy_soft_tissue::core::Vec3]) -> Vec3 {
@@ -85,7 +85,7 @@ fn spawn_liver(app: &mut App, extra: impl Bundle) -> Entity {
     let e = app.world_mut().spawn((SoftBody::new(mesh), extra)).id();
     for _ in 0..2000 {
         app.update();
-        if app.world().get::<SimulatedBody>(e).is_some() {
+        if app.world().get::<SoftBodyState>(e).is_some() {
             return e;
         }
         std::thread::sleep(Duration::from_millis(2));
@@ -95,7 +95,7 @@ fn spawn_liver(app: &mut App, extra: impl Bundle) -> Entity {
 
 /// Whether `e` has a `Temperature` and its core body a heat field.
 fn heated(app: &App, e: Entity) -> (bool, bool) {
-    let sim = app.world().get::<SimulatedBody>(e).unwrap();
+    let sim = app.world().get::<SoftBodyState>(e).unwrap();
     (
         app.world().get::<Temperature>(e).is_some(),
         sim.body().heat().is_some(),
@@ -119,10 +119,10 @@ fn a_body_with_defaults_spawns_through_the_asset_server_and_each_input_takes_eff
     );
     let settings = |app: &App, e| {
         app.world()
-            .get::<SimulatedBody>(e)
+            .get::<SoftBodyState>(e)
             .unwrap()
             .body()
-            .body()
+            .model()
             .settings()
             .clone()
     };
@@ -155,12 +155,12 @@ fn a_body_with_defaults_spawns_through_the_asset_server_and_each_input_takes_eff
     for _ in 0..20 {
         for (e, rest) in [(a, &rest_a), (b, &rest_b)] {
             let mut w = app.world_mut().entity_mut(e);
-            let mut sim = w.get_mut::<SimulatedBody>().unwrap();
+            let mut sim = w.get_mut::<SoftBodyState>().unwrap();
             let top = (0..rest.len())
                 .max_by(|&i, &j| rest[i].y.total_cmp(&rest[j].y))
                 .unwrap();
             sim.body_mut()
-                .body_mut()
+                .model_mut()
                 .add_force(top, bevy_soft_tissue::core::Vec3::new(0.0, 0.0, 2.0))
                 .unwrap();
         }
@@ -271,7 +271,7 @@ fn a_parented_body_lands_at_its_global_pose() {
     // The rendered mesh is in the body's own frame: the file's coordinates.
     app.update();
     let drawn = app.world().get::<Mesh3d>(body).unwrap().0.clone();
-    let sb = app.world().get::<SimulatedBody>(body).unwrap().body();
+    let sb = app.world().get::<SoftBodyState>(body).unwrap().body();
     let off = positions(&app, &drawn)
         .iter()
         .zip(sb.surface_nodes())
@@ -356,7 +356,7 @@ fn build_errors_name_the_entity_among_namesakes() {
     app.update();
     app.update();
     let w = app.world();
-    assert!(w.get::<SimulatedBody>(good).is_some());
+    assert!(w.get::<SoftBodyState>(good).is_some());
     assert!(w.get::<SoftBodyError>(good).is_none());
     let err = w.get::<SoftBodyError>(settings).expect("refused");
     assert!(matches!(err, SoftBodyError::Settings { .. }), "{err:?}");

@@ -23,7 +23,7 @@ use bevy_soft_tissue::core::scenario::{PreciseMethod, Scene};
 use bevy_soft_tissue::core::world::{Script, ScriptAction, SoftTissueWorld};
 use bevy_soft_tissue::prelude::*;
 use bevy_soft_tissue::{
-    SceneLoaderSettings, SimulatedBody, SoftBodyError, SoftTissueAssetPlugin, SoftTissueConfig,
+    SceneLoaderSettings, SoftBodyError, SoftBodyState, SoftTissueAssetPlugin, SoftTissueConfig,
     SoftTissueMeshPlugin, SoftTissuePhysicsPlugin, SoftTissueThreads,
 };
 
@@ -182,7 +182,7 @@ fn surfaces(app: &App, bodies: &[Entity]) -> Vec<Vec<[f32; 3]>> {
         .iter()
         .map(|&e| {
             app.world()
-                .get::<SimulatedBody>(e)
+                .get::<SoftBodyState>(e)
                 .unwrap()
                 .body()
                 .surface_positions()

@@ -94,15 +94,15 @@ fn the_plugin_and_the_core_world_give_the_same_states() {
         }
         world.step_fixed().unwrap();
         for (e, b) in bodies.iter().zip(world.bodies()) {
-            let plugin = app.world().get::<SimulatedBody>(*e).unwrap().body();
+            let plugin = app.world().get::<SoftBodyState>(*e).unwrap().body();
             assert_eq!(
                 plugin.surface_positions(),
                 b.surface_positions(),
                 "{} differs at step {k}",
                 b.name()
             );
-            assert_eq!(plugin.body().level(), b.body().level());
-            if b.body().level() == bevy_soft_tissue::core::precision::Level::Precise {
+            assert_eq!(plugin.model().level(), b.model().level());
+            if b.model().level() == bevy_soft_tissue::core::precision::Level::Precise {
                 precise_steps += 1;
             }
         }
@@ -208,8 +208,8 @@ fn pause_single_step_method_change_and_reset() {
         cage.active,
         "the cage component still shows the precise level"
     );
-    let sim = app.world().get::<SimulatedBody>(bodies[1]).unwrap().body();
-    let rest = sim.body().cage().cage().vertices();
+    let sim = app.world().get::<SoftBodyState>(bodies[1]).unwrap().body();
+    let rest = sim.model().cage().cage().vertices();
     for (v, r) in cage.vertices.iter().zip(rest) {
         assert!((*v - bevy_soft_tissue::convert::to_bevy(r)).length() < 1e-5);
     }
@@ -283,7 +283,7 @@ fn a_failure_names_the_failing_body_among_namesakes() {
     app.update();
     let name = |app: &App, e: Entity| {
         app.world()
-            .get::<SimulatedBody>(e)
+            .get::<SoftBodyState>(e)
             .unwrap()
             .body()
             .name()
@@ -301,8 +301,8 @@ fn a_failure_names_the_failing_body_among_namesakes() {
     assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
     // A non-finite position in its precise state: the step refuses it, naming the body.
     {
-        let mut sim = app.world_mut().get_mut::<SimulatedBody>(culprit).unwrap();
-        let body = sim.body_mut().body_mut();
+        let mut sim = app.world_mut().get_mut::<SoftBodyState>(culprit).unwrap();
+        let body = sim.body_mut().model_mut();
         body.precise_mut().positions_mut()[0].x = f64::NAN;
     }
     app.update();

@@ -64,7 +64,7 @@ fn finer_visual_meshes_follow_the_simulation() {
     assert_ne!(drawn, handle);
     let initial = positions(&app, &drawn);
     assert_eq!(initial.len(), source_positions.len());
-    let sim = app.world().get::<SimulatedBody>(a).unwrap().body();
+    let sim = app.world().get::<SoftBodyState>(a).unwrap().body();
     let file: Vec<[f32; 3]> = sim
         .surface_nodes()
         .iter()
@@ -165,7 +165,7 @@ fn visual_meshes_are_placed_with_the_body_and_mismatched_ones_refused() {
     );
     // The refused body is drawn with its simulation surface.
     let drawn = app.world().get::<Mesh3d>(wrong).unwrap().0.clone();
-    let sim = app.world().get::<SimulatedBody>(wrong).unwrap();
+    let sim = app.world().get::<SoftBodyState>(wrong).unwrap();
     assert_eq!(
         positions(&app, &drawn).len(),
         sim.body().surface_positions().len()
@@ -321,7 +321,7 @@ fn a_non_manifold_mesh_simulates_and_draws_in_the_plugin() {
         raised |= level(&app, body) == Level::Precise;
         moved = moved.max(max_distance(&positions(&app, &drawn), &initial));
         // Energies on request: finite, and the pressed body stores elastic energy.
-        let e = app.world().get::<SimulatedBody>(body).unwrap().energies();
+        let e = app.world().get::<SoftBodyState>(body).unwrap().energies();
         assert!(e.kinetic.is_finite() && e.kinetic >= 0.0 && e.elastic.is_finite());
         elastic = elastic.max(e.elastic);
         assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
@@ -362,7 +362,7 @@ fn a_cautery_burn_is_drawn_at_the_visual_vertices_not_over_elements() {
     );
     assert!(t.max >= 99.0, "{t:?}");
     // The electrode carved its crater out of the mesh, and the visual mesh was made again.
-    let sim = app.world().get::<SimulatedBody>(liver).unwrap();
+    let sim = app.world().get::<SoftBodyState>(liver).unwrap();
     assert!(
         sim.body().cut_record().is_some_and(|c| c.cuts > 0),
         "nothing was carved"

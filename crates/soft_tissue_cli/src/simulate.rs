@@ -241,7 +241,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     if let Some(level) = args.level.pin() {
         for b in world.bodies_mut() {
             let name = b.name().to_owned();
-            b.body_mut()
+            b.model_mut()
                 .pin(Some(level))
                 .map_err(|e| format!("body `{name}`: pinning to {level:?}: {e}"))?;
         }
@@ -349,7 +349,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
             }
             if let Some(e) = d.shadow {
                 worst_shadow[i] = worst_shadow[i].max(e.max_ratio);
-                shadow_sum[i].0 += e.mean / b.body().smallest_dimension();
+                shadow_sum[i].0 += e.mean / b.model().smallest_dimension();
                 shadow_sum[i].1 += 1;
             }
             worst_penetration[i] = worst_penetration[i].max(d.max_penetration);
@@ -445,7 +445,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
             json!({
                 "name": b.name(),
                 "final_level": level_name(&world, i),
-                "switches": b.body().switch_count(),
+                "switches": b.model().switch_count(),
                 "precise_steps": precise_steps[i],
                 "max_switch_jump_ratio": worst_jump[i],
                 "mean_step_us": body_us[i] / n,
@@ -459,7 +459,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                     shadow_sum[i].0 / shadow_sum[i].1.max(1) as f64
                 }),
                 "max_penetration": worst_penetration[i],
-                "max_penetration_ratio": worst_penetration[i] / b.body().smallest_dimension(),
+                "max_penetration_ratio": worst_penetration[i] / b.model().smallest_dimension(),
                 "max_contacts": most_contacts[i],
                 "cut": cut_summary(&world, i),
                 "heat": heat_summary(&world, i, hottest[i], &heat_us[i]),
@@ -583,7 +583,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "{:<24} {:>6} {:>9} {:>14} {:>11.3} {:>9.1} {:>20} {:>20} {:>20} {:>8}",
                 b.name(),
                 level_name(&world, i),
-                b.body().switch_count(),
+                b.model().switch_count(),
                 precise_steps[i],
                 100.0 * worst_jump[i],
                 body_us[i] / n,
@@ -609,7 +609,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "{:<24} largest penetration {:.3e} ({:.4} % of its smallest dimension), most contacts {}",
                 b.name(),
                 worst_penetration[i],
-                100.0 * worst_penetration[i] / b.body().smallest_dimension(),
+                100.0 * worst_penetration[i] / b.model().smallest_dimension(),
                 most_contacts[i]
             );
         }

@@ -18,12 +18,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::Vec3;
 use crate::boundary::Boundary;
-use crate::cage::{CageBody, CageBodyConfig, CageError, FitOptions, box_cage, fitted_cage};
+use crate::cage::{CageBodyConfig, CageError, CageModel, FitOptions, box_cage, fitted_cage};
 use crate::fem::{FemBody, FemConfig, FemError, FemIntegrator, FemModel};
 use crate::material::{FemParams, MsdParams};
 use crate::mesh::TetMesh;
 use crate::msd::{MsdBody, MsdConfig, MsdError, MsdIntegrator};
-use crate::state::NodalBody;
+use crate::state::NodalModel;
 use crate::timing::TimeStats;
 
 /// A precise method to benchmark.
@@ -110,7 +110,7 @@ pub enum BenchError {
 enum Solver {
     Fem(Box<FemBody>),
     Msd(Box<MsdBody>),
-    Cage(Box<CageBody>),
+    Cage(Box<CageModel>),
 }
 
 /// A body under the benchmark load.
@@ -231,7 +231,7 @@ impl BenchBody {
                 let mut config = CageBodyConfig::paper(0.02);
                 config.msd.gravity = gravity;
                 let cage_boundary = Boundary::fixed_below(cage.vertices(), 1, 0.1);
-                let body = CageBody::with_boundary(cage, &surface, &config, &cage_boundary)?;
+                let body = CageModel::with_boundary(cage, &surface, &config, &cage_boundary)?;
                 let force = config.msd.stiffness * size / 5.0;
                 (Solver::Cage(Box::new(body)), config.msd.dt, force)
             }

@@ -1,4 +1,4 @@
-//! Opt-in calibrations of a leveled body's cage beyond the default projection.
+//! Opt-in calibrations of a leveled model's cage beyond the default projection.
 //!
 //! [`condense_cage`] replaces a body's calibrated cage dynamics (the Galerkin projection of
 //! its precise model, [`crate::cage::ReducedModel::project`]) by the static condensation of
@@ -12,14 +12,14 @@ use std::sync::Arc;
 use crate::Vec3;
 use crate::cage::CageError;
 use crate::cage::condense::{CondenseOperators, condensed_model};
-use crate::precision::{LeveledBody, PrecisionError};
+use crate::precision::{LeveledModel, PrecisionError};
 
 /// Condenses `body`'s calibrated cage dynamics (see the module docs), linearised where the
 /// cage's points stand at rest, as the projection was. Errors: the body's cage is not
 /// calibrated ([`crate::cage::CageDynamics::Paper`]), or the condensation fails (a free
 /// body, too many nodes; [`condensed_model`]). The projection comes back (and this is
 /// undone) when the body settles or changes its precise method or materials.
-pub fn condense_cage(body: &mut LeveledBody) -> Result<(), PrecisionError> {
+pub fn condense_cage(body: &mut LeveledModel) -> Result<(), PrecisionError> {
     let Some(model) = body.cage().reduced().cloned() else {
         return Err(PrecisionError::Cage(CageError::InvalidArgument {
             field: "cage dynamics",

@@ -17,7 +17,7 @@
 //! - [`haptics`]: devices, the 1 kHz haptic thread, virtual coupling, recordings.
 //! - [`world`]: `SoftTissueWorld`, the stage functions, scenes and tool scripts.
 //! - [`boundary`]: fixed nodes and soft anchors shared by the solvers.
-//! - [`state`]: the per-node state of every precise body and the [`NodalBody`] accessors.
+//! - [`state`]: the per-node state of every precise body and the [`NodalModel`] accessors.
 //! - [`bench`](mod@bench): the benchmark load shared by the command-line tool and criterion.
 //! - [`linalg`]: block-sparse matrices, sparse Cholesky (`faer`), preconditioned CG.
 //! - [`scenario`]: the paper's two scenes (cylinders, organs) as serialisable data.
@@ -46,7 +46,7 @@ pub mod state;
 pub mod timing;
 pub mod world;
 
-pub use state::NodalBody;
+pub use state::NodalModel;
 
 /// Three-component vector used for positions, displacements and forces (`f64`).
 pub type Vec3 = nalgebra::Vector3<f64>;

@@ -89,8 +89,9 @@ pub enum MeshSource {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "bevy_reflect", derive(bevy_reflect::Reflect))]
 pub enum Anchor {
-    /// Free body.
-    None,
+    /// Free body: nothing holds it (scene files written before the rename may say `None`).
+    #[serde(alias = "None")]
+    Free,
     /// Nodes within `fraction` of the body's height above its lowest point (along -y)
     /// are fixed (Dirichlet), e.g. a cylinder standing on a table.
     FixedBottom {
@@ -111,7 +112,7 @@ impl Anchor {
     pub fn boundary(&self, mesh: &crate::mesh::TetMesh) -> crate::boundary::Boundary {
         use crate::boundary::Boundary;
         match *self {
-            Anchor::None => Boundary::free(),
+            Anchor::Free => Boundary::free(),
             Anchor::FixedBottom { fraction } => {
                 Boundary::fixed_below(mesh.positions(), 1, fraction)
             }
@@ -471,7 +472,7 @@ impl Scene {
             }),
             msd: None,
             cage: PAPER_CAGE,
-            anchor: Anchor::None,
+            anchor: Anchor::Free,
             heat: None,
             friction: Some(Friction::new(0.4)),
         };
@@ -511,7 +512,7 @@ impl Scene {
             }),
             msd: None,
             cage: PAPER_CAGE,
-            anchor: Anchor::None,
+            anchor: Anchor::Free,
             heat: None,
             friction: None,
         };
@@ -720,6 +721,16 @@ mod tests {
         s.bodies[1].precise = PreciseMethod::MsdRk4;
         let back: Scene = ron::from_str(&ron::ser::to_string(&s).unwrap()).unwrap();
         assert_eq!(back.bodies[1].precise, PreciseMethod::MsdRk4);
+    }
+
+    #[test]
+    fn scene_files_naming_a_free_body_none_still_read() {
+        let mut s = Scene::paper_organs();
+        s.bodies[0].anchor = Anchor::Free;
+        let text = ron::ser::to_string(&s).unwrap();
+        assert!(text.contains("anchor:Free"), "{text}");
+        let back: Scene = ron::from_str(&text.replacen("anchor:Free", "anchor:None", 1)).unwrap();
+        assert_eq!(back.bodies[0].anchor, Anchor::Free);
     }
 
     use super::*;

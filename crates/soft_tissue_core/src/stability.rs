@@ -13,7 +13,7 @@ use crate::fem::{FemBody, FemConfig, FemError, FemIntegrator, FemModel, element}
 use crate::material::{FemParams, MsdParams};
 use crate::mesh::TetMesh;
 use crate::msd::{ExplicitLimit, MsdBody, MsdConfig, MsdError, MsdIntegrator};
-use crate::state::NodalBody;
+use crate::state::NodalModel;
 
 /// How a case disturbs the body.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -258,13 +258,13 @@ enum Body {
 }
 
 impl Body {
-    fn nodal(&self) -> &dyn NodalBody {
+    fn nodal(&self) -> &dyn NodalModel {
         match self {
             Body::Fem(b) => b.as_ref(),
             Body::Msd(b) => b.as_ref(),
         }
     }
-    fn nodal_mut(&mut self) -> &mut dyn NodalBody {
+    fn nodal_mut(&mut self) -> &mut dyn NodalModel {
         match self {
             Body::Fem(b) => b.as_mut(),
             Body::Msd(b) => b.as_mut(),

@@ -113,7 +113,7 @@ impl Nodes {
 
 /// What every precise body (FEM, MSD) exposes about its nodes. Import it to call these on a
 /// [`crate::fem::FemBody`] or [`crate::msd::MsdBody`].
-pub trait NodalBody {
+pub trait NodalModel {
     /// The per-node state.
     fn nodes(&self) -> &Nodes;
 

@@ -7,9 +7,9 @@ use std::sync::Arc;
 
 use nalgebra::DMatrix;
 use soft_tissue_core::calibration::condense_cage;
-use soft_tissue_core::precision::{BodySettings, LeveledBody, PreciseMethod};
+use soft_tissue_core::precision::{BodySettings, LeveledModel, PreciseMethod};
 use soft_tissue_core::scenario::{CYLINDER_MSD, ORGAN_FEM, Scene};
-use soft_tissue_core::world::{SimBody, scene_bodies};
+use soft_tissue_core::world::{WorldBody, scene_bodies};
 
 fn assets() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets"))
@@ -27,12 +27,12 @@ fn eigenvalues(k: &DMatrix<f64>, m: &DMatrix<f64>) -> Vec<f64> {
 }
 
 /// Model A of the paper's cylinders with the RK4 MSD (the report's Fig. 5 body), settled.
-fn msd_cylinder() -> SimBody {
+fn msd_cylinder() -> WorldBody {
     let scene = Scene::paper_cylinders(PreciseMethod::MsdImplicit, PreciseMethod::MsdImplicit);
     let (_, bodies) = scene_bodies(&scene, assets()).unwrap();
     let mut b = bodies.into_iter().next().unwrap();
     b.settings.precise = PreciseMethod::MsdRk4;
-    SimBody::new(b.name, Arc::new(b.mesh), b.settings, b.heat).unwrap()
+    WorldBody::new(b.name, Arc::new(b.mesh), b.settings, b.heat).unwrap()
 }
 
 /// The MSD's two lowest frequencies (its analytic spring and anchor stiffness at rest, fixed
@@ -41,7 +41,7 @@ fn msd_cylinder() -> SimBody {
 #[test]
 fn condensed_box_cage_has_the_msds_lowest_frequencies() {
     let mut sim = msd_cylinder();
-    let body = sim.body_mut();
+    let body = sim.model_mut();
     let msd = body.msd().unwrap();
     assert_eq!(
         msd.config().volume_stiffness,
@@ -61,7 +61,7 @@ fn condensed_box_cage_has_the_msds_lowest_frequencies() {
         if r == c { masses[free[r] / 3] } else { 0.0 }
     });
     let precise: Vec<f64> = eigenvalues(&kf, &mf).iter().map(|l| l.sqrt()).collect();
-    let cage_frequencies = |body: &LeveledBody| -> Vec<f64> {
+    let cage_frequencies = |body: &LeveledModel| -> Vec<f64> {
         let m = body.cage().reduced().unwrap();
         let d = m.dim();
         let kc = DMatrix::from_row_slice(d, d, m.stiffness());
@@ -113,11 +113,11 @@ fn condensation_refuses_paper_cages_and_free_bodies() {
         .unwrap();
     let mut paper = BodySettings::new(ORGAN_FEM.params, CYLINDER_MSD.params, ORGAN_FEM.dt);
     paper.cage_dynamics = soft_tissue_core::cage::CageDynamics::Paper;
-    let mut body = LeveledBody::new(&mesh, paper).unwrap();
+    let mut body = LeveledModel::new(&mesh, paper).unwrap();
     let e = condense_cage(&mut body).unwrap_err().to_string();
     assert!(e.contains("cage MSD"), "{e}");
     let free = BodySettings::new(ORGAN_FEM.params, CYLINDER_MSD.params, ORGAN_FEM.dt);
-    let mut body = LeveledBody::new(&mesh, free).unwrap();
+    let mut body = LeveledModel::new(&mesh, free).unwrap();
     let e = condense_cage(&mut body).unwrap_err().to_string();
     assert!(e.contains("fixed nodes or anchors"), "{e}");
 }

@@ -13,15 +13,15 @@ use soft_tissue_core::contact::cases;
 use soft_tissue_core::material::{FemParams, MsdParams};
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::generate::block;
-use soft_tissue_core::precision::{BodySettings, Level, LeveledBody, PreciseMethod};
-use soft_tissue_core::state::NodalBody;
+use soft_tissue_core::precision::{BodySettings, Level, LeveledModel, PreciseMethod};
+use soft_tissue_core::state::NodalModel;
 
 fn assets() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets"))
 }
 
 /// A block body of 0.2 x 0.1 x 0.2 with `method`, free, at the precise level, no gravity.
-fn block_body(method: PreciseMethod) -> (TetMesh, LeveledBody) {
+fn block_body(method: PreciseMethod) -> (TetMesh, LeveledModel) {
     let mesh = block(Vec3::zeros(), Vec3::new(0.2, 0.1, 0.2), [4, 2, 4]).unwrap();
     let fem = FemParams {
         young_modulus: 2e4,
@@ -37,7 +37,7 @@ fn block_body(method: PreciseMethod) -> (TetMesh, LeveledBody) {
     let mut s = BodySettings::new(fem, msd, 0.01);
     s.precise = method;
     s.boundary = Boundary::free();
-    let mut b = LeveledBody::new(&mesh, s).unwrap();
+    let mut b = LeveledModel::new(&mesh, s).unwrap();
     b.pin(Some(Level::Precise)).unwrap();
     (mesh, b)
 }

@@ -15,7 +15,7 @@ use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::cut::CutTriangle;
 use soft_tissue_core::mesh::generate::block;
 use soft_tissue_core::precision::{BodySettings, Level, PreciseMethod};
-use soft_tissue_core::world::{SimBody, SoftTissueWorld, WorldConfig};
+use soft_tissue_core::world::{SoftTissueWorld, WorldBody, WorldConfig};
 
 /// The block: length along x, height along y (cut from the top), width along z; metres.
 const L: f64 = 0.1;
@@ -77,7 +77,7 @@ fn ours(method: PreciseMethod, depth: f64) -> (f64, TetMesh) {
     s.precise = method;
     s.boundary =
         Boundary::fixed_nodes((0..mesh.node_count()).filter(|&i| is_end(&mesh.positions()[i])));
-    let body = SimBody::new("block", Arc::new(mesh), s, None).unwrap();
+    let body = WorldBody::new("block", Arc::new(mesh), s, None).unwrap();
     let mut w = SoftTissueWorld::new(WorldConfig {
         dt: DT,
         contact: ContactConfig::for_scale(0.1),
@@ -85,9 +85,9 @@ fn ours(method: PreciseMethod, depth: f64) -> (f64, TetMesh) {
     .unwrap();
     w.add_body(body).unwrap();
     let b = &mut w.bodies_mut()[0];
-    b.body_mut().pin(Some(Level::Precise)).unwrap();
+    b.model_mut().pin(Some(Level::Precise)).unwrap();
     // Held stretched by its supports (a fixed node keeps the position it is given).
-    let precise = b.body_mut().precise_mut();
+    let precise = b.model_mut().precise_mut();
     let rest = precise.rest_positions().to_vec();
     for (p, r) in precise.positions_mut().iter_mut().zip(&rest) {
         *p = stretched(r);
@@ -98,7 +98,7 @@ fn ours(method: PreciseMethod, depth: f64) -> (f64, TetMesh) {
     // The blade: the plane through mid-length, from above the top down to the node layer at
     // `depth` of the height (its lower edge a tenth of a layer below where that layer is
     // now), past both sides.
-    let now = w.bodies()[0].body().node_positions();
+    let now = w.bodies()[0].model().node_positions();
     let rest = w.bodies()[0].mesh().positions();
     let layer = H * (1.0 - depth);
     let on_layer: Vec<f64> = (0..rest.len())
@@ -135,7 +135,7 @@ fn ours(method: PreciseMethod, depth: f64) -> (f64, TetMesh) {
     // The supports held the ends where they were when it was cut: stretched.
     for (i, r) in b.mesh().positions().iter().enumerate() {
         if is_end(r) {
-            let p = b.body().node_positions()[i];
+            let p = b.model().node_positions()[i];
             assert!(
                 (p - stretched(r)).norm() < 1e-12,
                 "support {i} moved to {p:?}"
@@ -143,7 +143,7 @@ fn ours(method: PreciseMethod, depth: f64) -> (f64, TetMesh) {
         }
     }
     (
-        mouth_gap(b.mesh().positions(), b.body().node_positions()),
+        mouth_gap(b.mesh().positions(), b.model().node_positions()),
         (**b.mesh()).clone(),
     )
 }

@@ -12,7 +12,7 @@ use soft_tissue_core::material::{FemParams, MsdParams};
 use soft_tissue_core::mesh::cut::{CutOptions, CutTriangle};
 use soft_tissue_core::mesh::generate::block;
 use soft_tissue_core::precision::{BodySettings, Level, PreciseMethod};
-use soft_tissue_core::world::{SimBody, SoftTissueWorld, WorldConfig, WorldError};
+use soft_tissue_core::world::{SoftTissueWorld, WorldBody, WorldConfig, WorldError};
 
 const DT: f64 = 0.005;
 const G: f64 = 9.81;
@@ -20,7 +20,7 @@ const G: f64 = 9.81;
 /// A bar 2 x 10 x 2 cm of soft tissue (1000 kg/m^3), fixed at its lowest layer (y = 0)
 /// with gravity along +y: it hangs from its support. `damping` is the rate (1/s) of the
 /// mass-proportional damping, which slows a rigid motion too.
-fn hanging_bar(method: PreciseMethod, damping: f64) -> SimBody {
+fn hanging_bar(method: PreciseMethod, damping: f64) -> WorldBody {
     let mesh = block(Vec3::zeros(), Vec3::new(0.02, 0.1, 0.02), [2, 10, 2]).unwrap();
     let fem = FemParams {
         young_modulus: 2.0e4,
@@ -38,10 +38,10 @@ fn hanging_bar(method: PreciseMethod, damping: f64) -> SimBody {
     s.precise = method;
     s.gravity = Vec3::new(0.0, G, 0.0);
     s.boundary = Boundary::fixed_below(mesh.positions(), 1, 0.01);
-    SimBody::new("bar", Arc::new(mesh), s, None).unwrap()
+    WorldBody::new("bar", Arc::new(mesh), s, None).unwrap()
 }
 
-fn world_with(body: SimBody) -> SoftTissueWorld {
+fn world_with(body: WorldBody) -> SoftTissueWorld {
     let mut w = SoftTissueWorld::new(WorldConfig {
         dt: DT,
         contact: ContactConfig::for_scale(0.1),
@@ -87,9 +87,9 @@ fn stroke_through_bar(w: &mut SoftTissueWorld, t: usize) {
 }
 
 /// Mass-weighted centre of a body's nodes.
-fn centre(b: &SimBody) -> Vec3 {
-    let m = b.body().precise().masses();
-    let x = b.body().node_positions();
+fn centre(b: &WorldBody) -> Vec3 {
+    let m = b.model().precise().masses();
+    let x = b.model().node_positions();
     let total: f64 = m.iter().sum();
     x.iter().zip(m).map(|(x, m)| x * *m).sum::<Vec3>() / total
 }
@@ -111,8 +111,8 @@ fn acceleration(w: &mut SoftTissueWorld, i: usize) -> Vec3 {
     (c[2] - 2.0 * c[1] + c[0]) / (span * span)
 }
 
-fn total_mass(b: &SimBody) -> f64 {
-    b.body().precise().masses().iter().sum()
+fn total_mass(b: &WorldBody) -> f64 {
+    b.model().precise().masses().iter().sum()
 }
 
 #[test]
@@ -146,14 +146,14 @@ fn a_hanging_bar_cut_through_falls_in_two_the_lower_piece_at_g() {
         );
         assert!(
             lower
-                .body()
+                .model()
                 .precise()
                 .fixed()
                 .iter()
                 .all(|f| !f.iter().any(|&a| a)),
             "{method:?}: the loose piece holds no support"
         );
-        assert!(upper.body().precise().fixed().iter().any(|f| f[1]));
+        assert!(upper.model().precise().fixed().iter().any(|f| f[1]));
         for b in w.bodies() {
             let r = b.cut_record().unwrap();
             assert!(r.closed, "{method:?}: {} has a closed surface", b.name());
@@ -162,7 +162,7 @@ fn a_hanging_bar_cut_through_falls_in_two_the_lower_piece_at_g() {
                 "{method:?}: cut area {}",
                 r.area
             );
-            assert_eq!(b.body().level(), Level::Precise);
+            assert_eq!(b.model().level(), Level::Precise);
         }
         // Free fall of the loose piece: its centre accelerates at g (no damping; the
         // internal forces sum to zero).
@@ -178,7 +178,7 @@ fn a_hanging_bar_cut_through_falls_in_two_the_lower_piece_at_g() {
         let mut rested = false;
         for _ in 0..2000 {
             w.step_fixed().unwrap();
-            if w.bodies()[0].body().level() == Level::Cage {
+            if w.bodies()[0].model().level() == Level::Cage {
                 rested = true;
                 break;
             }
@@ -217,7 +217,7 @@ fn a_cut_carries_a_linear_temperature_and_damage_field_exactly() {
         meters_per_unit: 1.0,
         ..HeatParams::liver()
     };
-    let mut body = SimBody::new(
+    let mut body = WorldBody::new(
         "slab",
         Arc::new(mesh),
         s,
@@ -268,7 +268,7 @@ fn a_grip_follows_the_node_it_held_into_its_piece() {
     let mut w = world_with(body);
     // A probe grabs the free end (y = 0.1 at rest, hanging a little further).
     let tip = w.bodies()[0]
-        .body()
+        .model()
         .node_positions()
         .iter()
         .copied()
@@ -296,7 +296,7 @@ fn a_grip_follows_the_node_it_held_into_its_piece() {
         w.step_fixed().unwrap();
     }
     let lowest_free = w.bodies()[1]
-        .body()
+        .model()
         .node_positions()
         .iter()
         .map(|p| p.y)
@@ -487,7 +487,7 @@ fn a_cut_prepared_in_the_background_lands_steps_later_in_the_state_then() {
     // state at any step).
     let v = 0.2;
     for vel in w.bodies_mut()[0]
-        .body_mut()
+        .model_mut()
         .precise_mut()
         .velocities_mut()
         .iter_mut()
@@ -505,7 +505,7 @@ fn a_cut_prepared_in_the_background_lands_steps_later_in_the_state_then() {
             .positions()
             .iter()
             .copied()
-            .zip(b.body().node_positions().iter().copied())
+            .zip(b.model().node_positions().iter().copied())
             .collect()
     };
     w.step_fixed().unwrap();
@@ -518,7 +518,7 @@ fn a_cut_prepared_in_the_background_lands_steps_later_in_the_state_then() {
         .mesh()
         .positions()
         .iter()
-        .zip(lower.body().node_positions())
+        .zip(lower.model().node_positions())
     {
         if let Some((_, was)) = before.iter().find(|(r, _)| r == rest) {
             matched += 1;

@@ -373,7 +373,7 @@ fn vaporized_tissue_leaves_the_mesh_and_the_electrode_sinks_in() {
     use soft_tissue_core::material::{FemParams, MsdParams};
     use soft_tissue_core::mesh::generate::block;
     use soft_tissue_core::precision::BodySettings;
-    use soft_tissue_core::world::{SimBody, WorldConfig};
+    use soft_tissue_core::world::{WorldBody, WorldConfig};
     use std::sync::Arc;
     let side = 0.008;
     let mesh = block(Vec3::zeros(), Vec3::new(side, 2.0 * side, side), [8, 16, 8]).unwrap();
@@ -397,7 +397,7 @@ fn vaporized_tissue_leaves_the_mesh_and_the_electrode_sinks_in() {
     };
     let original: Vec<Vec3> = mesh.positions().to_vec();
     let volume0 = mesh.volume();
-    let body = SimBody::new(
+    let body = WorldBody::new(
         "cube",
         Arc::new(mesh),
         s,
@@ -483,7 +483,7 @@ fn vaporized_tissue_leaves_the_mesh_and_the_electrode_sinks_in() {
     let mass: f64 = w
         .bodies()
         .iter()
-        .map(|b| b.body().settings().fem.mass)
+        .map(|b| b.model().settings().fem.mass)
         .sum();
     let volume: f64 = w.bodies().iter().map(|b| b.mesh().volume()).sum();
     assert!(

@@ -13,9 +13,9 @@ use soft_tissue_core::Vec3;
 use soft_tissue_core::contact::{ContactConfig, Tool};
 use soft_tissue_core::precision::{Level, PrecisionError};
 use soft_tissue_core::scenario::{PreciseMethod, Scene};
-use soft_tissue_core::state::NodalBody;
+use soft_tissue_core::state::NodalModel;
 use soft_tissue_core::world::{
-    ContactState, Script, SimBody, SoftTissueWorld, WorldError, detect_contacts, prepare,
+    ContactState, Script, SoftTissueWorld, WorldBody, WorldError, detect_contacts, prepare,
     scene_bodies, solve_contacts, step_solvers, switch_precision, writeback,
 };
 
@@ -26,7 +26,7 @@ fn assets() -> &'static Path {
 /// The paper's two cylinders (corotational FEM), their stages run by hand, and the `poke-a`
 /// script (cylinder A poked by a sphere).
 struct Staged {
-    bodies: Vec<SimBody>,
+    bodies: Vec<WorldBody>,
     tools: Vec<Tool>,
     contacts: ContactState,
     contact: ContactConfig,
@@ -46,7 +46,7 @@ impl Staged {
         let (config, built) = scene_bodies(&scene, assets()).unwrap();
         let bodies = built
             .into_iter()
-            .map(|b| SimBody::new(b.name, Arc::new(b.mesh), b.settings, b.heat).unwrap())
+            .map(|b| WorldBody::new(b.name, Arc::new(b.mesh), b.settings, b.heat).unwrap())
             .collect();
         Staged {
             bodies,
@@ -96,7 +96,7 @@ impl Staged {
                 .tool_contacts
                 .iter()
                 .any(|c| c.body == 0 && c.depth > 0.0);
-            if pressing && self.bodies[0].body().level() == Level::Precise {
+            if pressing && self.bodies[0].model().level() == Level::Precise {
                 return;
             }
         }
@@ -105,8 +105,8 @@ impl Staged {
 }
 
 /// Positions and velocities of a body's current level, bit for bit.
-fn level_state(b: &SimBody) -> Vec<u64> {
-    let l = b.body();
+fn level_state(b: &WorldBody) -> Vec<u64> {
+    let l = b.model();
     let (x, v) = match l.level() {
         Level::Precise => (l.precise().positions(), l.precise().velocities()),
         Level::Cage => (l.cage().msd().positions(), l.cage().msd().velocities()),
@@ -117,7 +117,7 @@ fn level_state(b: &SimBody) -> Vec<u64> {
         .collect()
 }
 
-fn surface_bits(b: &SimBody) -> Vec<u32> {
+fn surface_bits(b: &WorldBody) -> Vec<u32> {
     b.surface_positions()
         .iter()
         .flat_map(|p| p.map(f32::to_bits))
@@ -137,7 +137,7 @@ fn a_contact_response_that_leaves_a_non_finite_state_is_undone_for_every_body() 
             .any(|c| c.body == 0 && c.depth > 0.0)
     );
     // A velocity the response does not look at goes bad between the solver and the response.
-    s.bodies[0].body_mut().precise_mut().velocities_mut()[0].y = f64::NAN;
+    s.bodies[0].model_mut().precise_mut().velocities_mut()[0].y = f64::NAN;
     let before: Vec<_> = s.bodies.iter().map(level_state).collect();
     let err = s.collide().unwrap_err();
     match &err {
@@ -161,7 +161,7 @@ fn a_non_finite_surface_refuses_the_contact_response_and_is_never_written() {
     let written = surface_bits(&s.bodies[0]);
     s.up_to_solve();
     let node = s.bodies[0].surface_nodes()[3] as usize;
-    s.bodies[0].body_mut().precise_mut().positions_mut()[node].z = f64::INFINITY;
+    s.bodies[0].model_mut().precise_mut().positions_mut()[node].z = f64::INFINITY;
     let before: Vec<_> = s.bodies.iter().map(level_state).collect();
     let err = s.collide().unwrap_err();
     assert!(
@@ -184,9 +184,14 @@ fn a_non_finite_surface_refuses_the_contact_response_and_is_never_written() {
 #[test]
 fn a_switch_from_a_non_finite_cage_is_refused_and_the_body_stays_at_its_cage() {
     let mut s = Staged::cylinders();
-    assert_eq!(s.bodies[0].body().level(), Level::Cage);
-    s.bodies[0].body_mut().cage_mut().msd_mut().velocities_mut()[2].x = f64::NAN;
-    let err = s.bodies[0].body_mut().raise().unwrap_err();
+    assert_eq!(s.bodies[0].model().level(), Level::Cage);
+    s.bodies[0]
+        .model_mut()
+        .cage_mut()
+        .msd_mut()
+        .velocities_mut()[2]
+        .x = f64::NAN;
+    let err = s.bodies[0].model_mut().raise().unwrap_err();
     assert!(
         matches!(
             err,
@@ -198,11 +203,11 @@ fn a_switch_from_a_non_finite_cage_is_refused_and_the_body_stays_at_its_cage() {
         ),
         "{err}"
     );
-    assert_eq!(s.bodies[0].body().level(), Level::Cage);
-    assert_eq!(s.bodies[0].body().switch_count(), 0);
+    assert_eq!(s.bodies[0].model().level(), Level::Cage);
+    assert_eq!(s.bodies[0].model().switch_count(), 0);
     assert!(
         s.bodies[0]
-            .body()
+            .model()
             .precise()
             .positions()
             .iter()
@@ -224,7 +229,7 @@ fn poke_until_liver_precise(w: &mut SoftTissueWorld, script: &Script) -> usize {
         let (p, a) = script.pose_at(w.time() + w.config().dt);
         w.tools_mut()[0].set_pose(p, a).unwrap();
         w.step_fixed().unwrap();
-        if w.bodies()[liver].body().level() == Level::Precise {
+        if w.bodies()[liver].model().level() == Level::Precise {
             return liver;
         }
     }
@@ -240,7 +245,7 @@ fn a_failed_solver_step_leaves_its_body_halts_the_world_until_resumed_or_reset()
     let surface = surface_bits(&w.bodies()[liver]);
     let steps = w.step_count();
     w.bodies_mut()[liver]
-        .body_mut()
+        .model_mut()
         .add_force(5, Vec3::new(0.0, f64::NAN, 0.0))
         .unwrap();
     let err = w.step_fixed().unwrap_err();
@@ -276,7 +281,7 @@ fn a_solve_stopped_at_its_cap_is_counted_and_is_an_error_when_convergence_is_req
     // Corotational FEM (the organs' method) with a CG allowed one iteration at 1e-12: it
     // cannot meet its tolerance while the poke deforms the liver.
     w.bodies_mut()[liver]
-        .body_mut()
+        .model_mut()
         .set_precise_cg(1e-12, 1)
         .unwrap();
     poke_until_liver_precise(&mut w, &script);
@@ -299,7 +304,7 @@ fn a_solve_stopped_at_its_cap_is_counted_and_is_an_error_when_convergence_is_req
     // Required to converge: the step is an error naming the body and the residual, and the
     // liver is left as it was.
     w.bodies_mut()[liver]
-        .body_mut()
+        .model_mut()
         .set_precise_cg_must_converge(true);
     let mut failed = None;
     for _ in 0..40 {
@@ -320,7 +325,7 @@ fn a_solve_stopped_at_its_cap_is_counted_and_is_an_error_when_convergence_is_req
     assert_eq!(level_state(&w.bodies()[liver]), before);
     // With iterations enough, the same requirement is met and the world carries on.
     w.bodies_mut()[liver]
-        .body_mut()
+        .model_mut()
         .set_precise_cg(1e-6, 500)
         .unwrap();
     w.resume();

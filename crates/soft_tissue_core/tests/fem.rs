@@ -16,7 +16,7 @@ use soft_tissue_core::boundary::Boundary;
 use soft_tissue_core::fem::{FemBody, FemModel, element};
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::generate::block;
-use soft_tissue_core::{NodalBody, Vec3};
+use soft_tissue_core::{NodalModel, Vec3};
 
 #[test]
 fn patch_test_uniform_strain_is_reproduced_exactly() {

@@ -13,7 +13,7 @@ use soft_tissue_core::boundary::Boundary;
 use soft_tissue_core::fem::{FemBody, FemConfig, FemIntegrator, FemModel, MassSpec};
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::generate::block;
-use soft_tissue_core::{NodalBody, Vec3};
+use soft_tissue_core::{NodalModel, Vec3};
 
 #[test]
 fn implicit_euler_never_gains_energy() {

@@ -34,7 +34,7 @@ fn run(hold: Hold, steps: usize) -> (Vec<f64>, u64) {
     let mut w = SoftTissueWorld::from_scene(&Scene::paper_organs(), assets()).unwrap();
     for b in w.bodies_mut() {
         let mesh = b.mesh().clone();
-        let body = b.body_mut();
+        let body = b.model_mut();
         match hold {
             Hold::Cage => {
                 body.pin(Some(Level::Cage)).unwrap();
@@ -57,7 +57,7 @@ fn run(hold: Hold, steps: usize) -> (Vec<f64>, u64) {
     let x = w
         .bodies()
         .iter()
-        .flat_map(|b| b.body().node_positions().iter().flat_map(|p| p.iter()))
+        .flat_map(|b| b.model().node_positions().iter().flat_map(|p| p.iter()))
         .copied()
         .collect();
     (x, w.state_hash())

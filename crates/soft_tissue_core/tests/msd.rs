@@ -9,7 +9,7 @@ use soft_tissue_core::msd::{
     ExplicitLimit, MsdBody, MsdConfig, MsdError, MsdIntegrator, Spring, SpringSet, SpringStiffness,
     fit_tet_springs,
 };
-use soft_tissue_core::{NodalBody, Vec3};
+use soft_tissue_core::{NodalModel, Vec3};
 
 fn config(integrator: MsdIntegrator, dt: f64, damping: f64) -> MsdConfig {
     MsdConfig {

@@ -20,7 +20,7 @@ use soft_tissue_core::parallel::Threads;
 use soft_tissue_core::precision::{Level, PreciseMethod};
 use soft_tissue_core::scenario::{CYLINDER_MSD, MeshSource, ORGAN_FEM, Scene};
 use soft_tissue_core::world::{Script, SoftTissueWorld};
-use soft_tissue_core::{NodalBody, Vec3};
+use soft_tissue_core::{NodalModel, Vec3};
 
 struct Counting;
 
@@ -120,7 +120,7 @@ fn counter_sees_allocations_on_every_thread() {
 }
 
 /// Allocations during 50 loaded steps of `body`, energies and speed read after each.
-fn allocations_in_steps<B: NodalBody>(
+fn allocations_in_steps<B: NodalModel>(
     body: &mut B,
     node: usize,
     step: fn(&mut B),
@@ -201,11 +201,11 @@ fn body_steps_do_not_allocate() {
     }
 }
 
-/// A cage body, and a leveled body at either level with each FEM model (the rest checks'
+/// A cage body, and a leveled model at either level with each FEM model (the rest checks'
 /// cage fit included at the precise level).
 fn cage_and_leveled_body_steps_do_not_allocate() {
-    use soft_tissue_core::cage::{CageBody, CageBodyConfig, FitOptions, fitted_cage};
-    use soft_tissue_core::precision::{BodySettings, LeveledBody};
+    use soft_tissue_core::cage::{CageBodyConfig, CageModel, FitOptions, fitted_cage};
+    use soft_tissue_core::precision::{BodySettings, LeveledModel};
     let mesh = block(Vec3::zeros(), Vec3::new(1.0, 2.0, 1.0), [3, 6, 3]).unwrap();
     let cage = fitted_cage(
         mesh.positions(),
@@ -213,7 +213,7 @@ fn cage_and_leveled_body_steps_do_not_allocate() {
         &FitOptions::for_points(mesh.positions(), 40),
     )
     .unwrap();
-    let mut body = CageBody::new(cage, mesh.positions(), &CageBodyConfig::paper(0.02)).unwrap();
+    let mut body = CageModel::new(cage, mesh.positions(), &CageBodyConfig::paper(0.02)).unwrap();
     let n = allocations(|| {
         for s in 0..50 {
             body.apply_point_force(3, Vec3::new((s as f64).sin(), 0.0, 0.0))
@@ -234,7 +234,7 @@ fn cage_and_leveled_body_steps_do_not_allocate() {
         s.policy.rest_steps = 5;
         s.policy.min_precise_steps = 0;
         s.policy.rest_residual = -1.0; // the fit runs every 5 steps, the switch never happens
-        let mut body = LeveledBody::new(&mesh, s).unwrap();
+        let mut body = LeveledModel::new(&mesh, s).unwrap();
         let at_cage = allocations(|| {
             for _ in 0..50 {
                 body.step(false).unwrap();
@@ -291,7 +291,7 @@ fn world_step_allocations(bodies: Bodies, threads: usize, steps: usize) -> (Vec<
     world.set_threads(threads).unwrap();
     for b in world.bodies_mut() {
         let mesh = b.mesh().clone();
-        let body = b.body_mut();
+        let body = b.model_mut();
         match bodies {
             Bodies::Organs => {}
             Bodies::Prefactored => body

@@ -13,9 +13,9 @@ use soft_tissue_core::heat::{HeatBoundary, HeatField, HeatParams};
 use soft_tissue_core::material::{FemParams, MsdParams};
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::generate::block;
-use soft_tissue_core::precision::{BodySettings, Level, LeveledBody};
+use soft_tissue_core::precision::{BodySettings, Level, LeveledModel};
 use soft_tissue_core::scenario::CageKind;
-use soft_tissue_core::world::{SimBody, SoftTissueWorld, WorldConfig};
+use soft_tissue_core::world::{SoftTissueWorld, WorldBody, WorldConfig};
 
 /// Merges meshes, joining nodes at exactly the same position, and appends `unused` nodes no
 /// tetrahedron refers to.
@@ -242,7 +242,7 @@ fn world_of(bodies: Vec<(&str, TetMesh)>, dt: f64) -> SoftTissueWorld {
     .unwrap();
     for (name, mesh) in bodies {
         let s = organ_settings(dt, CageKind::BoundingBox, mesh.node_count());
-        w.add_body(SimBody::new(name, Arc::new(mesh), s, None).unwrap())
+        w.add_body(WorldBody::new(name, Arc::new(mesh), s, None).unwrap())
             .unwrap();
     }
     w
@@ -278,7 +278,7 @@ fn a_bowtie_poked_into_its_pinch_rises_keeps_the_tool_out_and_returns() {
         w.tools_mut()[tool].set_position(c).unwrap();
         w.step_fixed().unwrap();
         let b = &w.bodies()[0];
-        raised |= b.body().level() == Level::Precise;
+        raised |= b.model().level() == Level::Precise;
         for p in b.collider().positions() {
             deepest = deepest.max(r - (p - c).norm());
         }
@@ -291,9 +291,9 @@ fn a_bowtie_poked_into_its_pinch_rises_keeps_the_tool_out_and_returns() {
         "a vertex stayed {deepest} inside the ball"
     );
     let b = &w.bodies()[0];
-    assert_eq!(b.body().level(), Level::Cage, "did not return to its cage");
-    assert_eq!(b.body().switch_count(), 2);
-    let jump = b.body().last_switch().unwrap().jump_ratio;
+    assert_eq!(b.model().level(), Level::Cage, "did not return to its cage");
+    assert_eq!(b.model().switch_count(), 2);
+    let jump = b.model().last_switch().unwrap().jump_ratio;
     assert!(jump < 0.005, "down-switch jump {jump}");
 }
 
@@ -313,7 +313,7 @@ fn a_block_pressed_into_the_pinch_does_not_pass_through_it() {
     let mut s = organ_settings(dt, CageKind::BoundingBox, cube.node_count());
     s.fem.young_modulus = 5000.0;
     s.boundary = Boundary::anchored(cube.node_count(), 0.05);
-    w.add_body(SimBody::new("block", Arc::new(cube), s, None).unwrap())
+    w.add_body(WorldBody::new("block", Arc::new(cube), s, None).unwrap())
         .unwrap();
     let r = 0.15;
     let tool = w.add_tool(Tool::new("ball", ToolShape::Sphere { radius: r }).unwrap());
@@ -328,9 +328,9 @@ fn a_block_pressed_into_the_pinch_does_not_pass_through_it() {
             .set_position(push(start, dir, 0.3, t))
             .unwrap();
         w.step_fixed().unwrap();
-        let x = w.bodies()[0].body().node_positions().to_vec();
+        let x = w.bodies()[0].model().node_positions().to_vec();
         for (i, b) in w.bodies().iter().enumerate() {
-            raised[i] |= b.body().level() == Level::Precise;
+            raised[i] |= b.model().level() == Level::Precise;
         }
         // Independent check: block vertices inside the bowtie's tetrahedra at their current
         // positions, and their distance to the bowtie's surface by brute force.
@@ -361,7 +361,7 @@ fn cages_heat_and_levels_take_defective_meshes() {
     // Box and fitted cages embed every node, unused ones included, and switch without a jump.
     for cage in [CageKind::BoundingBox, CageKind::Fitted { vertices: 32 }] {
         let s = organ_settings(0.01, cage, mesh.node_count());
-        let mut b = LeveledBody::new(&mesh, s).unwrap();
+        let mut b = LeveledModel::new(&mesh, s).unwrap();
         let up = b.raise().unwrap().unwrap();
         assert!(up.jump_ratio < 1e-9, "{cage:?}: up jump {}", up.jump_ratio);
         for _ in 0..5 {
@@ -412,9 +412,9 @@ fn cages_heat_and_levels_take_defective_meshes() {
             w.step_fixed().unwrap();
         }
         let b = &w.bodies()[0];
-        assert!(b.body().switch_count() >= 1, "never touched");
+        assert!(b.model().switch_count() >= 1, "never touched");
         assert!(
-            b.body()
+            b.model()
                 .node_positions()
                 .iter()
                 .all(|p| p.iter().all(|x| x.is_finite()))

@@ -6,9 +6,9 @@ use soft_tissue_core::fem::FemModel;
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::io::read_tet_mesh;
 
-use soft_tissue_core::precision::{BodySettings, Level, LeveledBody, PreciseMethod};
+use soft_tissue_core::precision::{BodySettings, Level, LeveledModel, PreciseMethod};
 use soft_tissue_core::scenario::{CYLINDER_FEM, CYLINDER_MSD, CageKind, ORGAN_FEM};
-use soft_tissue_core::{NodalBody, Vec3};
+use soft_tissue_core::{NodalModel, Vec3};
 
 fn asset(name: &str) -> TetMesh {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -46,7 +46,7 @@ fn switching_at_rest_is_seamless() {
             let mut s = BodySettings::new(ORGAN_FEM.params, CYLINDER_MSD.params, ORGAN_FEM.dt);
             s.precise = method;
             s.cage = cage;
-            let mut body = LeveledBody::new(&mesh, s).unwrap();
+            let mut body = LeveledModel::new(&mesh, s).unwrap();
             assert_eq!(body.level(), Level::Cage);
             let up = body.raise().unwrap().unwrap();
             assert_eq!((up.from, up.to), (Level::Cage, Level::Precise));
@@ -74,7 +74,8 @@ fn a_poked_body_rises_then_returns_to_its_cage_with_a_small_jump() {
     let top = top_nodes(&mesh);
     for method in METHODS {
         for cage in [CageKind::BoundingBox, CageKind::Fitted { vertices: 40 }] {
-            let mut body = LeveledBody::new(&mesh, cylinder_settings(method, cage, &mesh)).unwrap();
+            let mut body =
+                LeveledModel::new(&mesh, cylinder_settings(method, cage, &mesh)).unwrap();
             // A contact raises the body before the contact force acts.
             let up = body.raise().unwrap().unwrap();
             assert!(up.jump_ratio < 1e-9);
@@ -137,7 +138,7 @@ fn motion_is_carried_across_switches() {
     for cage in [CageKind::BoundingBox, CageKind::Fitted { vertices: 40 }] {
         let mut s = BodySettings::new(ORGAN_FEM.params, CYLINDER_MSD.params, ORGAN_FEM.dt);
         s.cage = cage;
-        let mut body = LeveledBody::new(&mesh, s).unwrap();
+        let mut body = LeveledModel::new(&mesh, s).unwrap();
         // Cage spinning rigidly about its centre: the nodes get the same rigid velocity field.
         let w = Vec3::new(0.1, -0.3, 0.2);
         let u0 = Vec3::new(0.05, 0.0, -0.02);
@@ -198,8 +199,8 @@ fn motion_is_carried_across_switches() {
     }
 }
 
-/// Test access to the cage MSD (velocities), through the public `CageBody` API.
-fn body_cage_mut(body: &mut LeveledBody) -> &mut soft_tissue_core::msd::MsdBody {
+/// Test access to the cage MSD (velocities), through the public `CageModel` API.
+fn body_cage_mut(body: &mut LeveledModel) -> &mut soft_tissue_core::msd::MsdBody {
     body.cage_mut().msd_mut()
 }
 
@@ -208,7 +209,7 @@ fn pins_and_hysteresis() {
     let mesh = asset("cylinder");
     let s = cylinder_settings(PreciseMethod::CorotationalFem, CageKind::BoundingBox, &mesh);
     let min_steps = s.policy.min_precise_steps as u64;
-    let mut body = LeveledBody::new(&mesh, s).unwrap();
+    let mut body = LeveledModel::new(&mesh, s).unwrap();
     // Pinned to the cage: contact cannot raise it.
     body.pin(Some(Level::Cage)).unwrap();
     assert_eq!(body.raise().unwrap(), None);
@@ -243,7 +244,7 @@ fn pins_and_hysteresis() {
 fn the_precise_method_changes_at_run_time_without_a_jump() {
     let mesh = asset("cylinder");
     let s = cylinder_settings(PreciseMethod::CorotationalFem, CageKind::BoundingBox, &mesh);
-    let mut body = LeveledBody::new(&mesh, s).unwrap();
+    let mut body = LeveledModel::new(&mesh, s).unwrap();
     body.raise().unwrap();
     for _ in 0..20 {
         body.add_force(mesh.node_count() - 1, Vec3::new(5.0, 0.0, 0.0))
@@ -278,7 +279,7 @@ fn the_precise_method_changes_at_run_time_without_a_jump() {
     }
 }
 
-fn surface_gap(body: &LeveledBody, other: &[Vec3]) -> (f64, f64) {
+fn surface_gap(body: &LeveledModel, other: &[Vec3]) -> (f64, f64) {
     let x = body.node_positions();
     let mut sum = 0.0;
     let mut max: f64 = 0.0;
@@ -296,13 +297,13 @@ fn a_shadow_is_the_precise_method_under_the_same_loads_and_leaves_the_cage_alone
     let top = top_nodes(&mesh);
     for method in METHODS {
         let settings = cylinder_settings(method, CageKind::BoundingBox, &mesh);
-        let mut plain = LeveledBody::new(&mesh, settings.clone()).unwrap();
-        let mut shadowed = LeveledBody::new(&mesh, settings.clone()).unwrap();
+        let mut plain = LeveledModel::new(&mesh, settings.clone()).unwrap();
+        let mut shadowed = LeveledModel::new(&mesh, settings.clone()).unwrap();
         shadowed.set_shadow(&mesh, true).unwrap();
         assert!(shadowed.has_shadow() && !plain.has_shadow());
         // An independent precise run: the same solver pinned to its level, raised from the
         // same cage state the shadow starts from.
-        let mut precise = LeveledBody::new(&mesh, settings).unwrap();
+        let mut precise = LeveledModel::new(&mesh, settings).unwrap();
         precise.pin(Some(Level::Precise)).unwrap();
         let mut worst: f64 = 0.0;
         for step in 0..300 {
@@ -360,11 +361,11 @@ fn a_shadow_restarts_from_the_precise_state_at_a_down_switch() {
     let mesh = asset("cylinder");
     let method = PreciseMethod::CorotationalFem;
     let settings = cylinder_settings(method, CageKind::BoundingBox, &mesh);
-    let mut body = LeveledBody::new(&mesh, settings.clone()).unwrap();
+    let mut body = LeveledModel::new(&mesh, settings.clone()).unwrap();
     body.set_shadow(&mesh, true).unwrap();
     body.raise().unwrap();
     // A twin that stays precise under the same loads: what the shadow must go on doing.
-    let mut twin = LeveledBody::new(&mesh, settings).unwrap();
+    let mut twin = LeveledModel::new(&mesh, settings).unwrap();
     twin.pin(Some(Level::Precise)).unwrap();
     let top = (0..mesh.node_count())
         .max_by(|&a, &b| mesh.positions()[a].y.total_cmp(&mesh.positions()[b].y))
@@ -432,7 +433,7 @@ fn a_free_calibrated_cage_accelerates_as_a_whole_by_newtons_law() {
             let mut s = BodySettings::new(fem, msd, ORGAN_FEM.dt);
             s.precise = method;
             s.cage = cage;
-            let mut body = LeveledBody::new(&mesh, s).unwrap();
+            let mut body = LeveledModel::new(&mesh, s).unwrap();
             let a = Vec3::new(0.3, -0.2, 0.1);
             let masses = body.precise().masses().to_vec();
             let rest = body.node_positions().to_vec();
@@ -472,7 +473,7 @@ fn a_calibrated_cage_resists_no_rigid_motion() {
             let mut s = BodySettings::new(ORGAN_FEM.params, CYLINDER_MSD.params, ORGAN_FEM.dt);
             s.precise = method;
             s.cage = cage;
-            let body = LeveledBody::new(&mesh, s).unwrap();
+            let body = LeveledModel::new(&mesh, s).unwrap();
             let model = body.cage().reduced().unwrap();
             let d = model.dim();
             let k = model.stiffness();
@@ -507,23 +508,23 @@ fn identical_bodies_share_a_calibrated_cage_and_the_paper_option_keeps_springs()
     let mesh = asset("cylinder");
     let method = PreciseMethod::CorotationalFem;
     let s = cylinder_settings(method, CageKind::BoundingBox, &mesh);
-    let a = LeveledBody::new(&mesh, s.clone()).unwrap();
-    let b = LeveledBody::new(&mesh, s.clone()).unwrap();
+    let a = LeveledModel::new(&mesh, s.clone()).unwrap();
+    let b = LeveledModel::new(&mesh, s.clone()).unwrap();
     let (ma, mb) = (a.cage().reduced().unwrap(), b.cage().reduced().unwrap());
     assert!(std::sync::Arc::ptr_eq(ma, mb));
     // Another material is another model.
     let mut stiffer = s.clone();
     stiffer.fem.young_modulus *= 2.0;
-    let c = LeveledBody::new(&mesh, stiffer).unwrap();
+    let c = LeveledModel::new(&mesh, stiffer).unwrap();
     assert!(!std::sync::Arc::ptr_eq(ma, c.cage().reduced().unwrap()));
     // A run-time change of the precise method calibrates the cage again, against the new
     // method: the same model as a body built with it.
-    let mut changed = LeveledBody::new(&mesh, s.clone()).unwrap();
+    let mut changed = LeveledModel::new(&mesh, s.clone()).unwrap();
     let msd = PreciseMethod::MsdImplicit;
     changed.set_precise_method(&mesh, msd).unwrap();
     let mut msd_settings = s.clone();
     msd_settings.precise = msd;
-    let built = LeveledBody::new(&mesh, msd_settings).unwrap();
+    let built = LeveledModel::new(&mesh, msd_settings).unwrap();
     assert!(!std::sync::Arc::ptr_eq(
         ma,
         changed.cage().reduced().unwrap()
@@ -540,13 +541,13 @@ fn identical_bodies_share_a_calibrated_cage_and_the_paper_option_keeps_springs()
         young_modulus: s.fem.young_modulus,
         poisson_ratio: s.fem.poisson_ratio,
     };
-    let m = LeveledBody::new(&mesh, material).unwrap();
+    let m = LeveledModel::new(&mesh, material).unwrap();
     let (mm, mc) = (m.cage().reduced().unwrap(), built.cage().reduced().unwrap());
     assert!(!std::sync::Arc::ptr_eq(mm, mc));
     assert_ne!(mm.stiffness(), mc.stiffness());
     let mut paper = s;
     paper.cage_dynamics = CageDynamics::Paper;
-    let d = LeveledBody::new(&mesh, paper).unwrap();
+    let d = LeveledModel::new(&mesh, paper).unwrap();
     assert!(d.cage().reduced().is_none());
 }
 
@@ -563,7 +564,7 @@ fn a_poked_cylinder_held_at_a_calibrated_cage_is_nearer_its_precise_shadow_than_
         for dynamics in [CageDynamics::Calibrated, CageDynamics::Paper] {
             let mut s = cylinder_settings(method, CageKind::BoundingBox, &mesh);
             s.cage_dynamics = dynamics;
-            let mut body = LeveledBody::new(&mesh, s).unwrap();
+            let mut body = LeveledModel::new(&mesh, s).unwrap();
             body.pin(Some(Level::Cage)).unwrap();
             body.set_shadow(&mesh, true).unwrap();
             let mut peak = 0.0f64;
@@ -630,7 +631,7 @@ fn a_calibrated_cage_reproduces_a_response_it_can_represent() {
             let mut s = BodySettings::new(fem, CYLINDER_MSD.params, ORGAN_FEM.dt);
             s.precise = PreciseMethod::fem(model);
             s.cage = cage;
-            let body = LeveledBody::new(&mesh, s).unwrap();
+            let body = LeveledModel::new(&mesh, s).unwrap();
             let reduced = body.cage().reduced().unwrap().clone();
             let coords = body.cage().coordinates().clone();
             let verts = body.cage().cage().vertices();
@@ -697,11 +698,11 @@ fn a_material_changed_at_run_time_acts_as_one_built_with_it() {
         let mut stiff = soft.clone();
         stiff.fem.young_modulus *= 4.0;
         stiff.msd.stiffness *= 4.0;
-        let mut changed = LeveledBody::new(&mesh, soft.clone()).unwrap();
-        let mut built = LeveledBody::new(&mesh, stiff.clone()).unwrap();
+        let mut changed = LeveledModel::new(&mesh, soft.clone()).unwrap();
+        let mut built = LeveledModel::new(&mesh, stiff.clone()).unwrap();
         changed.raise().unwrap();
         built.raise().unwrap();
-        let push = |b: &mut LeveledBody| {
+        let push = |b: &mut LeveledModel| {
             for &i in &top {
                 b.add_force(i, Vec3::new(2.0, 0.0, 0.0)).unwrap();
             }
@@ -728,7 +729,7 @@ fn a_material_changed_at_run_time_acts_as_one_built_with_it() {
             "{method:?}: {gap} from a stiff-built body"
         );
         // A softer body under the same push moves farther.
-        let mut plain = LeveledBody::new(&mesh, soft.clone()).unwrap();
+        let mut plain = LeveledModel::new(&mesh, soft.clone()).unwrap();
         plain.raise().unwrap();
         for _ in 0..30 {
             push(&mut plain);

@@ -7,7 +7,7 @@ use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::generate::block;
 use soft_tissue_core::msd::{MsdBody, MsdConfig, MsdError, Spring};
 use soft_tissue_core::scenario::{CYLINDER_MSD, ORGAN_FEM};
-use soft_tissue_core::{NodalBody, Vec3};
+use soft_tissue_core::{NodalModel, Vec3};
 
 fn mesh() -> TetMesh {
     block(Vec3::zeros(), Vec3::repeat(1.0), [2, 2, 2]).unwrap()

@@ -87,7 +87,7 @@ fn run(threads: usize, model: FemModel) -> Run {
     assert_eq!(w.threads().count(), threads);
     for b in w.bodies_mut() {
         let mesh = b.mesh().clone();
-        let body = b.body_mut();
+        let body = b.model_mut();
         body.set_precise_method(&mesh, PreciseMethod::fem(model))
             .unwrap();
         body.pin(Some(Level::Precise)).unwrap();
@@ -103,7 +103,7 @@ fn run(threads: usize, model: FemModel) -> Run {
     // A spin about the vertical through the liver's centre: its elements turn by more than
     // the 0.01 rad that makes an element's warped stiffness stale, hundreds in a step.
     {
-        let body = w.bodies_mut()[li].body_mut().precise_mut();
+        let body = w.bodies_mut()[li].model_mut().precise_mut();
         let n = body.positions().len() as f64;
         let centre = body.positions().iter().sum::<Vec3>() / n;
         let spin = Vec3::new(0.0, SPIN, 0.0);
@@ -112,9 +112,9 @@ fn run(threads: usize, model: FemModel) -> Run {
             *v = spin.cross(&(p - centre));
         }
     }
-    let start: Vec<_> = w.bodies()[li].body().node_positions().to_vec();
+    let start: Vec<_> = w.bodies()[li].model().node_positions().to_vec();
     let start_heat = w.bodies()[li].heat().unwrap().heat_content();
-    let smallest = w.bodies()[li].body().smallest_dimension();
+    let smallest = w.bodies()[li].model().smallest_dimension();
     let start_hash = w.state_hash();
     let s = Script::builtin("poke-liver", &w).unwrap();
     let tool = w.add_tool(Tool::new("tool", s.tool).unwrap());
@@ -133,7 +133,7 @@ fn run(threads: usize, model: FemModel) -> Run {
         tool_steps += usize::from(!c.tool_contacts.is_empty());
         body_steps += usize::from(!c.body_contacts.is_empty());
         most_pairs = most_pairs.max(c.pairs.len());
-        let x = w.bodies()[li].body().node_positions();
+        let x = w.bodies()[li].model().node_positions();
         let moved = x
             .iter()
             .zip(&start)

@@ -65,7 +65,7 @@ fn run(
 }
 
 fn levels(world: &SoftTissueWorld) -> Vec<Level> {
-    world.bodies().iter().map(|b| b.body().level()).collect()
+    world.bodies().iter().map(|b| b.model().level()).collect()
 }
 
 #[test]
@@ -107,9 +107,9 @@ fn deepest_overlap(w: &SoftTissueWorld) -> f64 {
                 continue;
             }
             let scale = a
-                .body()
+                .model()
                 .smallest_dimension()
-                .min(b.body().smallest_dimension());
+                .min(b.model().smallest_dimension());
             for p in a.collider().positions() {
                 if let Some(hit) = b.collider().closest(p, 0.2 * scale) {
                     worst = worst.max(-hit.distance / scale);
@@ -183,17 +183,17 @@ fn a_reset_after_a_non_finite_state_recovers_contact() {
     let first = run(&mut w, &s, 300, |_| {});
     let liver = w.body_index("Liver").unwrap();
     w.bodies_mut()[liver]
-        .body_mut()
+        .model_mut()
         .pin(Some(Level::Precise))
         .unwrap();
     w.bodies_mut()[liver]
-        .body_mut()
+        .model_mut()
         .precise_mut()
         .positions_mut()[0]
         .x = f64::NAN;
     assert!(w.step_fixed().is_err());
     w.bodies_mut()[liver]
-        .body_mut()
+        .model_mut()
         .pin(None)
         .unwrap_or_default();
     w.reset().unwrap();
@@ -232,7 +232,7 @@ fn snapshot(w: &SoftTissueWorld) -> Vec<u64> {
     w.bodies()
         .iter()
         .flat_map(|b| {
-            b.body()
+            b.model()
                 .node_positions()
                 .iter()
                 .flat_map(|p| p.iter().map(|x| x.to_bits()))
@@ -408,7 +408,7 @@ fn pick_tool_drags_the_surface_and_lets_go() {
     let grips = w.tools()[tool].grips().to_vec();
     assert!(!grips.is_empty(), "nothing grabbed");
     assert!(grips.iter().all(|g| g.body == liver as u32));
-    assert_eq!(w.bodies()[liver].body().level(), Level::Precise);
+    assert_eq!(w.bodies()[liver].model().level(), Level::Precise);
     // Lift by 0.1 over 0.5 s: the held nodes follow the tool, and the tissue pulls it back.
     let lift = 0.1;
     for k in 1..=50 {
@@ -417,7 +417,7 @@ fn pick_tool_drags_the_surface_and_lets_go() {
         w.step_fixed().unwrap();
     }
     let tp = w.tools()[tool].position();
-    let x = w.bodies()[liver].body().node_positions();
+    let x = w.bodies()[liver].model().node_positions();
     for g in &grips {
         let err = (x[g.node as usize] - (tp + g.offset)).norm();
         assert!(err < 1e-9, "grip off by {err}");
@@ -431,7 +431,7 @@ fn pick_tool_drags_the_surface_and_lets_go() {
     for _ in 0..800 {
         w.step_fixed().unwrap();
     }
-    assert_eq!(w.bodies()[liver].body().level(), Level::Cage);
+    assert_eq!(w.bodies()[liver].model().level(), Level::Cage);
 }
 
 #[test]
@@ -468,15 +468,15 @@ fn resting_bodies_sleep_and_a_push_wakes_them() {
     for _ in 0..50 {
         w.step_fixed().unwrap();
     }
-    assert!(w.bodies().iter().all(|b| b.body().is_asleep()));
+    assert!(w.bodies().iter().all(|b| b.model().is_asleep()));
     assert_eq!(snapshot(&w), start, "a resting scene moved");
     // A force on a sleeping cage wakes it and moves it; it falls asleep again at rest.
     let spleen = w.body_index("Spleen").unwrap();
     w.bodies_mut()[spleen]
-        .body_mut()
+        .model_mut()
         .add_force(0, Vec3::new(0.0, 5.0, 0.0))
         .unwrap();
-    assert!(!w.bodies()[spleen].body().is_asleep());
+    assert!(!w.bodies()[spleen].model().is_asleep());
     w.step_fixed().unwrap();
     assert!(w.bodies()[spleen].diagnostics().max_displacement > 0.0);
     // The paper's cage damping is light (0.3 on 2.5 mass units a vertex, amplitude e-folding
@@ -484,7 +484,7 @@ fn resting_bodies_sleep_and_a_push_wakes_them() {
     let mut slept_at = None;
     for k in 0..30_000 {
         w.step_fixed().unwrap();
-        if w.bodies()[spleen].body().is_asleep() {
+        if w.bodies()[spleen].model().is_asleep() {
             slept_at = Some(k);
             break;
         }
@@ -499,7 +499,7 @@ fn a_collision_between_two_bodies_gains_no_energy() {
     use soft_tissue_core::material::{FemParams, MsdParams};
     use soft_tissue_core::mesh::generate::block;
     use soft_tissue_core::precision::{BodySettings, PreciseMethod as Method};
-    use soft_tissue_core::world::{SimBody, WorldConfig};
+    use soft_tissue_core::world::{WorldBody, WorldConfig};
     use std::sync::Arc;
     let dt = 0.005;
     let mut world = SoftTissueWorld::new(WorldConfig {
@@ -527,15 +527,15 @@ fn a_collision_between_two_bodies_gains_no_energy() {
         .unwrap();
         let mut s = BodySettings::new(fem, msd, dt);
         s.precise = Method::CorotationalFem;
-        let body = SimBody::new(name, Arc::new(mesh), s, None).unwrap();
+        let body = WorldBody::new(name, Arc::new(mesh), s, None).unwrap();
         world.add_body(body).unwrap();
     }
     // Both precise for the whole run; the left block flies right at 2 units/s.
     for b in world.bodies_mut() {
-        b.body_mut().pin(Some(Level::Precise)).unwrap();
+        b.model_mut().pin(Some(Level::Precise)).unwrap();
     }
     for v in world.bodies_mut()[0]
-        .body_mut()
+        .model_mut()
         .precise_mut()
         .velocities_mut()
     {
@@ -544,14 +544,16 @@ fn a_collision_between_two_bodies_gains_no_energy() {
     let energy = |w: &SoftTissueWorld| -> f64 {
         w.bodies()
             .iter()
-            .map(|b| b.body().precise().kinetic_energy() + b.body().fem().unwrap().elastic_energy())
+            .map(|b| {
+                b.model().precise().kinetic_energy() + b.model().fem().unwrap().elastic_energy()
+            })
             .sum()
     };
     let momentum = |w: &SoftTissueWorld| -> Vec3 {
         w.bodies()
             .iter()
             .map(|b| {
-                let p = b.body().precise();
+                let p = b.model().precise();
                 p.velocities()
                     .iter()
                     .zip(p.masses())
@@ -574,7 +576,7 @@ fn a_collision_between_two_bodies_gains_no_energy() {
     // implicit-Euler damping (no external force acts).
     let p1 = momentum(&world);
     let right_vx: f64 = {
-        let p = world.bodies()[1].body().precise();
+        let p = world.bodies()[1].model().precise();
         p.velocities().iter().map(|v| v.x).sum::<f64>() / p.velocities().len() as f64
     };
     assert!(right_vx > 0.1, "right block at {right_vx}");
@@ -597,7 +599,7 @@ fn a_body_held_at_its_cage_level_follows_its_precise_twin_under_a_poke() {
         .map(|level| {
             let mut w = cylinders();
             for b in w.bodies_mut() {
-                b.body_mut().pin(Some(level)).unwrap();
+                b.model_mut().pin(Some(level)).unwrap();
             }
             let s = Script::builtin("poke-a", &w).unwrap();
             let ti = w.add_tool(Tool::new("tool", s.tool).unwrap());
@@ -605,7 +607,7 @@ fn a_body_held_at_its_cage_level_follows_its_precise_twin_under_a_poke() {
         })
         .collect();
     let dt = worlds[0].0.config().dt;
-    let width = worlds[1].0.bodies()[0].body().smallest_dimension();
+    let width = worlds[1].0.bodies()[0].model().smallest_dimension();
     let (mut worst, mut cage_moved, mut precise_moved) = (0.0f64, 0.0f64, 0.0f64);
     for k in 0..150 {
         let t = (k + 1) as f64 * dt;
@@ -616,10 +618,10 @@ fn a_body_held_at_its_cage_level_follows_its_precise_twin_under_a_poke() {
         }
         let (a, b) = (&worlds[0].0.bodies()[0], &worlds[1].0.bodies()[0]);
         for (p, q) in a
-            .body()
+            .model()
             .node_positions()
             .iter()
-            .zip(b.body().node_positions())
+            .zip(b.model().node_positions())
         {
             worst = worst.max((p - q).norm() / width);
         }
@@ -652,7 +654,7 @@ fn replays_end_in_the_same_state_hash() {
         if prefactored {
             for b in w.bodies_mut() {
                 let mesh = b.mesh().clone();
-                b.body_mut()
+                b.model_mut()
                     .set_precise_method(&mesh, PreciseMethod::PrefactoredFem)
                     .unwrap();
             }

@@ -39,7 +39,7 @@ fn measure(
         }
         if let Some(level) = pin {
             for b in world.bodies_mut() {
-                b.body_mut().pin(Some(level))?;
+                b.model_mut().pin(Some(level))?;
             }
         }
         let s = Script::builtin(script, &world)?;

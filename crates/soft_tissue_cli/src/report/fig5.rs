@@ -321,9 +321,9 @@ fn compare_levels(
         let mut w = sweep::build_world(scene, assets, &paper_msd)?;
         for b in w.bodies_mut() {
             if condense {
-                soft_tissue_core::calibration::condense_cage(b.body_mut())?;
+                soft_tissue_core::calibration::condense_cage(b.model_mut())?;
             }
-            b.body_mut().pin(Some(level))?;
+            b.model_mut().pin(Some(level))?;
         }
         let s = Script::builtin(script, &w)?;
         let ti = w.add_tool(Tool::new(s.name.clone(), s.tool)?);
@@ -339,7 +339,7 @@ fn compare_levels(
             w.step_fixed()?;
         }
         let fit = if with_fit {
-            let b = worlds[1].0.bodies_mut()[0].body_mut();
+            let b = worlds[1].0.bodies_mut()[0].model_mut();
             let r = b.fit_cage_now()?;
             Some(FitAt {
                 distance: r / b.smallest_dimension(),
@@ -350,11 +350,11 @@ fn compare_levels(
         };
         let (cage, precise) = (&worlds[0].0.bodies()[0], &worlds[1].0.bodies()[0]);
         cage_us += cage.diagnostics().step_us;
-        let scale = precise.body().smallest_dimension();
+        let scale = precise.model().smallest_dimension();
         let (mut sum, mut max) = (0.0f64, 0.0f64);
         let (a, b) = (
-            cage.body().node_positions(),
-            precise.body().node_positions(),
+            cage.model().node_positions(),
+            precise.model().node_positions(),
         );
         for (p, q) in a.iter().zip(b) {
             let d = (p - q).norm();

@@ -28,7 +28,7 @@ use soft_tissue_core::fem::{FemBody, FemConfig, FemModel};
 use soft_tissue_core::material::FemParams;
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::io::read_tet_mesh;
-use soft_tissue_core::state::NodalBody;
+use soft_tissue_core::state::NodalModel;
 use soft_tissue_peers::{PeerSetup, rapier_fem};
 
 use super::{Res, median};

@@ -13,7 +13,7 @@ use soft_tissue_core::mesh::generate::Organ;
 use soft_tissue_core::msd::SpringStiffness;
 use soft_tissue_core::precision::{BodySettings, Level, PreciseMethod as Method};
 use soft_tissue_core::scenario::{CYLINDER_MSD, CageKind, ORGAN_FEM, Scene};
-use soft_tissue_core::world::{Script, SimBody, SoftTissueWorld, scene_bodies};
+use soft_tissue_core::world::{Script, SoftTissueWorld, WorldBody, scene_bodies};
 
 use super::{Res, median};
 use crate::simulate::drive_tool;
@@ -33,7 +33,12 @@ pub(super) fn build_world(
             Some(w) => w,
             None => world.insert(SoftTissueWorld::new(config)?),
         };
-        w.add_body(SimBody::new(b.name, Arc::new(b.mesh), b.settings, b.heat)?)?;
+        w.add_body(WorldBody::new(
+            b.name,
+            Arc::new(b.mesh),
+            b.settings,
+            b.heat,
+        )?)?;
     }
     Ok(world.ok_or("the scene has no bodies")?)
 }
@@ -267,9 +272,9 @@ fn trajectory(
     })?;
     for b in world.bodies_mut() {
         if let Some((tol, cap)) = cg {
-            b.body_mut().set_precise_cg(tol, cap)?;
+            b.model_mut().set_precise_cg(tol, cap)?;
         }
-        b.body_mut().pin(Some(config.level))?;
+        b.model_mut().pin(Some(config.level))?;
     }
     let s = Script::builtin(script, &world)?;
     let ti = world.add_tool(Tool::new(s.name.clone(), s.tool)?);
@@ -284,7 +289,7 @@ fn trajectory(
         world.step_fixed()?;
         let b = &world.bodies()[0];
         times.push(b.diagnostics().step_us);
-        out.push(b.body().node_positions().to_vec());
+        out.push(b.model().node_positions().to_vec());
     }
     Ok((out, median(&times).unwrap_or(0.0)))
 }
@@ -328,7 +333,7 @@ pub(super) fn speed_against_error(
     )?;
     let scale = {
         let w = build_world(scene, assets, &|_| {})?;
-        w.bodies()[0].body().smallest_dimension()
+        w.bodies()[0].model().smallest_dimension()
     };
     // The reference's own convergence: the same run at half its step, compared at the
     // reference's times.

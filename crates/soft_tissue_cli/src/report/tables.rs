@@ -417,7 +417,7 @@ fn run(spec: RunSpec<'_>, assets: &Path) -> Res<Run> {
     }
     if let Some(level) = spec.pin {
         for b in world.bodies_mut() {
-            b.body_mut().pin(Some(level))?;
+            b.model_mut().pin(Some(level))?;
         }
     }
     let script = Script::builtin(spec.script, &world)?;
@@ -454,7 +454,7 @@ fn run(spec: RunSpec<'_>, assets: &Path) -> Res<Run> {
             if let Some(sw) = d.switched {
                 s.worst_jump_ratio = s.worst_jump_ratio.max(sw.jump_ratio);
             }
-            s.switches = b.body().switch_count();
+            s.switches = b.model().switch_count();
         }
     }
     Ok(Run {

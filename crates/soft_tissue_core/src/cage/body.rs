@@ -13,7 +13,7 @@ use crate::Vec3;
 use crate::boundary::Boundary;
 use crate::material::PAPER_CAGE_MSD;
 use crate::msd::{MsdBody, MsdConfig, MsdIntegrator, Spring};
-use crate::state::NodalBody;
+use crate::state::NodalModel;
 
 /// Which springs join the cage vertices.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -30,7 +30,7 @@ pub enum CageSprings {
     EdgesBendingStruts,
 }
 
-/// Settings of a [`CageBody`].
+/// Settings of a [`CageModel`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct CageBodyConfig {
     /// The cage MSD (`stiffness` per spring, `mass` split evenly over the cage vertices).
@@ -144,7 +144,7 @@ fn cage_springs(cage: &Cage, layout: CageSprings, stiffness: f64) -> Vec<Spring>
 /// A body simulated at the cage level: the cage vertices run an MSD; the embedded points
 /// (usually the body's surface vertices, or all its nodes) follow by Green coordinates.
 #[derive(Debug)]
-pub struct CageBody {
+pub struct CageModel {
     pub(super) cage: Cage,
     pub(super) coords: Arc<GreenCoordinates>,
     pub(super) msd: MsdBody,
@@ -157,19 +157,19 @@ pub struct CageBody {
     pub(super) reduced: Option<ReducedStepper>,
     /// Contact workspaces.
     pub(super) contact: super::contact::CageContact,
-    /// A displacement added to each embedded point (see [`CageBody::set_detail`]).
+    /// A displacement added to each embedded point (see [`CageModel::set_detail`]).
     detail: Option<Vec<Vec3>>,
     /// The buffer of a detail cleared, reused by the next one (a switch down sets one; the
     /// steps do not allocate once warm).
     detail_spare: Vec<Vec3>,
 }
 
-impl CageBody {
+impl CageModel {
     /// A cage body embedding `points` (at rest) in `cage`. A point outside the cage is an
     /// error naming it.
     pub fn new(cage: Cage, points: &[Vec3], config: &CageBodyConfig) -> Result<Self, CageError> {
         let coords = Arc::new(GreenCoordinates::new(&cage, points)?);
-        CageBody::with_coordinates(cage, coords, config)
+        CageModel::with_coordinates(cage, coords, config)
     }
 
     /// A cage body sharing precomputed coordinates (identical bodies can share one
@@ -179,7 +179,7 @@ impl CageBody {
         coords: Arc<GreenCoordinates>,
         config: &CageBodyConfig,
     ) -> Result<Self, CageError> {
-        CageBody::build(cage, coords, config, &Boundary::free())
+        CageModel::build(cage, coords, config, &Boundary::free())
     }
 
     /// A cage body whose cage vertices are held by `boundary` (fixed components, anchors),
@@ -191,7 +191,7 @@ impl CageBody {
         boundary: &Boundary,
     ) -> Result<Self, CageError> {
         let coords = Arc::new(GreenCoordinates::new(&cage, points)?);
-        CageBody::build(cage, coords, config, boundary)
+        CageModel::build(cage, coords, config, boundary)
     }
 
     fn build(
@@ -220,7 +220,7 @@ impl CageBody {
             config.msd,
             boundary,
         )?;
-        let mut body = CageBody {
+        let mut body = CageModel {
             face_terms: vec![Vec3::zeros(); cage.triangles().len()],
             scratch: coords.scratch(),
             points: coords.rest_points().to_vec(),
@@ -252,7 +252,7 @@ impl CageBody {
         &self.msd
     }
 
-    /// Mutable cage MSD. Call [`CageBody::update_points`] after moving cage vertices.
+    /// Mutable cage MSD. Call [`CageModel::update_points`] after moving cage vertices.
     pub fn msd_mut(&mut self) -> &mut MsdBody {
         &mut self.msd
     }

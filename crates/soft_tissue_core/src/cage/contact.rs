@@ -4,7 +4,7 @@
 //! A force `f` on a point with coordinates `phi`, `psi` acts on the cage as `J^T f`, `J` the
 //! linearised Green-coordinate map (the face terms' part included with calibrated dynamics,
 //! [`crate::cage::ReducedModel::add_point_force`]; the vertex weights alone with the paper's
-//! cage MSD, as [`CageBody::apply_point_force`] maps them). The cage answers forces held over
+//! cage MSD, as [`CageModel::apply_point_force`] maps them). The cage answers forces held over
 //! a step with `h^2 S^-1` (calibrated: `S = M + h C + h^2 K` in the step's frame, factorized
 //! once) or `h^2 / m` per vertex (the paper's explicit cage MSD), so a point's compliance is
 //! `J C_cage J^T`: exact for the linearised map, the points then evaluated by the exact
@@ -12,9 +12,9 @@
 
 use nalgebra::{DVector, Matrix3};
 
-use super::{CageBody, CageError};
+use super::{CageError, CageModel};
 use crate::Vec3;
-use crate::state::NodalBody;
+use crate::state::NodalModel;
 
 /// Contact workspaces of a cage body.
 #[derive(Debug, Default, Clone)]
@@ -27,7 +27,7 @@ pub(super) struct CageContact {
     forces: Vec<Vec3>,
 }
 
-impl CageBody {
+impl CageModel {
     /// The generalised force of `f` on point `k` added to `out` (cage vertex forces).
     fn add_generalised(&self, k: usize, f: Vec3, out: &mut [Vec3]) {
         match self.reduced.as_ref() {

@@ -9,7 +9,7 @@
 //!   `f32` evaluation for the per-step writeback.
 //! - [`build`]: the paper's bounding-box cage and a tighter fitted cage built by
 //!   shrink-wrapping a box grid onto the body under a vertex budget.
-//! - [`CageBody`]: the cage MSD plus the embedded points; contact is mapped onto the cage
+//! - [`CageModel`]: the cage MSD plus the embedded points; contact is mapped onto the cage
 //!   vertices through the transpose of the coordinates.
 
 pub mod build;
@@ -22,7 +22,7 @@ mod body;
 mod contact;
 use crate::geometry;
 
-pub use body::{CageBody, CageBodyConfig, CageSprings, CageStepStats};
+pub use body::{CageBodyConfig, CageModel, CageSprings, CageStepStats};
 pub use build::{FitOptions, box_cage, fitted_cage};
 pub use fit::{FitReport, SurfaceFit};
 pub use green::GreenCoordinates;

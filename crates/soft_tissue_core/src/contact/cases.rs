@@ -16,7 +16,7 @@ use crate::mesh::TetMesh;
 use crate::mesh::generate::block;
 use crate::precision::{BodySettings, Level, PreciseMethod};
 use crate::scenario::Scene;
-use crate::world::{Script, SimBody, SoftTissueWorld, WorldConfig, WorldError};
+use crate::world::{Script, SoftTissueWorld, WorldBody, WorldConfig, WorldError};
 
 /// A block on an incline (see [`incline`]).
 #[derive(Debug, Clone)]
@@ -92,7 +92,7 @@ pub fn incline(angle_deg: f64, mu: f64, seconds: f64) -> Result<InclineRun, Worl
     // Measured at its precise level throughout.
     s.policy.min_precise_steps = u32::MAX;
     let mut world = SoftTissueWorld::new(config)?;
-    let mut body = SimBody::new("block", Arc::new(mesh), s, None)?;
+    let mut body = WorldBody::new("block", Arc::new(mesh), s, None)?;
     body.set_friction(Friction::new(mu))?;
     world.add_body(body)?;
     let slope = Isometry3::from_parts(
@@ -108,7 +108,7 @@ pub fn incline(angle_deg: f64, mu: f64, seconds: f64) -> Result<InclineRun, Worl
     world.add_obstacle(incline)?;
     let down = -(turn * Vec3::x());
     let centroid = |w: &SoftTissueWorld| -> f64 {
-        let x = w.bodies()[0].body().node_positions();
+        let x = w.bodies()[0].model().node_positions();
         x.iter().sum::<Vec3>().dot(&down) / x.len() as f64
     };
     let steps = (seconds / config.dt).round() as usize;
@@ -236,8 +236,8 @@ pub fn hertz(spacing: f64, growth: f64) -> Result<HertzRun, WorldError> {
     };
     let tet_count = mesh.tet_count();
     let mut world = SoftTissueWorld::new(config)?;
-    let mut body = SimBody::new("block", Arc::new(mesh), s, None)?;
-    body.body_mut()
+    let mut body = WorldBody::new("block", Arc::new(mesh), s, None)?;
+    body.model_mut()
         .pin(Some(Level::Precise))
         .map_err(|e| mesh_error("Hertz block", e))?;
     world.add_body(body)?;
@@ -329,7 +329,7 @@ pub fn balance(assets: &Path, seconds: f64) -> Result<BalanceRun, WorldError> {
             })?;
         world.step_fixed()?;
     }
-    let b = world.bodies()[0].body();
+    let b = world.bodies()[0].model();
     let precise = b.level() == Level::Precise;
     Ok(BalanceRun {
         tool: world.tools()[t].reaction_force(),
@@ -381,10 +381,10 @@ pub fn grasp(mu: f64, assets: &Path) -> Result<GraspRun, WorldError> {
     let t = world.add_tool(tool);
     let dt = world.config().dt;
     let centroid = |w: &SoftTissueWorld| -> f64 {
-        let x = w.bodies()[0].body().node_positions();
+        let x = w.bodies()[0].model().node_positions();
         x.iter().map(|p| p.y).sum::<f64>() / x.len() as f64
     };
-    let smallest = world.bodies()[0].body().smallest_dimension();
+    let smallest = world.bodies()[0].model().smallest_dimension();
     let (mut squeeze, mut penetration): (f64, f64) = (0.0, 0.0);
     let lift_starts = (2.0 / dt).round() as usize;
     let steps = (4.5 / dt).round() as usize;
@@ -466,7 +466,7 @@ pub fn stack(assets: &Path, seconds: f64) -> Result<StackRun, WorldError> {
         world.step_fixed()?;
         for (i, b) in world.bodies().iter().enumerate() {
             let d = b.diagnostics();
-            penetration[i] = penetration[i].max(d.max_penetration / b.body().smallest_dimension());
+            penetration[i] = penetration[i].max(d.max_penetration / b.model().smallest_dimension());
             if settled_at.is_some()
                 && let Some(s) = d.switched
                 && s.to == Level::Precise
@@ -478,7 +478,7 @@ pub fn stack(assets: &Path, seconds: f64) -> Result<StackRun, WorldError> {
             && world
                 .bodies()
                 .iter()
-                .all(|b| b.body().level() == Level::Cage)
+                .all(|b| b.model().level() == Level::Cage)
         {
             settled_at = Some(k as f64 * dt);
         }

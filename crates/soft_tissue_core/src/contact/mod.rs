@@ -20,7 +20,7 @@
 //!   Signorini (no penetration, no pull) and Coulomb (static and kinetic) conditions on the
 //!   contact rows, coupled through each body's compliance on its contact vertices (the
 //!   Delassus operator), solved by projected Gauss-Seidel, then each body corrects its step
-//!   by the forces found (its own exact solve, [`crate::precision::LeveledBody::apply_contact_forces`]).
+//!   by the forces found (its own exact solve, [`crate::precision::LeveledModel::apply_contact_forces`]).
 //!   The contact set is detected again on the corrected positions, and a new round solves
 //!   what changed, until no contact penetrates beyond the tolerance. The force on a tool is
 //!   the sum of its rows' forces.

@@ -7,7 +7,7 @@
 //! side takes the opposite), held over the step. A body answers a force `f` on its surface
 //! vertices with a displacement `C f` at the end of the step, `C` its compliance (for an
 //! implicit integrator `h^2 A^-1`, `A` the step's system matrix; see
-//! [`crate::precision::LeveledBody::contact_compliance`]). With `W = J C J^T` (the Delassus
+//! [`crate::precision::LeveledModel::contact_compliance`]). With `W = J C J^T` (the Delassus
 //! operator, `J` the rows' frames and weights), the relative displacement of a row after the
 //! correction is `r = b + W lambda`, `b` its gap and slip before it, and each row meets
 //!

@@ -55,7 +55,7 @@ use crate::boundary::{Boundary, BoundaryError};
 use crate::linalg::{BlockSparse, CgStats, ImplicitSystem, LinalgError, NotConverged};
 use crate::material::FemParams;
 use crate::mesh::TetMesh;
-use crate::state::{self, NodalBody, Nodes};
+use crate::state::{self, NodalModel, Nodes};
 
 /// The ten local node pairs `a <= b` of a tetrahedron.
 const PAIRS: [(usize, usize); 10] = [
@@ -274,7 +274,7 @@ pub struct FemBody {
     frame: UnitQuaternion<f64>,
 }
 
-impl NodalBody for FemBody {
+impl NodalModel for FemBody {
     fn nodes(&self) -> &Nodes {
         &self.nodes
     }

@@ -24,7 +24,7 @@ use crate::boundary::{Boundary, BoundaryError};
 use crate::linalg::{BlockSparse, CgStats, ImplicitSystem, LinalgError, NotConverged};
 use crate::material::MsdParams;
 use crate::mesh::TetMesh;
-use crate::state::{self, NodalBody, Nodes};
+use crate::state::{self, NodalModel, Nodes};
 
 mod contact;
 mod explicit;
@@ -336,7 +336,7 @@ struct Implicit {
     dv: Vec<Vec3>,
 }
 
-impl NodalBody for MsdBody {
+impl NodalModel for MsdBody {
     fn nodes(&self) -> &Nodes {
         &self.nodes
     }

@@ -1,4 +1,4 @@
-//! Building a leveled body's parts: its cage (box or fitted, with the calibrated model
+//! Building a leveled model's parts: its cage (box or fitted, with the calibrated model
 //! projected from the precise one) and its precise solver.
 
 use super::*;
@@ -26,7 +26,7 @@ pub(super) fn build_cage(
     positions: &[Vec3],
     settings: &BodySettings,
     precise: &Precise,
-) -> Result<CageBody, PrecisionError> {
+) -> Result<CageModel, PrecisionError> {
     let nodes = &cage_points(mesh, positions)[..];
     let triangles = mesh.surface().triangles();
     let options = FitOptions::for_points(
@@ -42,7 +42,7 @@ pub(super) fn build_cage(
     };
     let mut cage_config = CageBodyConfig::paper(settings.dt);
     if settings.cage_dynamics == CageDynamics::Calibrated {
-        let mut body = CageBody::new(cage_shape, nodes, &cage_config)?;
+        let mut body = CageModel::new(cage_shape, nodes, &cage_config)?;
         let model = calibrated_model(mesh, nodes, &body, settings, precise)?;
         body.set_reduced(Some(model), settings.dt)?;
         return Ok(body);
@@ -79,7 +79,7 @@ pub(super) fn build_cage(
     } else {
         Boundary::free()
     };
-    Ok(CageBody::with_boundary(
+    Ok(CageModel::with_boundary(
         cage_shape,
         nodes,
         &cage_config,
@@ -93,11 +93,11 @@ pub(super) fn build_cage(
 pub(super) fn calibrated_model(
     mesh: &TetMesh,
     nodes: &[Vec3],
-    cage: &CageBody,
+    cage: &CageModel,
     settings: &BodySettings,
     precise: &Precise,
 ) -> Result<std::sync::Arc<ReducedModel>, PrecisionError> {
-    let body = precise.body();
+    let body = precise.model();
     // Linearised where the cage's points stand at rest (unused nodes carry no stiffness).
     let x = nodes.to_vec();
     let anchor_k = &body.nodes().anchor_k;

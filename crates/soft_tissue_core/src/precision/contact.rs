@@ -1,18 +1,18 @@
-//! A leveled body's side of the contact problem: the compliance and the correction of
+//! A leveled model's side of the contact problem: the compliance and the correction of
 //! whichever level it is at (see [`crate::contact`] and [`crate::contact::problem`]).
 
 use nalgebra::Matrix3;
 
-use super::{Level, LeveledBody, Precise, PrecisionError};
+use super::{Level, LeveledModel, Precise, PrecisionError};
 use crate::Vec3;
 
-impl LeveledBody {
+impl LeveledModel {
     /// Writes the compliance blocks between mesh nodes `nodes` (row-major, `nodes.len()^2`
     /// blocks, world frame: block `(i, j)` is how far node `i` moves over the step per unit
     /// force held on node `j`) for the step just taken: the precise solver's (see
     /// [`crate::fem::FemBody::contact_compliance`], [`crate::msd::MsdBody::contact_compliance`])
     /// or, at the cage level, the cage's mapped by the coordinates
-    /// ([`crate::cage::CageBody::contact_compliance`]).
+    /// ([`crate::cage::CageModel::contact_compliance`]).
     pub fn contact_compliance(
         &mut self,
         nodes: &[u32],

@@ -1,15 +1,15 @@
-//! What a cut needs of a leveled body: the state of every node whatever the level, and a
+//! What a cut needs of a leveled model: the state of every node whatever the level, and a
 //! body made from a cut starting at its precise level in the state it was cut in.
 
 use super::*;
 
-impl LeveledBody {
+impl LeveledModel {
     /// Every node's position and velocity now, whatever the level (at the cage level, the
     /// cage's exact map and its rate, as an up-switch would hand them over).
     pub fn node_state(&mut self) -> Result<(Vec<Vec3>, Vec<Vec3>), PrecisionError> {
         match self.level {
             Level::Precise => {
-                let b = self.precise.body();
+                let b = self.precise.model();
                 Ok((b.positions().to_vec(), b.velocities().to_vec()))
             }
             Level::Cage => {

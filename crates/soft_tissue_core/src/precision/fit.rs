@@ -3,7 +3,7 @@
 
 use super::*;
 
-impl LeveledBody {
+impl LeveledModel {
     /// The rotation of the rigid motion that best maps the rest cage onto `cage` (Kabsch).
     pub(super) fn cage_rotation(&self, cage: &[Vec3]) -> UnitQuaternion<f64> {
         let rest = self.cage.cage().vertices();
@@ -24,7 +24,7 @@ impl LeveledBody {
     /// level's error if the body dropped now).
     pub(super) fn fit_cage(&mut self, max_iterations: u32) -> Result<f64, PrecisionError> {
         let coords = self.cage.coordinates().clone();
-        let points = self.precise.body().positions();
+        let points = self.precise.model().positions();
         self.last_fit = self.fit.positions(
             &coords,
             points,
@@ -48,7 +48,7 @@ impl LeveledBody {
         self.fit.velocities(
             &coords,
             &self.fit_cage,
-            self.precise.body().velocities(),
+            self.precise.model().velocities(),
             &mut self.fit_velocity,
             1e-3 * dt,
             FIT_TOLERANCE * self.smallest / dt,

@@ -2,23 +2,23 @@
 //! the state transfer between them without a visible jump, and the policy that decides when
 //! a body may drop back to its cage (paper section III, Fig. 2).
 //!
-//! A [`LeveledBody`] always has its cage (a [`CageBody`] embedding every mesh node) and the
+//! A [`LeveledModel`] always has its cage (a [`CageModel`] embedding every mesh node) and the
 //! solver of its chosen precise method, built once (a body whose method is MSD has no FEM
 //! state). It starts at [`Level::Cage`].
 //!
-//! - **Up** ([`LeveledBody::raise`], called by contact before the contact is resolved): node
+//! - **Up** ([`LeveledModel::raise`], called by contact before the contact is resolved): node
 //!   positions are the cage's exact (`f64`) Green-coordinate evaluation, node velocities its
 //!   derivative along the cage vertex velocities (the map is linear in the vertices and face
 //!   terms: one evaluation with the face terms' rate). A FEM body's element rotations start
 //!   from the ones it held at its last down-switch, turned by how far the cage turned since
 //!   (its best rigid fit), and are brought to the new state eight elements at a time.
-//! - **Down** ([`LeveledBody::lower`], or automatically at the start of a step, which is then
+//! - **Down** ([`LeveledModel::lower`], or automatically at the start of a step, which is then
 //!   a cage step): the cage is
 //!   fitted so its coordinates reproduce the current surface in the least-squares sense
 //!   ([`crate::cage::fit`]: face terms refreshed by an Anderson-accelerated fixed point whose
 //!   iterations cost `O(cage vertices x cage faces)`, warm-started from the last fit), cage
 //!   velocities the same way. The fit that decides the switch is the one the switch uses. The
-//!   cage keeps its rest shape, the body's settled equilibrium ([`LeveledBody::settle`]), so
+//!   cage keeps its rest shape, the body's settled equilibrium ([`LeveledModel::settle`]), so
 //!   what motion is left dies out toward it.
 //! - Every switch records the largest surface-vertex jump ([`SwitchRecord`]).
 //! - Automatic down-switch ([`PrecisionPolicy`]): no contact, largest nodal speed and the cage
@@ -29,7 +29,7 @@
 //!   slow for `rest_steps` steps, not every step.
 //!
 //! - Error of the cage level: the fit residual at every down-switch ([`SwitchRecord`]) and,
-//!   on request ([`LeveledBody::set_shadow`]), a shadow precise simulation that runs beside
+//!   on request ([`LeveledModel::set_shadow`]), a shadow precise simulation that runs beside
 //!   the cage level under the same loads so the distance between the two surfaces can be
 //!   read every step ([`ShadowError`]). It costs a precise step per step: a validation tool.
 //!
@@ -42,7 +42,7 @@ use crate::Vec3;
 use crate::boundary::{Boundary, BoundaryError};
 use crate::cage::reduced::{ModelKey, PreciseOperators, cached_model};
 use crate::cage::{
-    CageBody, CageBodyConfig, CageDynamics, CageError, FitOptions, FitReport, ReducedModel,
+    CageBodyConfig, CageDynamics, CageError, CageModel, FitOptions, FitReport, ReducedModel,
     SurfaceFit, box_cage, fitted_cage,
 };
 use crate::fem::{FemBody, FemConfig, FemError, FemIntegrator, FemModel};
@@ -51,7 +51,7 @@ use crate::material::{FemParams, MsdParams, PAPER_CAGE_MSD};
 use crate::mesh::TetMesh;
 use crate::msd::{MsdBody, MsdConfig, MsdError, SpringStiffness};
 use crate::scenario::CageKind;
-use crate::state::NodalBody;
+use crate::state::NodalModel;
 
 mod build;
 mod contact;
@@ -94,7 +94,7 @@ impl Default for PrecisionPolicy {
     }
 }
 
-/// Everything a [`LeveledBody`] is built from.
+/// Everything a [`LeveledModel`] is built from.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BodySettings {
     /// Precise method.
@@ -148,7 +148,7 @@ impl BodySettings {
     }
 }
 
-/// Errors of a leveled body, naming the level that failed.
+/// Errors of a leveled model, naming the level that failed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum PrecisionError {
     /// The FEM level.
@@ -235,13 +235,13 @@ impl Precise {
         Ok(())
     }
 
-    fn body(&self) -> &dyn NodalBody {
+    fn model(&self) -> &dyn NodalModel {
         match self {
             Precise::Fem(b) => b.as_ref(),
             Precise::Msd(b) => b.as_ref(),
         }
     }
-    fn body_mut(&mut self) -> &mut dyn NodalBody {
+    fn model_mut(&mut self) -> &mut dyn NodalModel {
         match self {
             Precise::Fem(b) => b.as_mut(),
             Precise::Msd(b) => b.as_mut(),
@@ -250,13 +250,13 @@ impl Precise {
 }
 
 /// A body with a cage level and a precise level (see the module docs).
-pub struct LeveledBody {
+pub struct LeveledModel {
     settings: BodySettings,
     rest: Vec<Vec3>,
     surface: Vec<u32>,
     smallest: f64,
     precise: Precise,
-    cage: CageBody,
+    cage: CageModel,
     fit: SurfaceFit,
     /// The last cage fit (positions, velocities) of the current precise episode: the warm
     /// start of the next fit.
@@ -276,11 +276,11 @@ pub struct LeveledBody {
     steps_at_level: u64,
     rest_count: u32,
     slow_steps: u32,
-    /// Pressed by contacts in the last step (see [`LeveledBody::set_held`]).
+    /// Pressed by contacts in the last step (see [`LeveledModel::set_held`]).
     held: bool,
     /// The cage's equilibrium is a resting shape, not its rest shape.
     rebased: bool,
-    /// Made by a cut under gravity (see [`LeveledBody::start_precise`]): the cage keeps the
+    /// Made by a cut under gravity (see [`LeveledModel::start_precise`]): the cage keeps the
     /// shape the body comes to rest in, as for a free body.
     rests_loaded: bool,
     asleep: bool,
@@ -289,7 +289,7 @@ pub struct LeveledBody {
     residual: f64,
     shadow: Option<Box<Precise>>,
     shadow_error: Option<ShadowError>,
-    /// See [`LeveledBody::set_precise_cg_must_converge`].
+    /// See [`LeveledModel::set_precise_cg_must_converge`].
     cg_must_converge: bool,
     // Workspaces of the transfers.
     nodes_work: Vec<Vec3>,
@@ -300,9 +300,9 @@ pub struct LeveledBody {
     surface_work: Vec<Vec3>,
 }
 
-impl std::fmt::Debug for LeveledBody {
+impl std::fmt::Debug for LeveledModel {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("LeveledBody")
+        f.debug_struct("LeveledModel")
             .field("nodes", &self.rest.len())
             .field("level", &self.level)
             .field("method", &self.settings.precise)
@@ -319,7 +319,7 @@ const MAX_FIT_ITERATIONS: u32 = 100;
 /// smallest dimension (positions) or of that dimension per time step (velocities).
 const FIT_TOLERANCE: f64 = 1e-10;
 
-impl LeveledBody {
+impl LeveledModel {
     /// Builds the cage (embedding every node), the precise solver and the cage fit; the body
     /// starts at rest at the cage level.
     pub fn new(mesh: &TetMesh, settings: BodySettings) -> Result<Self, PrecisionError> {
@@ -331,7 +331,7 @@ impl LeveledBody {
         let n = nodes.len();
         let nv = cage.cage().vertices().len();
         let nf = cage.cage().triangles().len();
-        Ok(LeveledBody {
+        Ok(LeveledModel {
             smallest: mesh.bbox().smallest_dimension(),
             rest: nodes.to_vec(),
             precise,
@@ -370,7 +370,7 @@ impl LeveledBody {
     }
 
     /// Replaces the cage: its fit and the workspaces sized by it follow.
-    fn install_cage(&mut self, cage: CageBody) -> Result<(), PrecisionError> {
+    fn install_cage(&mut self, cage: CageModel) -> Result<(), PrecisionError> {
         let nv = cage.cage().vertices().len();
         let nf = cage.cage().triangles().len();
         self.fit = SurfaceFit::new(cage.coordinates(), &self.surface)?;
@@ -415,7 +415,7 @@ impl LeveledBody {
     /// Whether the body is free (no fixed components, no anchors): under gravity it finds its
     /// rest on what supports it in the world (obstacles, other bodies), not alone.
     pub fn is_free(&self) -> bool {
-        let n = self.precise.body().nodes();
+        let n = self.precise.model().nodes();
         n.fixed.iter().all(|f| !f.iter().any(|&a| a)) && n.anchor_k.iter().all(|&k| k == 0.0)
     }
 
@@ -487,27 +487,27 @@ impl LeveledBody {
     }
 
     /// The cage body.
-    pub fn cage(&self) -> &CageBody {
+    pub fn cage(&self) -> &CageModel {
         &self.cage
     }
 
     /// The cage body, mutable (for example to set cage velocities; call
-    /// [`CageBody::update_points`] after moving cage vertices).
-    pub fn cage_mut(&mut self) -> &mut CageBody {
+    /// [`CageModel::update_points`] after moving cage vertices).
+    pub fn cage_mut(&mut self) -> &mut CageModel {
         self.asleep = false;
         &mut self.cage
     }
 
     /// The precise body's nodal state.
-    pub fn precise(&self) -> &dyn NodalBody {
-        self.precise.body()
+    pub fn precise(&self) -> &dyn NodalModel {
+        self.precise.model()
     }
 
     /// The precise body's nodal state, mutable (positions, velocities, forces). Setting
     /// positions far from the last step's on a corotational FEM body should be followed by
     /// [`FemBody::sync_rotations`] (the next switch up does it).
-    pub fn precise_mut(&mut self) -> &mut dyn NodalBody {
-        self.precise.body_mut()
+    pub fn precise_mut(&mut self) -> &mut dyn NodalModel {
+        self.precise.model_mut()
     }
 
     /// Sets the CG tolerance and iteration cap of the precise level's iterative solve
@@ -536,7 +536,7 @@ impl LeveledBody {
         }
     }
 
-    /// See [`LeveledBody::set_precise_cg_must_converge`].
+    /// See [`LeveledModel::set_precise_cg_must_converge`].
     pub fn cg_must_converge(&self) -> bool {
         self.cg_must_converge
     }
@@ -576,11 +576,11 @@ impl LeveledBody {
     pub fn node_positions(&self) -> &[Vec3] {
         match self.level {
             Level::Cage => self.cage.points(),
-            Level::Precise => self.precise.body().positions(),
+            Level::Precise => self.precise.model().positions(),
         }
     }
 
-    /// Current position of surface vertex `k` (index into [`LeveledBody::surface_vertices`]).
+    /// Current position of surface vertex `k` (index into [`LeveledModel::surface_vertices`]).
     pub fn surface_position(&self, k: usize) -> Vec3 {
         self.node_positions()[self.surface[k] as usize]
     }
@@ -598,7 +598,7 @@ impl LeveledBody {
                 self.cage.apply_point_force(node, force)?;
                 self.add_shadow_force(node, force);
             }
-            Level::Precise => self.precise.body_mut().add_force(node, force),
+            Level::Precise => self.precise.model_mut().add_force(node, force),
         }
         Ok(())
     }
@@ -690,8 +690,8 @@ impl LeveledBody {
     ) -> Result<(), PrecisionError> {
         let mut next = build_precise(mesh, &settings)?;
         if self.level == Level::Precise {
-            let old = self.precise.body();
-            let new = next.body_mut();
+            let old = self.precise.model();
+            let new = next.model_mut();
             new.positions_mut().copy_from_slice(old.positions());
             new.velocities_mut().copy_from_slice(old.velocities());
             if let Precise::Fem(b) = &mut next {
@@ -731,7 +731,7 @@ impl LeveledBody {
         let mut switched = None;
         if self.level == Level::Precise && self.pin.is_none() {
             let p = self.settings.policy;
-            let slow = self.precise.body().max_speed() <= p.rest_speed * self.smallest;
+            let slow = self.precise.model().max_speed() <= p.rest_speed * self.smallest;
             self.slow_steps = if slow { self.slow_steps + 1 } else { 0 };
             if in_contact || !slow {
                 self.rest_count = 0;
@@ -804,7 +804,7 @@ impl LeveledBody {
         while steps < max_steps {
             self.precise.step()?;
             steps += 1;
-            if self.precise.body().max_speed() <= 0.1 * p.rest_speed * self.smallest {
+            if self.precise.model().max_speed() <= 0.1 * p.rest_speed * self.smallest {
                 slow += 1;
                 if slow >= p.rest_steps && steps >= p.min_precise_steps {
                     rested = true;
@@ -816,7 +816,7 @@ impl LeveledBody {
         }
         // The cage is rebuilt around the settled shape, which it then reproduces exactly at
         // rest: the settled shape is the cage level's rest state and the initial state.
-        let settled = self.precise.body().positions().to_vec();
+        let settled = self.precise.model().positions().to_vec();
         let cage = build_cage(mesh, &settled, &self.settings, &self.precise)?;
         self.install_cage(cage)?;
         self.level = Level::Cage;
@@ -826,7 +826,7 @@ impl LeveledBody {
     }
 
     /// Back to the initial state: cage level, at rest, in the rest shape (the settled shape
-    /// after [`LeveledBody::settle`]; the cage's rest shape too), counters cleared; the pin is
+    /// after [`LeveledModel::settle`]; the cage's rest shape too), counters cleared; the pin is
     /// kept.
     pub fn reset(&mut self) -> Result<(), PrecisionError> {
         match &mut self.precise {
@@ -882,5 +882,5 @@ fn shifted(x: &[Vec3], u: &[Vec3], h: f64, out: &mut [Vec3]) {
 
 fn _assert_send_sync() {
     fn check<T: Send + Sync>() {}
-    check::<LeveledBody>();
+    check::<LeveledModel>();
 }

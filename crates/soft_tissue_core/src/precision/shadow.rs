@@ -4,7 +4,7 @@
 use super::*;
 
 /// Distance between the cage level and its shadow precise simulation (see
-/// [`LeveledBody::set_shadow`]), over the surface vertices, after the last step.
+/// [`LeveledModel::set_shadow`]), over the surface vertices, after the last step.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct ShadowError {
     /// Steps the shadow has run beside the cage level since it was (re)started.
@@ -19,11 +19,11 @@ pub struct ShadowError {
     pub worst_ratio: f64,
 }
 
-impl LeveledBody {
+impl LeveledModel {
     /// Turns the shadow precise simulation on or off (`mesh` is the body's mesh). The shadow
     /// is a second solver of the body's precise method that, while the body is at the cage
     /// level, starts from the cage's state, takes the same external forces and steps beside
-    /// it, so [`LeveledBody::shadow_error`] measures how far the cage level is from what the
+    /// it, so [`LeveledModel::shadow_error`] measures how far the cage level is from what the
     /// precise method would do under the same loads. At the precise level it waits, and it
     /// restarts from the precise state at each down-switch. Costs one precise step per step.
     pub fn set_shadow(&mut self, mesh: &TetMesh, on: bool) -> Result<(), PrecisionError> {
@@ -39,7 +39,7 @@ impl LeveledBody {
         Ok(())
     }
 
-    /// Whether a shadow precise simulation runs (see [`LeveledBody::set_shadow`]).
+    /// Whether a shadow precise simulation runs (see [`LeveledModel::set_shadow`]).
     pub fn has_shadow(&self) -> bool {
         self.shadow.is_some()
     }
@@ -52,7 +52,7 @@ impl LeveledBody {
 
     /// The shadow's node positions (`None` without a shadow).
     pub fn shadow_positions(&self) -> Option<&[Vec3]> {
-        self.shadow.as_ref().map(|s| s.body().positions())
+        self.shadow.as_ref().map(|s| s.model().positions())
     }
 
     /// Puts the shadow in the body's current state (from the cage or the precise solver).
@@ -72,8 +72,8 @@ impl LeveledBody {
                 );
             }
             Level::Precise => {
-                let from = self.precise.body();
-                let to = shadow.body_mut();
+                let from = self.precise.model();
+                let to = shadow.model_mut();
                 to.positions_mut().copy_from_slice(from.positions());
                 to.velocities_mut().copy_from_slice(from.velocities());
                 match shadow.as_mut() {
@@ -100,7 +100,7 @@ impl LeveledBody {
         };
         shadow.step()?;
         let a = self.cage.points();
-        let b = shadow.body().positions();
+        let b = shadow.model().positions();
         let (mut sum, mut max) = (0.0, 0.0_f64);
         for &i in &self.surface {
             let d = (a[i as usize] - b[i as usize]).norm();
@@ -124,7 +124,7 @@ impl LeveledBody {
             return;
         }
         if let Some(s) = self.shadow.as_mut() {
-            s.body_mut().add_force(node, force);
+            s.model_mut().add_force(node, force);
         }
     }
 }

@@ -3,7 +3,7 @@
 
 use super::*;
 
-impl LeveledBody {
+impl LeveledModel {
     pub(super) fn max_surface_jump(&self, before: &[Vec3]) -> f64 {
         let now = self.node_positions();
         self.surface
@@ -16,7 +16,7 @@ impl LeveledBody {
     pub(super) fn snapshot_surface(&mut self) {
         let now = match self.level {
             Level::Cage => self.cage.points(),
-            Level::Precise => self.precise.body().positions(),
+            Level::Precise => self.precise.model().positions(),
         };
         for (o, &i) in self.surface_work.iter_mut().zip(&self.surface) {
             *o = now[i as usize];
@@ -128,7 +128,7 @@ impl LeveledBody {
         // Loads waiting for the precise level's next step (a contact's, say) are not the
         // cage's: the cage holds the shape they held.
         self.precise
-            .body_mut()
+            .model_mut()
             .external_forces_mut()
             .fill(Vec3::zeros());
         self.lowered_rotation = self.cage_rotation(&self.fit_cage);
@@ -157,7 +157,7 @@ impl LeveledBody {
         self.cage.set_detail(None)?;
         self.cage.exact_points(&mut self.nodes_work)?;
         self.cage
-            .set_detail_between(self.precise.body().positions(), &self.nodes_work)?;
+            .set_detail_between(self.precise.model().positions(), &self.nodes_work)?;
         self.cage.update_points()?;
         // The shadow carries on from the precise state the cage now stands for.
         self.restart_shadow()?;
@@ -174,7 +174,7 @@ pub(super) fn load_state(
     v: &[Vec3],
     turned: UnitQuaternion<f64>,
 ) {
-    let nodes = target.body_mut().nodes_mut();
+    let nodes = target.model_mut().nodes_mut();
     for i in 0..nodes.x.len() {
         for a in 0..3 {
             if !nodes.fixed[i][a] {

@@ -2,9 +2,9 @@
 //! its first change and put back when the stage fails, so a failed stage leaves every body as
 //! it was before it.
 
-use super::{Level, LeveledBody};
+use super::{Level, LeveledModel};
 use crate::Vec3;
-use crate::state::{NodalBody, Nodes};
+use crate::state::{NodalModel, Nodes};
 
 /// A body's state at its current level as the contact response may change it: positions,
 /// velocities and pending external forces of the level's nodes (the precise body's, or the
@@ -41,17 +41,17 @@ impl LevelSnapshot {
     }
 }
 
-impl LeveledBody {
+impl LeveledModel {
     fn level_nodes(&self) -> &Nodes {
         match self.level {
-            Level::Precise => self.precise.body().nodes(),
+            Level::Precise => self.precise.model().nodes(),
             Level::Cage => self.cage.msd().nodes(),
         }
     }
 
     fn level_nodes_mut(&mut self) -> &mut Nodes {
         match self.level {
-            Level::Precise => self.precise.body_mut().nodes_mut(),
+            Level::Precise => self.precise.model_mut().nodes_mut(),
             Level::Cage => self.cage.msd_mut().nodes_mut(),
         }
     }
@@ -63,7 +63,7 @@ impl LeveledBody {
         copy(&mut s.v, &n.v);
         copy(&mut s.f, &n.f_ext);
         match &self.shadow {
-            Some(sh) => copy(&mut s.shadow_f, &sh.body().nodes().f_ext),
+            Some(sh) => copy(&mut s.shadow_f, &sh.model().nodes().f_ext),
             None => s.shadow_f.clear(),
         }
         s.asleep = self.asleep;
@@ -81,9 +81,12 @@ impl LeveledBody {
         n.v.copy_from_slice(&s.v);
         n.f_ext.copy_from_slice(&s.f);
         if let Some(sh) = &mut self.shadow
-            && sh.body().nodes().f_ext.len() == s.shadow_f.len()
+            && sh.model().nodes().f_ext.len() == s.shadow_f.len()
         {
-            sh.body_mut().nodes_mut().f_ext.copy_from_slice(&s.shadow_f);
+            sh.model_mut()
+                .nodes_mut()
+                .f_ext
+                .copy_from_slice(&s.shadow_f);
         }
         self.asleep = s.asleep;
         true
@@ -95,7 +98,7 @@ impl LeveledBody {
         let n = self.level_nodes();
         n.first_non_finite_input().or_else(|| {
             let sh = self.shadow.as_ref()?;
-            sh.body()
+            sh.model()
                 .nodes()
                 .f_ext
                 .iter()

@@ -1,21 +1,21 @@
-//! [`SimBody`]: one simulated body, its levels, contact surface, heat field and outputs.
+//! [`WorldBody`]: one simulated body, its levels, contact surface, heat field and outputs.
 
 use super::*;
 
-/// Most precise steps [`SimBody::new`] spends settling a body under gravity.
+/// Most precise steps [`WorldBody::new`] spends settling a body under gravity.
 pub const SETTLE_STEPS: u32 = 5000;
 
 /// One simulated body: its levels, contact surface, optional heat field and outputs.
 #[derive(Debug)]
-pub struct SimBody {
+pub struct WorldBody {
     pub(crate) name: String,
     pub(crate) mesh: Arc<TetMesh>,
-    pub(crate) body: LeveledBody,
+    pub(crate) model: LeveledModel,
     pub(crate) collider: SurfaceCollider,
     pub(crate) heat: Option<HeatField>,
     /// The heat field's fixed temperatures (a cut carries them over).
     pub(crate) heat_boundary: HeatBoundary,
-    /// The cuts this body came from (see [`SimBody::cut`]).
+    /// The cuts this body came from (see [`WorldBody::cut`]).
     pub(crate) cut: Option<super::cut::CutRecord>,
     /// Pieces this body gave off in cuts (their names count on from it).
     pub(crate) pieces_made: usize,
@@ -57,7 +57,7 @@ pub struct SimBody {
     pub(crate) undo: LevelSnapshot,
 }
 
-impl SimBody {
+impl WorldBody {
     /// Builds a body from a mesh (in scene coordinates) and its settings; `heat` adds a
     /// temperature field stepped at `settings.dt`.
     pub fn new(
@@ -69,7 +69,7 @@ impl SimBody {
         Self::build(name.into(), mesh, settings, heat, true)
     }
 
-    /// [`SimBody::new`], settling under gravity only when `settle` (a piece of a cut body
+    /// [`WorldBody::new`], settling under gravity only when `settle` (a piece of a cut body
     /// starts in the state it was cut in instead).
     pub(crate) fn build(
         name: String,
@@ -84,7 +84,7 @@ impl SimBody {
             source,
         };
         let settings_method = settings.precise;
-        let mut body = LeveledBody::new(&mesh, settings).map_err(precision)?;
+        let mut body = LeveledModel::new(&mesh, settings).map_err(precision)?;
         // Under gravity the cage level starts from the equilibrium the precise method finds
         // (a free body finds it on its supports in the world: it starts precise).
         let settled = if settle {
@@ -121,7 +121,7 @@ impl SimBody {
         };
         let rest_surface = collider.positions().to_vec();
         let start = rest_surface.clone();
-        let mut b = SimBody {
+        let mut b = WorldBody {
             surface_out: vec![[0.0; 3]; rest_surface.len()],
             rest_surface,
             diagnostics: BodyDiagnostics {
@@ -144,7 +144,7 @@ impl SimBody {
             },
             name,
             mesh,
-            body,
+            model: body,
             collider,
             heat,
             heat_boundary,
@@ -197,13 +197,13 @@ impl SimBody {
     }
 
     /// The levels.
-    pub fn body(&self) -> &LeveledBody {
-        &self.body
+    pub fn model(&self) -> &LeveledModel {
+        &self.model
     }
 
     /// The levels, to pin, change method or push.
-    pub fn body_mut(&mut self) -> &mut LeveledBody {
-        &mut self.body
+    pub fn model_mut(&mut self) -> &mut LeveledModel {
+        &mut self.model
     }
 
     /// Contact surface.
@@ -250,12 +250,12 @@ impl SimBody {
         self.surface_written
     }
 
-    /// Mesh node of each entry of [`SimBody::surface_positions`].
+    /// Mesh node of each entry of [`WorldBody::surface_positions`].
     pub fn surface_nodes(&self) -> &[u32] {
         self.collider.nodes()
     }
 
-    /// Surface triangles, indexing [`SimBody::surface_positions`].
+    /// Surface triangles, indexing [`WorldBody::surface_positions`].
     pub fn surface_triangles(&self) -> &[[u32; 3]] {
         self.collider.triangles()
     }
@@ -267,19 +267,19 @@ impl SimBody {
 
     /// Turns on or off a shadow precise simulation beside the cage level, for validation:
     /// [`BodyDiagnostics::shadow`] then reports the distance between the two each step
-    /// (see [`LeveledBody::set_shadow`]; it costs one precise step per step).
+    /// (see [`LeveledModel::set_shadow`]; it costs one precise step per step).
     pub fn set_shadow(&mut self, on: bool) -> Result<(), WorldError> {
-        self.body
+        self.model
             .set_shadow(&self.mesh, on)
             .map_err(|source| WorldError::Precision {
                 body: self.label(),
                 source,
             })?;
-        self.diagnostics.shadow = self.body.shadow_error();
+        self.diagnostics.shadow = self.model.shadow_error();
         Ok(())
     }
 
-    /// Changes the body's materials at run time (see [`LeveledBody::set_materials`]: no
+    /// Changes the body's materials at run time (see [`LeveledModel::set_materials`]: no
     /// jump, the precise solver built again). The parameters are this body's: for a piece
     /// of a cut body, its share of the masses (see [`CutRecord::share`](super::CutRecord::share)).
     pub fn set_materials(
@@ -289,7 +289,7 @@ impl SimBody {
         springs: crate::msd::SpringStiffness,
     ) -> Result<(), WorldError> {
         let mesh = self.mesh.clone();
-        self.body
+        self.model
             .set_materials(&mesh, fem, msd, springs)
             .map_err(|e| self.precision_err(e))?;
         self.written_asleep = false;
@@ -302,7 +302,7 @@ impl SimBody {
         self.vaporize_tried.clear();
         self.heat = match heat {
             Some((params, boundary)) => {
-                let field = HeatField::new(&self.mesh, params, self.body.settings().dt, &boundary)
+                let field = HeatField::new(&self.mesh, params, self.model.settings().dt, &boundary)
                     .map_err(|source| WorldError::Heat {
                         body: self.label(),
                         source,
@@ -319,20 +319,20 @@ impl SimBody {
     /// Writes the surface positions and the diagnostics. A non-finite surface position is
     /// never written: the surface keeps its last positions and the error names the node.
     pub(crate) fn write_surface(&mut self) -> Result<(), WorldError> {
-        self.diagnostics.level = self.body.level();
-        self.diagnostics.shadow = if self.body.level() == Level::Cage {
-            self.body.shadow_error()
+        self.diagnostics.level = self.model.level();
+        self.diagnostics.shadow = if self.model.level() == Level::Cage {
+            self.model.shadow_error()
         } else {
             None
         };
-        self.diagnostics.switch_count = self.body.switch_count();
-        self.diagnostics.last_switch = self.body.last_switch();
-        if self.heat.is_none() && self.body.is_asleep() && self.written_asleep {
+        self.diagnostics.switch_count = self.model.switch_count();
+        self.diagnostics.last_switch = self.model.last_switch();
+        if self.heat.is_none() && self.model.is_asleep() && self.written_asleep {
             // Asleep and already written: the surface has not changed.
             self.surface_written = false;
             return Ok(());
         }
-        let x = self.body.node_positions();
+        let x = self.model.node_positions();
         if let Some(&node) = self
             .collider
             .nodes()
@@ -348,7 +348,7 @@ impl SimBody {
             });
         }
         self.surface_written = true;
-        self.written_asleep = self.body.is_asleep();
+        self.written_asleep = self.model.is_asleep();
         let mut max_d: f64 = 0.0;
         for ((o, &i), r) in self
             .surface_out
@@ -361,17 +361,17 @@ impl SimBody {
             max_d = crate::state::nan_max(max_d, (p - r).norm());
         }
         self.diagnostics.max_displacement = max_d;
-        self.diagnostics.level = self.body.level();
-        self.diagnostics.method = self.body.settings().precise;
-        self.diagnostics.switch_count = self.body.switch_count();
-        self.diagnostics.last_switch = self.body.last_switch();
+        self.diagnostics.level = self.model.level();
+        self.diagnostics.method = self.model.settings().precise;
+        self.diagnostics.switch_count = self.model.switch_count();
+        self.diagnostics.last_switch = self.model.last_switch();
         self.diagnostics.max_temperature = self.heat.as_ref().map(|h| h.max_temperature());
         Ok(())
     }
 
     /// At the precise level and not yet slow for the policy's rest steps.
     pub(crate) fn moving(&self) -> bool {
-        self.body.is_moving()
+        self.model.is_moving()
     }
 
     pub(crate) fn precision_err(&self, source: PrecisionError) -> WorldError {
@@ -383,12 +383,12 @@ impl SimBody {
 
     /// Back to the initial state (cage level, rest shape, initial temperature).
     pub fn reset(&mut self) -> Result<(), WorldError> {
-        self.body.reset().map_err(|e| self.precision_err(e))?;
+        self.model.reset().map_err(|e| self.precision_err(e))?;
         if let Some(h) = &mut self.heat {
             h.reset();
         }
         self.vaporize_tried.clear();
-        self.collider.reset_motion(self.body.node_positions());
+        self.collider.reset_motion(self.model.node_positions());
         self.touched = false;
         self.contacts = 0;
         self.penetration = 0.0;
@@ -407,17 +407,17 @@ impl SimBody {
     }
 }
 
-impl SimBody {
+impl WorldBody {
     /// Saves this body's level state before the contact solve first changes it this step
     /// (see [`solve_contacts`]).
     pub(crate) fn before_change(&mut self) {
         if !self.undo.is_saved() {
-            self.body.save_level_state(&mut self.undo);
+            self.model.save_level_state(&mut self.undo);
         }
     }
 
     /// The compliance blocks between surface vertices `vertices` (collider indices) of the
-    /// step just taken (see [`LeveledBody::contact_compliance`]).
+    /// step just taken (see [`LeveledModel::contact_compliance`]).
     pub(crate) fn contact_compliance(
         &mut self,
         vertices: &[u32],
@@ -427,13 +427,13 @@ impl SimBody {
         let nodes = self.collider.nodes();
         self.node_scratch
             .extend(vertices.iter().map(|&v| nodes[v as usize]));
-        self.body
+        self.model
             .contact_compliance(&self.node_scratch, out)
             .map_err(|e| self.precision_err(e))
     }
 
     /// Corrects the step by contact forces on surface vertices (collider indices; see
-    /// [`LeveledBody::apply_contact_forces`]).
+    /// [`LeveledModel::apply_contact_forces`]).
     pub(crate) fn apply_contact_forces(
         &mut self,
         forces: &[(u32, Vec3)],
@@ -442,7 +442,7 @@ impl SimBody {
         let nodes = self.collider.nodes();
         self.force_scratch
             .extend(forces.iter().map(|&(v, f)| (nodes[v as usize], f)));
-        let r = self.body.apply_contact_forces(&self.force_scratch);
+        let r = self.model.apply_contact_forces(&self.force_scratch);
         self.written_asleep = false;
         r.map_err(|e| self.precision_err(e))
     }

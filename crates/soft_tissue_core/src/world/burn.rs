@@ -1,6 +1,6 @@
 //! Tissue an electrode vaporized leaves the body: the ball of each crater is carved out of
 //! the mesh ([`crate::mesh::cut::carve`]) by the same topology change as a cut
-//! ([`SimBody::begin_vaporize`]).
+//! ([`WorldBody::begin_vaporize`]).
 
 use super::*;
 use crate::mesh::cut::Ball;
@@ -9,7 +9,7 @@ use crate::mesh::cut::Ball;
 /// factor.
 pub const CARVE_GROWTH: f64 = 1.25;
 
-impl SimBody {
+impl WorldBody {
     /// The balls of tissue electrodes vaporized, to carve out (rest shape, scene units; see
     /// [`crate::heat::HeatField::vaporized_balls`]): those at least as large as their
     /// electrode, and [`CARVE_GROWTH`] times one tried before at the same place. Empty

@@ -29,7 +29,7 @@ pub struct CutRecord {
     pub cuts: u32,
     /// What the next cut carries on (the sides of the cuts, the nodes a blade passed).
     pub(crate) history: crate::mesh::cut::CutHistory,
-    /// Surface triangles (indices into [`SimBody::surface_triangles`]) that are sides of a
+    /// Surface triangles (indices into [`WorldBody::surface_triangles`]) that are sides of a
     /// cut: the inside of the tissue, to draw as such.
     pub surface_faces: Vec<u32>,
     /// Area of the cut sides of this body at rest, scene units squared.
@@ -51,7 +51,7 @@ pub struct CutRecord {
     pub land_us: f64,
 }
 
-/// What one blade sweep did to one body ([`SimBody::cut_within`]).
+/// What one blade sweep did to one body ([`WorldBody::cut_within`]).
 #[derive(Debug)]
 pub enum BladeOutcome {
     /// The blade reached nothing of the body, or the body could not be cut where it is
@@ -72,12 +72,12 @@ pub struct BladeCut {
     /// Edges it bisected.
     pub bisected: usize,
     /// Pieces that came loose, as bodies of their own (the body keeps one piece).
-    pub pieces: Vec<SimBody>,
+    pub pieces: Vec<WorldBody>,
     /// Where each node of the body before went: `(piece, node)`, piece 0 being the body
     /// itself and `k >= 1` `pieces[k - 1]`; the first copy of a node duplicated by the cut.
     pub node_map: Vec<(u32, u32)>,
     /// The body as it was before the cut.
-    pub previous: Box<SimBody>,
+    pub previous: Box<WorldBody>,
 }
 
 /// The surface a blade has swept since its cutting turned on. Each step's strip (from the
@@ -233,12 +233,12 @@ pub fn swept_triangles(a0: Vec3, b0: Vec3, a1: Vec3, b1: Vec3) -> Vec<CutTriangl
 impl CutRecord {
     /// The share of the uncut body's volume, and so of its mass, this body has (its rest
     /// volume over the uncut body's).
-    pub fn share(&self, body: &SimBody) -> f64 {
+    pub fn share(&self, body: &WorldBody) -> f64 {
         body.mesh.volume() / self.origin_volume
     }
 }
 
-impl SimBody {
+impl WorldBody {
     /// The cuts this body came from, if any.
     pub fn cut_record(&self) -> Option<&CutRecord> {
         self.cut.as_ref()
@@ -248,7 +248,7 @@ impl SimBody {
 /// Grips of `tools` on body `body` follow a cut of it (`node_map` of its [`BladeCut`]; the
 /// cut's pieces are added as bodies from index `first_piece` on). A grip on a node the cut
 /// did not keep as it was is let go. `bodies` are the bodies after the pieces were added.
-pub fn remap_grips<T: BorrowMut<Tool>, B: Borrow<SimBody>>(
+pub fn remap_grips<T: BorrowMut<Tool>, B: Borrow<WorldBody>>(
     tools: &mut [T],
     bodies: &[B],
     body: usize,

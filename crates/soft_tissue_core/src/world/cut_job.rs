@@ -1,6 +1,6 @@
-//! A cut in two halves: [`SimBody::begin_cut`] takes what the cut needs of the body (its
+//! A cut in two halves: [`WorldBody::begin_cut`] takes what the cut needs of the body (its
 //! rest mesh, its shape now, its settings, heat and cut history) and prepares the cut mesh
-//! and the bodies of its pieces, in the step or on a thread of its own; [`SimBody::finish_cut`]
+//! and the bodies of its pieces, in the step or on a thread of its own; [`WorldBody::finish_cut`]
 //! lands it, handing the body's state at that step to the pieces. Preparing is a pure
 //! function of what was taken, so a cut lands the same whenever its thread ran.
 
@@ -13,7 +13,7 @@ use crate::mesh::cut::{Ball, CutHistory, CutOptions, CutTriangle, NodeOrigin, re
 use crate::mesh::pieces::pieces;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-/// A cut begun by [`SimBody::begin_cut`], to land with [`SimBody::finish_cut`].
+/// A cut begun by [`WorldBody::begin_cut`], to land with [`WorldBody::finish_cut`].
 #[derive(Debug)]
 pub struct CutJob {
     /// The body's rest mesh and settings when it began: a body built again since is not
@@ -55,7 +55,7 @@ impl Drop for PoolSlot {
     }
 }
 
-/// Where a cut is prepared ([`SimBody::begin_cut_at`]).
+/// Where a cut is prepared ([`WorldBody::begin_cut_at`]).
 #[derive(Debug, Clone, Copy)]
 pub enum CutPlace<'a> {
     /// Within the call.
@@ -168,11 +168,11 @@ struct PreparedCut {
     /// Each node of the cut mesh as a point of a tetrahedron before.
     origins: Vec<NodeOrigin>,
     /// Each piece's nodes (cut mesh indices) and its body, at rest; the kept piece first.
-    parts: Vec<(Vec<u32>, SimBody)>,
+    parts: Vec<(Vec<u32>, WorldBody)>,
     node_map: Vec<(u32, u32)>,
 }
 
-impl SimBody {
+impl WorldBody {
     /// Cuts the body along `blade` (triangles in scene coordinates, where the body is now).
     /// Returns `None` when nothing was separated (the body is unchanged). Otherwise the body
     /// becomes the piece holding most of its fixed nodes (the largest when none is fixed),
@@ -190,7 +190,7 @@ impl SimBody {
         })
     }
 
-    /// [`SimBody::cut`] by the pending strips `blade` of incision `incision` ([`Incision::id`])
+    /// [`WorldBody::cut`] by the pending strips `blade` of incision `incision` ([`Incision::id`])
     /// whose stroke so far is `region` (see [`crate::mesh::cut::recut_within`]).
     pub fn cut_within(
         &mut self,
@@ -205,7 +205,7 @@ impl SimBody {
         }
     }
 
-    /// Begins [`SimBody::cut_within`]: takes the body's shape now and prepares the cut,
+    /// Begins [`WorldBody::cut_within`]: takes the body's shape now and prepares the cut,
     /// here or (`background`) on a thread of its own. `None`: the blade does not reach the
     /// body. A blade with bad values is refused by name.
     pub fn begin_cut(
@@ -224,7 +224,7 @@ impl SimBody {
         self.begin_cut_at(blade, region, incision, options, place)
     }
 
-    /// [`SimBody::begin_cut`], prepared where `place` says.
+    /// [`WorldBody::begin_cut`], prepared where `place` says.
     pub fn begin_cut_at(
         &mut self,
         blade: &[CutTriangle],
@@ -233,7 +233,7 @@ impl SimBody {
         options: &CutOptions,
         place: CutPlace<'_>,
     ) -> Result<Option<CutJob>, WorldError> {
-        let err = |b: &SimBody, reason: String| WorldError::Cut {
+        let err = |b: &WorldBody, reason: String| WorldError::Cut {
             body: b.label(),
             reason,
         };
@@ -256,8 +256,8 @@ impl SimBody {
     }
 
     /// Begins carving the balls `balls` (tissue an electrode vaporized, in the rest shape;
-    /// see [`SimBody::vaporized`]) out of the body as a cut changes the mesh: prepared where
-    /// `place` says, landed by [`SimBody::finish_cut`], the pieces left (usually one) in the
+    /// see [`WorldBody::vaporized`]) out of the body as a cut changes the mesh: prepared where
+    /// `place` says, landed by [`WorldBody::finish_cut`], the pieces left (usually one) in the
     /// state of the step it lands in, their masses by their share of the volume (the mass of
     /// what was carved leaves). `None` when `balls` is empty.
     pub fn begin_vaporize(
@@ -287,12 +287,12 @@ impl SimBody {
         options: &CutOptions,
         place: CutPlace<'_>,
     ) -> Result<CutJob, WorldError> {
-        let (x, _) = self.body.node_state().map_err(|e| self.precision_err(e))?;
+        let (x, _) = self.model.node_state().map_err(|e| self.precision_err(e))?;
         let input = Input {
             name: self.name.clone(),
             mesh: self.mesh.clone(),
             x,
-            settings: self.body.settings().clone(),
+            settings: self.model.settings().clone(),
             heat: self
                 .heat
                 .as_ref()
@@ -361,7 +361,7 @@ impl SimBody {
         }
     }
 
-    /// Lands a cut begun by [`SimBody::begin_cut`] (waiting for its thread if it is not
+    /// Lands a cut begun by [`WorldBody::begin_cut`] (waiting for its thread if it is not
     /// done): the body's state now (positions, velocities, temperature, damage) goes to the
     /// pieces by the weights of their nodes. A body built again since the cut began is not
     /// the one it was prepared for: the cut is dropped and reported as crossed (its strips
@@ -405,7 +405,7 @@ impl SimBody {
             .as_ref()
             .map(|h| (*h.params(), self.heat_boundary.clone()));
         if !Arc::ptr_eq(&self.mesh, &job.mesh)
-            || self.body.settings() != &job.settings
+            || self.model.settings() != &job.settings
             || heat != job.heat
         {
             log::info!(
@@ -422,14 +422,14 @@ impl SimBody {
             node_map,
         } = *cut;
         // Every field of the body now, carried to the new nodes.
-        let (x, v) = self.body.node_state().map_err(|e| self.precision_err(e))?;
+        let (x, v) = self.model.node_state().map_err(|e| self.precision_err(e))?;
         let carry = |field: &[Vec3]| -> Vec<Vec3> {
             origins.iter().map(|o| o.interpolate(field)).collect()
         };
         let x_all = carry(&x);
         let v_all = carry(&v);
         // Where the supports hold their nodes (moved kinematically or not), whatever the level.
-        let held_all = carry(self.body.precise().positions());
+        let held_all = carry(self.model.precise().positions());
         // Where the tissue has moved since the cut began, a piece's element may be turned
         // inside out in the state of now: the cut is dropped and its strips cut again.
         for (nodes, body) in &parts {
@@ -457,14 +457,14 @@ impl SimBody {
         for (nodes, mut body) in parts {
             let xp: Vec<Vec3> = nodes.iter().map(|&n| x_all[n as usize]).collect();
             let vp: Vec<Vec3> = nodes.iter().map(|&n| v_all[n as usize]).collect();
-            body.body
-                .pin(self.body.pinned())
+            body.model
+                .pin(self.model.pinned())
                 .map_err(|e| body.precision_err(e))?;
-            body.body
+            body.model
                 .start_precise(&xp, &vp)
                 .map_err(|e| body.precision_err(e))?;
             // A support holds a piece's node where it held the node it came from.
-            let precise = body.body.precise_mut();
+            let precise = body.model.precise_mut();
             let fixed = precise.fixed().to_vec();
             for ((p, axes), &n) in precise.positions_mut().iter_mut().zip(&fixed).zip(&nodes) {
                 for a in 0..3 {
@@ -492,12 +492,12 @@ impl SimBody {
             }
             body.friction = self.friction;
             // What was set at run time beyond the settings.
-            body.body
-                .set_precise_cg_must_converge(self.body.cg_must_converge());
-            if self.body.has_shadow() {
+            body.model
+                .set_precise_cg_must_converge(self.model.cg_must_converge());
+            if self.model.has_shadow() {
                 body.set_shadow(true)?;
             }
-            body.collider.gather(body.body.node_positions());
+            body.collider.gather(body.model.node_positions());
             body.start.copy_from_slice(body.collider.positions());
             body.write_surface()?;
             built.push(body);
@@ -528,7 +528,7 @@ impl SimBody {
         let previous = Box::new(std::mem::replace(self, kept));
         self.pieces_made = made;
         self.loose = loose;
-        let mut pieces: Vec<SimBody> = built.collect();
+        let mut pieces: Vec<WorldBody> = built.collect();
         for p in &mut pieces {
             p.loose = true;
         }
@@ -543,7 +543,7 @@ impl SimBody {
 
     /// Whether the blade's bounds meet the body's (a cheap test before the cut).
     fn blade_reaches(&self, blade: &[CutTriangle]) -> bool {
-        let Some(b) = crate::mesh::Aabb::from_points(self.body.node_positions()) else {
+        let Some(b) = crate::mesh::Aabb::from_points(self.model.node_positions()) else {
             return false;
         };
         let mut lo = Vec3::repeat(f64::INFINITY);
@@ -717,7 +717,7 @@ fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
             format!("{}.{}", input.name, input.pieces_made + slot)
         };
         let building = std::time::Instant::now();
-        let mut body = SimBody::build(piece_name, Arc::new(mesh), piece_settings, heat, false)
+        let mut body = WorldBody::build(piece_name, Arc::new(mesh), piece_settings, heat, false)
             .map_err(|e| fail(format!("building a piece: {e}")))?;
         build_us += building.elapsed().as_secs_f64() * 1e6;
         let history = CutHistory {

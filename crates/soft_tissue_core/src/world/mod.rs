@@ -8,7 +8,7 @@
 //! ```
 //!
 //! - cut: every blade with cutting on cuts the bodies its incision crosses
-//!   ([`SimBody::cut_within`], in the step or on a thread of its own: [`SimBody::begin_cut`]); pieces that come loose are added as bodies (see
+//!   ([`WorldBody::cut_within`], in the step or on a thread of its own: [`WorldBody::begin_cut`]); pieces that come loose are added as bodies (see
 //!   `docs/cutting.md`).
 //! - [`prepare`]: tool velocities from their poses, body surfaces and bounds gathered.
 //! - [`detect_contacts`]: broad phase, tool and body narrow phases on the positions at the
@@ -33,7 +33,7 @@ mod scene;
 mod script;
 mod soft_world;
 
-pub use body::{SETTLE_STEPS, SimBody};
+pub use body::{SETTLE_STEPS, WorldBody};
 pub use burn::CARVE_GROWTH;
 pub use cut::{BladeCut, BladeOutcome, CutRecord, Incision, remap_grips, swept_triangles};
 pub use cut_job::{CutJob, CutPlace};
@@ -59,7 +59,7 @@ use crate::heat::{HeatBoundary, HeatError, HeatField, HeatParams};
 use crate::linalg::CgStats;
 use crate::mesh::TetMesh;
 use crate::precision::{
-    BodySettings, Level, LevelSnapshot, LeveledBody, PrecisionError, ShadowError, SwitchRecord,
+    BodySettings, Level, LevelSnapshot, LeveledModel, PrecisionError, ShadowError, SwitchRecord,
 };
 use crate::scenario::SceneError;
 
@@ -143,13 +143,13 @@ pub enum WorldError {
 }
 
 /// The body an error is about: its name (what the message shows), and the process-unique
-/// id of the built body that raised it ([`SimBody::id`]; none for a body still being built,
+/// id of the built body that raised it ([`WorldBody::id`]; none for a body still being built,
 /// or a tool or obstacle).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct BodyName {
     /// Name.
     pub name: String,
-    /// [`SimBody::id`] of the body, if built.
+    /// [`WorldBody::id`] of the body, if built.
     pub id: Option<u64>,
 }
 
@@ -213,7 +213,7 @@ pub struct BodyDiagnostics {
     pub cg: Option<CgStats>,
     /// Precise steps since the body was built (or reset) whose iterative solve stopped at its
     /// iteration cap above its tolerance (each went on with its last iterate; see
-    /// [`LeveledBody::set_precise_cg_must_converge`] to make that an error).
+    /// [`LeveledModel::set_precise_cg_must_converge`] to make that an error).
     pub unconverged_solves: u64,
     /// Contacts of this step's contact solve with a force on this body (points against
     /// tools, obstacles and other bodies, grips).
@@ -238,7 +238,7 @@ pub struct BodyDiagnostics {
     /// (part of `step_us`; beside the mechanics on another thread in a pool).
     pub heat_us: f64,
     /// Distance of the cage level from its shadow precise simulation after this step
-    /// (`None` unless [`SimBody::set_shadow`] turned it on and the body is at its cage).
+    /// (`None` unless [`WorldBody::set_shadow`] turned it on and the body is at its cage).
     pub shadow: Option<ShadowError>,
 }
 
@@ -248,7 +248,7 @@ impl WorldError {
         self.named().map(|b| b.name.as_str())
     }
 
-    /// The process-unique id of the body the error is about ([`SimBody::id`]), when a built
+    /// The process-unique id of the body the error is about ([`WorldBody::id`]), when a built
     /// body raised it: unlike the name, it tells apart bodies of the same name (two copies
     /// of one scene in a plugin app).
     pub fn body_id(&self) -> Option<u64> {
@@ -280,7 +280,7 @@ impl BodyDiagnostics {
 }
 
 /// Prepare: tool velocities over `dt`, surfaces gathered from the bodies.
-pub fn prepare<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
+pub fn prepare<B: BorrowMut<WorldBody>, T: BorrowMut<Tool>>(
     bodies: &mut [B],
     tools: &mut [T],
     dt: f64,
@@ -291,8 +291,8 @@ pub fn prepare<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
     for b in bodies.iter_mut() {
         let b = b.borrow_mut();
         // A sleeping body has not moved since it was last gathered.
-        if !(b.body.is_asleep() && b.written_asleep) {
-            b.collider.gather(b.body.node_positions());
+        if !(b.model.is_asleep() && b.written_asleep) {
+            b.collider.gather(b.model.node_positions());
             b.start.copy_from_slice(b.collider.positions());
         }
         b.touched = false;
@@ -303,14 +303,14 @@ pub fn prepare<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
 }
 
 /// Raise every touched body to its precise method (before the contact is resolved).
-pub fn switch_precision<B: BorrowMut<SimBody>>(bodies: &mut [B]) -> Result<(), WorldError> {
+pub fn switch_precision<B: BorrowMut<WorldBody>>(bodies: &mut [B]) -> Result<(), WorldError> {
     for b in bodies.iter_mut() {
         let b = b.borrow_mut();
         b.diagnostics.switched = None;
         b.diagnostics.switch_us = 0.0;
-        if b.touched && b.body.level() == Level::Cage {
+        if b.touched && b.model.level() == Level::Cage {
             let start = Instant::now();
-            match b.body.raise() {
+            match b.model.raise() {
                 Ok(Some(r)) => b.diagnostics.switched = Some(r),
                 Ok(None) => {}
                 Err(e) => return Err(b.precision_err(e)),
@@ -322,7 +322,7 @@ pub fn switch_precision<B: BorrowMut<SimBody>>(bodies: &mut [B]) -> Result<(), W
 }
 
 /// Cautery power into the heat fields, then every body's heat and level step.
-pub fn step_solvers<B: BorrowMut<SimBody> + Send, T: Borrow<Tool>>(
+pub fn step_solvers<B: BorrowMut<WorldBody> + Send, T: Borrow<Tool>>(
     bodies: &mut [B],
     tools: &[T],
     state: &ContactState,
@@ -391,7 +391,7 @@ pub fn step_solvers<B: BorrowMut<SimBody> + Send, T: Borrow<Tool>>(
 /// normal force, at the force-weighted centre of its pressed points on the rest mesh (see
 /// [`HeatField::add_electrode`]; the electrode is taken as centred on a flat surface, half
 /// of its sphere in tissue).
-fn electrode_power<B: BorrowMut<SimBody>>(
+fn electrode_power<B: BorrowMut<WorldBody>>(
     bodies: &mut [B],
     state: &ContactState,
     pressing: &dyn Fn(&&crate::contact::ContactRow) -> bool,
@@ -448,7 +448,7 @@ fn electrode_power<B: BorrowMut<SimBody>>(
     Ok(())
 }
 
-impl SimBody {
+impl WorldBody {
     /// This body's heat and level step, timed into its diagnostics.
     fn step_solver(&mut self) -> Result<(), WorldError> {
         let start = Instant::now();
@@ -457,13 +457,13 @@ impl SimBody {
         for k in 0..self.contact_load.len() {
             let (v, f) = self.contact_load[k];
             let node = self.collider.nodes()[v as usize] as usize;
-            self.body
+            self.model
                 .add_force(node, f)
                 .map_err(|e| self.precision_err(e))?;
         }
         self.contact_load.clear();
         // Contacts with a force in the last step hold the body (it may rest pressed).
-        self.body.set_held(self.solve_contacts > 0);
+        self.model.set_held(self.solve_contacts > 0);
         // The heat field and the mechanics do not read each other within a step: in a pool
         // they run side by side.
         // The heat field's new temperatures are taken only when the mechanics stepped too,
@@ -475,15 +475,15 @@ impl SimBody {
         };
         let ((heat, heat_time), mechanics) = match self.heat.as_mut() {
             Some(h) if crate::parallel::in_pool() => {
-                rayon::join(|| timed(h), || self.body.step(self.touched))
+                rayon::join(|| timed(h), || self.model.step(self.touched))
             }
             Some(h) => {
                 let heat = timed(h);
-                (heat, self.body.step(self.touched))
+                (heat, self.model.step(self.touched))
             }
             None => (
                 (Ok(()), std::time::Duration::ZERO),
-                self.body.step(self.touched),
+                self.model.step(self.touched),
             ),
         };
         heat.map_err(|source| WorldError::Heat {
@@ -502,7 +502,7 @@ impl SimBody {
             self.diagnostics.switched = Some(r);
         }
         self.diagnostics.cg = if stats.level == Level::Precise {
-            self.body.precise_cg()
+            self.model.precise_cg()
         } else {
             None
         };
@@ -517,7 +517,7 @@ impl SimBody {
 /// Writes the surfaces and diagnostics of every body. A body whose surface is not finite
 /// keeps its last written surface; the first such body is the error (every body is
 /// written either way).
-pub fn writeback<B: BorrowMut<SimBody>>(bodies: &mut [B]) -> Result<(), WorldError> {
+pub fn writeback<B: BorrowMut<WorldBody>>(bodies: &mut [B]) -> Result<(), WorldError> {
     let mut result = Ok(());
     for b in bodies.iter_mut() {
         let r = b.borrow_mut().writeback();
@@ -528,7 +528,7 @@ pub fn writeback<B: BorrowMut<SimBody>>(bodies: &mut [B]) -> Result<(), WorldErr
     result
 }
 
-impl SimBody {
+impl WorldBody {
     /// The writeback of this body alone (the stage does it for every body; the bodies are
     /// independent, in any order).
     pub fn writeback(&mut self) -> Result<(), WorldError> {

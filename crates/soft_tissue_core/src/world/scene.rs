@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use nalgebra::Rotation3;
 
-use super::{SimBody, SoftTissueWorld, WorldConfig, WorldError};
+use super::{SoftTissueWorld, WorldBody, WorldConfig, WorldError};
 use crate::Vec3;
 use crate::contact::{ContactConfig, Friction, MeshShape, Obstacle, RigidShape};
 use crate::heat::HeatBoundary;
@@ -223,7 +223,7 @@ impl SoftTissueWorld {
         let obstacles = scene_obstacles(scene, assets, options)?;
         let mut world = SoftTissueWorld::new(config)?;
         for b in bodies {
-            let mut body = SimBody::new(b.name, Arc::new(b.mesh), b.settings, b.heat)?;
+            let mut body = WorldBody::new(b.name, Arc::new(b.mesh), b.settings, b.heat)?;
             body.set_friction(b.friction)?;
             world.add_body(body)?;
         }

@@ -6,7 +6,7 @@ use super::*;
 #[derive(Debug)]
 pub struct SoftTissueWorld {
     config: WorldConfig,
-    bodies: Vec<SimBody>,
+    bodies: Vec<WorldBody>,
     tools: Vec<Tool>,
     obstacles: Vec<Obstacle>,
     contacts: ContactState,
@@ -19,7 +19,7 @@ pub struct SoftTissueWorld {
     /// How blades cut.
     cut_options: crate::mesh::cut::CutOptions,
     /// Bodies as they were before their first cut, by index (`reset` puts them back).
-    uncut: Vec<(usize, SimBody)>,
+    uncut: Vec<(usize, WorldBody)>,
     /// Each tool's incision while it cuts.
     incisions: Vec<Option<super::cut::Incision>>,
     /// Cuts being prepared on threads of their own, in the order they began.
@@ -90,7 +90,7 @@ impl SoftTissueWorld {
         Ok(())
     }
 
-    /// Cuts body `index` along `blade` now (see [`SimBody::cut`]): pieces that came loose
+    /// Cuts body `index` along `blade` now (see [`WorldBody::cut`]): pieces that came loose
     /// are added as bodies, grips on the body follow its nodes. Returns the indices of the
     /// new bodies (empty when nothing was separated).
     pub fn cut_body(
@@ -102,7 +102,7 @@ impl SoftTissueWorld {
     }
 
     /// [`SoftTissueWorld::cut_body`] by incision `incision`'s newest strip `blade`, its
-    /// stroke so far `region` (see [`SimBody::cut_within`]).
+    /// stroke so far `region` (see [`WorldBody::cut_within`]).
     pub fn cut_body_within(
         &mut self,
         index: usize,
@@ -251,7 +251,7 @@ impl SoftTissueWorld {
         Ok(())
     }
 
-    /// Tissue electrodes vaporized leaves the bodies (see [`SimBody::vaporized`]), as a
+    /// Tissue electrodes vaporized leaves the bodies (see [`WorldBody::vaporized`]), as a
     /// cut changes them: in the step or in the background like a blade's cuts.
     fn vaporize_stage(&mut self, count: usize) -> Result<(), WorldError> {
         let background = self.cut_options.background_steps;
@@ -346,8 +346,8 @@ impl SoftTissueWorld {
     }
 
     /// Adds a body; its solver step must be the world's.
-    pub fn add_body(&mut self, body: SimBody) -> Result<usize, WorldError> {
-        let dt = body.body.settings().dt;
+    pub fn add_body(&mut self, body: WorldBody) -> Result<usize, WorldError> {
+        let dt = body.model.settings().dt;
         if (dt - self.config.dt).abs() > 1e-12 * self.config.dt {
             return Err(WorldError::TimeStep(format!(
                 "body `{}` steps {dt} s but the world steps {} s",
@@ -387,7 +387,7 @@ impl SoftTissueWorld {
     }
 
     /// Bodies.
-    pub fn bodies(&self) -> &[SimBody] {
+    pub fn bodies(&self) -> &[WorldBody] {
         &self.bodies
     }
 
@@ -397,7 +397,7 @@ impl SoftTissueWorld {
     pub fn state_hash(&self) -> u64 {
         let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
         for b in &self.bodies {
-            for p in b.body().node_positions() {
+            for p in b.model().node_positions() {
                 for c in p.iter() {
                     for byte in c.to_bits().to_le_bytes() {
                         hash ^= u64::from(byte);
@@ -410,7 +410,7 @@ impl SoftTissueWorld {
     }
 
     /// Bodies, to change.
-    pub fn bodies_mut(&mut self) -> &mut [SimBody] {
+    pub fn bodies_mut(&mut self) -> &mut [WorldBody] {
         &mut self.bodies
     }
 

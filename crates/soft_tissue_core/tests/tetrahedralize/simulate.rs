@@ -26,7 +26,7 @@ fn poke_rises_and_returns(mesh: soft_tissue_core::mesh::TetMesh) {
     use soft_tissue_core::contact::{ContactConfig, Tool};
     use soft_tissue_core::precision::{BodySettings, Level};
     use soft_tissue_core::scenario::{Anchor, CYLINDER_MSD, ORGAN_FEM};
-    use soft_tissue_core::world::{Script, ScriptAction, SimBody, SoftTissueWorld, WorldConfig};
+    use soft_tissue_core::world::{Script, ScriptAction, SoftTissueWorld, WorldBody, WorldConfig};
     let dt = ORGAN_FEM.dt;
     let mut settings = BodySettings::new(ORGAN_FEM.params, CYLINDER_MSD.params, dt);
     settings.boundary = Anchor::SoftToRest { stiffness: 1.0 }.boundary(&mesh);
@@ -35,7 +35,7 @@ fn poke_rises_and_returns(mesh: soft_tissue_core::mesh::TetMesh) {
         contact: ContactConfig::for_scale(mesh.bbox().smallest_dimension()),
     })
     .unwrap();
-    let body = SimBody::new("sphere", std::sync::Arc::new(mesh), settings, None).unwrap();
+    let body = WorldBody::new("sphere", std::sync::Arc::new(mesh), settings, None).unwrap();
     world.add_body(body).unwrap();
     let script = Script::builtin("poke", &world).unwrap();
     let tool = world.add_tool(Tool::new("tool", script.tool).unwrap());
@@ -51,12 +51,12 @@ fn poke_rises_and_returns(mesh: soft_tissue_core::mesh::TetMesh) {
             }
         }
         world.step_fixed().unwrap();
-        let level = world.bodies()[0].body().level();
+        let level = world.bodies()[0].model().level();
         rose |= level == Level::Precise;
         precise_at_end = level == Level::Precise;
     }
     assert!(rose, "the poke raised the meshed sphere");
     assert!(!precise_at_end, "it returned to its cage");
-    let last = world.bodies()[0].body().last_switch().unwrap();
+    let last = world.bodies()[0].model().last_switch().unwrap();
     assert!(last.jump_ratio < 0.005, "{last:?}");
 }

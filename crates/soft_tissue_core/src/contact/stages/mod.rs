@@ -33,7 +33,7 @@ use super::{
 };
 use crate::Vec3;
 use crate::precision::Level;
-use crate::world::{SimBody, WorldError};
+use crate::world::{WorldBody, WorldError};
 
 mod rows;
 use rows::{build_rows, drop_mirrored, find_again, old_plane, other_body};
@@ -96,7 +96,7 @@ pub struct ContactState {
 
 /// The body pairs whose bounds, grown by the contact reach, overlap (sweep and prune on the
 /// bodies' current bounds), into `out`.
-fn body_pairs<B: BorrowMut<SimBody>>(
+fn body_pairs<B: BorrowMut<WorldBody>>(
     bodies: &[B],
     config: &ContactConfig,
     state: &mut ContactState,
@@ -134,7 +134,7 @@ fn found_of(
 /// ways, each pair's into its own list; in a pool the pairs side by side. A pair's query
 /// only reads the two surfaces, so the lists do not depend on the thread count; the callers
 /// use them in pair order.
-fn query_pairs<B: BorrowMut<SimBody> + Sync>(
+fn query_pairs<B: BorrowMut<WorldBody> + Sync>(
     bodies: &[B],
     state: &mut ContactState,
     config: &ContactConfig,
@@ -222,7 +222,7 @@ fn reach_and_slack(config: &ContactConfig) -> (f64, f64) {
 
 /// Detect contacts on the positions at the start of the step (margins included) and resolve
 /// pending grabs; marks touched bodies.
-pub fn detect_contacts<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
+pub fn detect_contacts<B: BorrowMut<WorldBody> + Sync, T: BorrowMut<Tool>>(
     bodies: &mut [B],
     tools: &mut [T],
     config: &ContactConfig,
@@ -297,7 +297,7 @@ pub fn detect_contacts<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
         let (bi, bj) = (bodies[i as usize].borrow(), bodies[j as usize].borrow());
         // Resting cages do not touch each other: nothing to find, so a resting scene pays
         // nothing here.
-        if !(bi.body.level() == Level::Cage && bj.body.level() == Level::Cage) {
+        if !(bi.model.level() == Level::Cage && bj.model.level() == Level::Cage) {
             state.queried.push((i, j));
         }
     }
@@ -305,7 +305,7 @@ pub fn detect_contacts<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
     for p in 0..state.pairs.len() {
         let (i, j) = state.pairs[p];
         let (bi, bj) = pair_mut(bodies, i as usize, j as usize);
-        if bi.body.level() == Level::Cage && bj.body.level() == Level::Cage {
+        if bi.model.level() == Level::Cage && bj.model.level() == Level::Cage {
             continue;
         }
         bi.active = true;
@@ -339,11 +339,11 @@ fn both_ways(
     detect_candidates(j, b, candidates.near(1), i, a, config, margin, reach, out);
 }
 
-pub(crate) fn pair_mut<B: BorrowMut<SimBody>>(
+pub(crate) fn pair_mut<B: BorrowMut<WorldBody>>(
     bodies: &mut [B],
     i: usize,
     j: usize,
-) -> (&mut SimBody, &mut SimBody) {
+) -> (&mut WorldBody, &mut WorldBody) {
     debug_assert!(i < j);
     let (lo, hi) = bodies.split_at_mut(j);
     (lo[i].borrow_mut(), hi[0].borrow_mut())
@@ -351,8 +351,8 @@ pub(crate) fn pair_mut<B: BorrowMut<SimBody>>(
 
 /// Whether a body takes part in the contact solve: at its precise level, or a cage that is
 /// awake (a sleeping cage joins only through a contact with a precise body or a tool).
-fn takes_part(b: &SimBody) -> bool {
-    b.body.level() == Level::Precise || !b.body.is_asleep()
+fn takes_part(b: &WorldBody) -> bool {
+    b.model.level() == Level::Precise || !b.model.is_asleep()
 }
 
 /// The contact solve after the free motion, the bodies' corrections, the forces on the tools
@@ -362,7 +362,7 @@ fn takes_part(b: &SimBody) -> bool {
 /// (a compliance or correction that fails, a state it leaves that is not finite) every body
 /// it changed is put back as it was before the stage, and the error names the body and node.
 /// Tools' forces of the failed stage are not kept either (they are cleared).
-pub fn solve_contacts<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
+pub fn solve_contacts<B: BorrowMut<WorldBody> + Sync, T: BorrowMut<Tool>>(
     bodies: &mut [B],
     tools: &mut [T],
     obstacles: &[Obstacle],
@@ -375,7 +375,7 @@ pub fn solve_contacts<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
         let b = b.borrow();
         if result.is_ok()
             && b.undo.is_saved()
-            && let Some((what, node)) = b.body.first_non_finite_level_state()
+            && let Some((what, node)) = b.model.first_non_finite_level_state()
         {
             result = Err(WorldError::NonFinite {
                 body: b.label(),
@@ -390,8 +390,8 @@ pub fn solve_contacts<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
     }
     for b in bodies.iter_mut() {
         let b = b.borrow_mut();
-        if result.is_err() && b.undo.is_saved() && b.body.restore_level_state(&b.undo) {
-            b.collider.gather(b.body.node_positions());
+        if result.is_err() && b.undo.is_saved() && b.model.restore_level_state(&b.undo) {
+            b.collider.gather(b.model.node_positions());
         }
         b.undo.clear();
     }
@@ -411,7 +411,7 @@ fn lap(t: &mut Instant) -> f64 {
     e
 }
 
-fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
+fn solve_all<B: BorrowMut<WorldBody> + Sync, T: BorrowMut<Tool>>(
     bodies: &mut [B],
     tools: &mut [T],
     obstacles: &[Obstacle],
@@ -425,7 +425,7 @@ fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
         b.penetration = 0.0;
         b.solve_contacts = 0;
         if takes_part(b) || b.active {
-            b.collider.gather(b.body.node_positions());
+            b.collider.gather(b.model.node_positions());
             b.moved = b
                 .collider
                 .positions()
@@ -579,7 +579,7 @@ fn solve_all<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
                 {
                     failure = Some(e);
                 }
-                b.collider.gather(b.body.node_positions());
+                b.collider.gather(b.model.node_positions());
             };
             state.solver.apply(&mut state.rows, &mut apply);
         }

@@ -13,11 +13,11 @@ use crate::contact::problem::{
 use crate::contact::rigid::Friction;
 use crate::contact::{ContactConfig, Obstacle, Tool, pair_reach};
 use crate::precision::Level;
-use crate::world::SimBody;
+use crate::world::WorldBody;
 
 /// Body row `old` of the last round measured again against the same triangle's plane: its
 /// points (same vertices and weights) on the current positions, along its normal.
-pub(super) fn old_plane<B: BorrowMut<SimBody>>(
+pub(super) fn old_plane<B: BorrowMut<WorldBody>>(
     bodies: &[B],
     config: &ContactConfig,
     old: &ContactRow,
@@ -43,7 +43,7 @@ pub(super) fn old_plane<B: BorrowMut<SimBody>>(
 /// distance: its point against its tool part, obstacle or body (a vertex against the other
 /// body's nearest triangle within four times the pair reach; farther, its old frame with that
 /// distance as its gap).
-pub(super) fn find_again<B: BorrowMut<SimBody>, T: BorrowMut<Tool>>(
+pub(super) fn find_again<B: BorrowMut<WorldBody>, T: BorrowMut<Tool>>(
     bodies: &[B],
     tools: &[T],
     obstacles: &[Obstacle],
@@ -193,7 +193,7 @@ pub(super) fn body_key(a: u32, v: u32, p: &BodyPoint) -> RowKey {
 }
 
 /// How far a body point moved since the start of the step.
-pub(super) fn motion(b: &SimBody, p: &BodyPoint) -> Vec3 {
+pub(super) fn motion(b: &WorldBody, p: &BodyPoint) -> Vec3 {
     let x = b.collider.positions();
     p.terms()
         .map(|(v, w)| (x[v as usize] - b.start[v as usize]) * w)
@@ -201,7 +201,7 @@ pub(super) fn motion(b: &SimBody, p: &BodyPoint) -> Vec3 {
 }
 
 /// The rows of the current positions: body pairs, tools, grips, obstacles.
-pub(super) fn build_rows<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
+pub(super) fn build_rows<B: BorrowMut<WorldBody> + Sync, T: BorrowMut<Tool>>(
     bodies: &mut [B],
     tools: &mut [T],
     obstacles: &[Obstacle],
@@ -213,7 +213,7 @@ pub(super) fn build_rows<B: BorrowMut<SimBody> + Sync, T: BorrowMut<Tool>>(
     state.queried.clear();
     for &(i, j) in &state.solve_pairs {
         let (bi, bj) = (bodies[i as usize].borrow(), bodies[j as usize].borrow());
-        let both_cages = bi.body.level() == Level::Cage && bj.body.level() == Level::Cage;
+        let both_cages = bi.model.level() == Level::Cage && bj.model.level() == Level::Cage;
         if !both_cages {
             state.queried.push((i, j));
         }
