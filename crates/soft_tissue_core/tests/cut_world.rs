@@ -586,3 +586,86 @@ fn a_blade_that_nicks_and_goes_around_cuts_nothing_it_did_not_pass() {
         "at most the nick's faces are cut ({faces} cut faces)"
     );
 }
+
+/// A cut prepared in the background computes, with the new bodies, the compliance columns
+/// of the nodes where a probe presses on the body: the contact of the step it lands in
+/// solves for no column (it solved for them all before this).
+#[test]
+fn a_background_cut_warms_the_columns_a_pressing_probe_needs() {
+    let mut w = world_with(hanging_bar(PreciseMethod::CorotationalFem, 1.0));
+    w.set_cut_options(CutOptions {
+        background_steps: 4,
+        ..CutOptions::default()
+    })
+    .unwrap();
+    // A ball pressed 3 mm into the +x face of the bar (where the node of rest
+    // (0.02, 0.07, 0.01) hangs now), above where the blade cuts.
+    let node = w.bodies()[0]
+        .mesh()
+        .positions()
+        .iter()
+        .position(|q| (q - Vec3::new(0.02, 0.07, 0.01)).norm() < 1e-9)
+        .unwrap();
+    let at = w.bodies()[0].model().node_positions()[node];
+    let p = w.add_tool(Tool::new("probe", ToolShape::Sphere { radius: 0.005 }).unwrap());
+    for k in 0..=40 {
+        let x = 0.01 - 0.008 * (k.min(5) as f64 / 5.0);
+        w.tools_mut()[p]
+            .set_position(at + Vec3::new(x, 0.0, 0.0))
+            .unwrap();
+        w.step_fixed().unwrap();
+    }
+    assert!(
+        w.bodies()[0].diagnostics().contacts > 0,
+        "the probe presses on the bar"
+    );
+    sweep_blade(&mut w, 0.055);
+    // Pressed on while the cut is prepared (0.5 mm further each step).
+    for k in 1..=4 {
+        w.tools_mut()[p]
+            .set_position(at + Vec3::new(0.002 - 0.0005 * k as f64, 0.0, 0.0))
+            .unwrap();
+        w.step_fixed().unwrap();
+    }
+    assert_eq!(w.bodies().len(), 2, "the cut landed");
+    let loose = &w.bodies()[1];
+    let warmed = loose.cut_record().unwrap().warmed_nodes;
+    assert!(
+        loose.diagnostics().contacts > 0,
+        "the probe presses on the loose piece"
+    );
+    assert!(
+        warmed > 0 && warmed <= loose.surface_nodes().len(),
+        "{warmed} nodes warmed"
+    );
+    assert_eq!(
+        loose.model().contact_columns_computed(),
+        warmed as u64,
+        "the landing step's contact solved for columns it was not given"
+    );
+}
+
+/// Warm columns are the columns contact would compute: the compliance of a warmed body is
+/// the cold body's, to the last bit.
+#[test]
+fn warm_compliance_columns_are_the_cold_ones() {
+    let nodes: Vec<u32> = vec![3, 17, 40, 41];
+    let mut blocks = Vec::new();
+    for warm in [false, true] {
+        let mut b = hanging_bar(PreciseMethod::CorotationalFem, 1.0);
+        let m = b.model_mut();
+        m.pin(Some(Level::Precise)).unwrap();
+        if warm {
+            m.warm_contact_columns(&nodes).unwrap();
+            assert_eq!(m.contact_columns_computed(), nodes.len() as u64);
+        }
+        let mut out = vec![nalgebra::Matrix3::zeros(); nodes.len() * nodes.len()];
+        m.contact_compliance(&nodes, &mut out).unwrap();
+        assert_eq!(m.contact_columns_computed(), nodes.len() as u64);
+        blocks.push(out);
+    }
+    assert_eq!(blocks[0], blocks[1]);
+    let mut b = hanging_bar(PreciseMethod::CorotationalFem, 1.0);
+    let n = b.mesh().node_count() as u32;
+    assert!(b.model_mut().warm_contact_columns(&[n]).is_err());
+}

@@ -46,6 +46,11 @@ pub(super) struct FemContact {
 }
 
 impl FemBody {
+    /// Compliance columns computed since the body was built, counted per node.
+    pub fn contact_columns_computed(&self) -> u64 {
+        self.contact.cache.computed()
+    }
+
     /// The key the kept columns belong to: the model and the step's system.
     fn compliance_key(&self) -> u64 {
         let c = &self.config;

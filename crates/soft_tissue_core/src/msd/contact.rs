@@ -31,6 +31,12 @@ pub(super) struct MsdContact {
 }
 
 impl MsdBody {
+    /// Compliance columns computed since the body was built, counted per node (none for
+    /// RK4, whose compliance is the nodes' own).
+    pub fn contact_columns_computed(&self) -> u64 {
+        self.contact.cache.computed()
+    }
+
     /// Writes the compliance blocks between `nodes` (row-major, `nodes.len()^2` blocks) for
     /// the step just taken (see the module docs).
     pub fn contact_compliance(

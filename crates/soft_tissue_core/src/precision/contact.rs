@@ -55,4 +55,34 @@ impl LeveledModel {
         }
         Ok(())
     }
+
+    /// Computes and keeps the precise model's compliance columns of mesh nodes `nodes`
+    /// (see [`crate::linalg::ColumnCache`]) whatever the level, so the contact of a later
+    /// step finds them kept: a body built in the background for a cut or a carve warms the
+    /// nodes the tool will touch when it lands, off the steps' threads. Also builds a
+    /// prefactored model's factors. Nodes beyond the cache's capacity are not kept.
+    pub fn warm_contact_columns(&mut self, nodes: &[u32]) -> Result<(), PrecisionError> {
+        let n = self.rest.len();
+        if let Some(&node) = nodes.iter().find(|&&k| k as usize >= n) {
+            return Err(PrecisionError::BadNode {
+                node: node as usize,
+                nodes: n,
+            });
+        }
+        let mut out = vec![Matrix3::zeros(); nodes.len() * nodes.len()];
+        match &mut self.precise {
+            Precise::Fem(b) => b.contact_compliance(nodes, &mut out)?,
+            Precise::Msd(b) => b.contact_compliance(nodes, &mut out)?,
+        }
+        Ok(())
+    }
+
+    /// Compliance columns the precise model has computed since it was built (three a node;
+    /// counted per node): how often contact had to solve for them.
+    pub fn contact_columns_computed(&self) -> u64 {
+        match &self.precise {
+            Precise::Fem(b) => b.contact_columns_computed(),
+            Precise::Msd(b) => b.contact_columns_computed(),
+        }
+    }
 }

@@ -43,8 +43,13 @@ pub struct CutRecord {
     /// contact surface, cage) of all its pieces. Where the cut was prepared on a thread
     /// of its own ([`crate::mesh::cut::CutOptions::background_steps`]) that thread spent them, not a step.
     pub mesh_us: f64,
-    /// See [`CutRecord::mesh_us`].
+    /// See [`CutRecord::mesh_us`]. Includes the compliance columns computed for
+    /// [`CutRecord::warmed_nodes`].
     pub build_us: f64,
+    /// Nodes of this body whose contact compliance columns were computed with it, before it
+    /// landed: its surface nodes nearest to where the body was pressed on when the cut
+    /// began (at most 128), so the contact of the step it lands in finds them kept.
+    pub warmed_nodes: usize,
     /// What the step the cut landed in spent on it, microseconds: waiting for the thread
     /// that prepared it (0 when it was ready, or when it was prepared in the step) and
     /// handing the body's state now to its pieces.

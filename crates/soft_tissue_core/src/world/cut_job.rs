@@ -136,6 +136,9 @@ struct Input {
     pieces_made: usize,
     change: Change,
     options: CutOptions,
+    /// Nodes the last contact solve pressed on (their neighbourhoods' compliance columns
+    /// are computed with the new bodies, see [`warm_touched`]).
+    touched: Vec<u32>,
 }
 
 /// What a prepared change of the mesh does.
@@ -288,7 +291,16 @@ impl WorldBody {
         place: CutPlace<'_>,
     ) -> Result<CutJob, WorldError> {
         let (x, _) = self.model.node_state().map_err(|e| self.precision_err(e))?;
+        let surface = self.collider.nodes();
+        let mut touched: Vec<u32> = self
+            .contact_load
+            .iter()
+            .filter_map(|&(v, _)| surface.get(v as usize).copied())
+            .collect();
+        touched.sort_unstable();
+        touched.dedup();
         let input = Input {
+            touched,
             name: self.name.clone(),
             mesh: self.mesh.clone(),
             x,
@@ -677,6 +689,7 @@ fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
                 .unwrap_or(std::cmp::Ordering::Equal)
         })
         .unwrap_or(0);
+    let reach = touched_reach(old_mesh, &input.touched);
     let mut order: Vec<usize> = vec![keep];
     order.extend((0..parts.len()).filter(|&k| k != keep));
     let mut build_us = 0.0;
@@ -719,6 +732,8 @@ fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
         let building = std::time::Instant::now();
         let mut body = WorldBody::build(piece_name, Arc::new(mesh), piece_settings, heat, false)
             .map_err(|e| fail(format!("building a piece: {e}")))?;
+        let warmed =
+            warm_touched(&mut body, &reach).map_err(|e| fail(format!("a piece's contact: {e}")))?;
         build_us += building.elapsed().as_secs_f64() * 1e6;
         let history = CutHistory {
             sides: part
@@ -736,6 +751,7 @@ fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
             origin: input.origin.0.clone(),
             origin_volume: input.origin.1,
             cuts: input.origin.2 + 1,
+            warmed_nodes: warmed,
             ..CutRecord::default()
         });
         body.finish_cut_record(history);
@@ -763,4 +779,59 @@ fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
         parts: built,
         node_map,
     })))
+}
+
+/// Most nodes a new body computes compliance columns for where the old one was touched.
+const WARM_NODES: usize = 128;
+
+/// Where the old body was touched, in its rest shape: each touched node's position and the
+/// longest rest edge at it (a tool pressing on that node reaches the new nodes within its
+/// elements).
+fn touched_reach(mesh: &TetMesh, touched: &[u32]) -> Vec<(Vec3, f64)> {
+    if touched.is_empty() {
+        return Vec::new();
+    }
+    let p = mesh.positions();
+    let mut longest = vec![0.0f64; p.len()];
+    for &[a, b] in mesh.edges() {
+        let l = (p[a as usize] - p[b as usize]).norm();
+        longest[a as usize] = longest[a as usize].max(l);
+        longest[b as usize] = longest[b as usize].max(l);
+    }
+    touched
+        .iter()
+        .filter(|&&k| (k as usize) < p.len())
+        .map(|&k| (p[k as usize], longest[k as usize]))
+        .collect()
+}
+
+/// Computes a new body's compliance columns for its surface nodes (rest shape) within the
+/// reach of where the old body was touched, nearest first, at most [`WARM_NODES`]: the
+/// contact of the step it lands in then finds them kept instead of solving for them.
+fn warm_touched(body: &mut WorldBody, reach: &[(Vec3, f64)]) -> Result<usize, PrecisionError> {
+    if reach.is_empty() {
+        return Ok(0);
+    }
+    let rest = body.mesh.positions();
+    let mut near: Vec<(f64, u32)> = body
+        .collider
+        .nodes()
+        .iter()
+        .filter_map(|&k| {
+            let x = rest[k as usize];
+            reach
+                .iter()
+                .filter_map(|&(c, r)| {
+                    let d = (x - c).norm();
+                    (d <= r).then_some(d / r.max(1e-300))
+                })
+                .min_by(f64::total_cmp)
+                .map(|d| (d, k))
+        })
+        .collect();
+    near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    near.truncate(WARM_NODES);
+    let nodes: Vec<u32> = near.into_iter().map(|(_, k)| k).collect();
+    body.model.warm_contact_columns(&nodes)?;
+    Ok(nodes.len())
 }
