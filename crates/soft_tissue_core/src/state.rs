@@ -100,6 +100,25 @@ impl Nodes {
         first_non_finite_input(&self.f_ext, &self.x, &self.v)
     }
 
+    /// Moves the rest shape and the anchors' targets rigidly by `m` (a teleport; see
+    /// [`crate::precision::LeveledModel::teleport`]).
+    pub(crate) fn move_rest(&mut self, m: &nalgebra::Isometry3<f64>) {
+        for p in self.rest.iter_mut().chain(self.anchor_target.iter_mut()) {
+            *p = m * nalgebra::Point3::from(*p) - nalgebra::Point3::origin();
+        }
+    }
+
+    /// Moves the state rigidly by `m`: positions (fixed components too: a support moves with
+    /// the body) moved, velocities and pending forces turned.
+    pub(crate) fn move_state(&mut self, m: &nalgebra::Isometry3<f64>) {
+        for p in &mut self.x {
+            *p = m * nalgebra::Point3::from(*p) - nalgebra::Point3::origin();
+        }
+        for v in self.v.iter_mut().chain(self.f_ext.iter_mut()) {
+            *v = m.rotation * *v;
+        }
+    }
+
     /// Energy of the anchor springs.
     pub(crate) fn anchor_energy(&self) -> f64 {
         self.x
@@ -255,6 +274,13 @@ impl Bdf2History {
         }
         self.dv = acc;
         self.valid = true;
+    }
+
+    /// Turns the recorded differences with a body turned by `r` (a teleport).
+    pub(crate) fn turn(&mut self, r: &nalgebra::UnitQuaternion<f64>) {
+        for d in self.dx.iter_mut().chain(self.dv.iter_mut()) {
+            *d = r * *d;
+        }
     }
 
     /// Moves the free components of the state to the extrapolated start of the step.

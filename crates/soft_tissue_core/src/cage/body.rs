@@ -519,6 +519,37 @@ impl CageModel {
         self.update_points()
     }
 
+    /// Moves the cage body rigidly by `m` (a teleport): its rest cage, coordinates and
+    /// calibrated dynamics with the cage MSD's rest and anchors, so nothing springs back, and
+    /// its state (vertex positions moved, velocities and pending forces turned), the detail
+    /// and the embedded points. On error (the turned calibrated system cannot be factored)
+    /// it is left as it was.
+    pub(crate) fn move_by(&mut self, m: &nalgebra::Isometry3<f64>) -> Result<(), CageError> {
+        let at = |p: &Vec3| m * nalgebra::Point3::from(*p) - nalgebra::Point3::origin();
+        if let Some(r) = self.reduced.as_mut() {
+            r.move_by(m)?;
+        }
+        for v in &mut self.cage.vertices {
+            *v = at(v);
+        }
+        self.coords = Arc::new(self.coords.moved(m));
+        let turned = m.rotation.angle() != 0.0;
+        let nodes = self.msd.nodes_mut();
+        nodes.move_rest(m);
+        nodes.move_state(m);
+        // The springs keep their lengths; a BDF2 history of differences turns with the body.
+        if turned {
+            self.msd.restart_history();
+        }
+        for p in &mut self.points {
+            *p = at(p);
+        }
+        for d in self.detail.iter_mut().flatten() {
+            *d = m.rotation * *d;
+        }
+        Ok(())
+    }
+
     /// Puts the cage back at rest.
     pub fn reset(&mut self) -> Result<(), CageError> {
         self.msd.reset();

@@ -217,6 +217,25 @@ impl GreenCoordinates {
         })
     }
 
+    /// These coordinates for their cage and points moved rigidly by `m` (a teleport): the
+    /// coordinates themselves are the same (Green coordinates do not change under a rigid
+    /// motion of the cage and the point together); the rest cage, its face frames and the
+    /// points move.
+    pub(crate) fn moved(&self, m: &nalgebra::Isometry3<f64>) -> Self {
+        let at = |p: &Vec3| m * nalgebra::Point3::from(*p) - nalgebra::Point3::origin();
+        let r = m.rotation;
+        let mut out = self.clone();
+        for f in &mut out.faces {
+            f.n = r * f.n;
+            f.s = f.s.map(|s| r * s);
+            f.m = f.m.map(|v| r * v);
+        }
+        for p in out.rest_vertices.iter_mut().chain(out.points.iter_mut()) {
+            *p = at(p);
+        }
+        out
+    }
+
     /// Number of embedded points.
     pub fn point_count(&self) -> usize {
         self.points.len()

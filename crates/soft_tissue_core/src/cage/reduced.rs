@@ -277,6 +277,30 @@ impl ReducedModel {
         })
     }
 
+    /// This model for its cage moved rigidly by `m` (a teleport): the rest moved, the mass,
+    /// stiffness and damping matrices and the face terms' derivatives turned block by block
+    /// (`R B R^T`), which is the projection of the moved precise model onto the moved cage.
+    pub(crate) fn moved(&self, m: &nalgebra::Isometry3<f64>) -> Self {
+        let mut out = self.clone();
+        for p in &mut out.rest {
+            *p = m * nalgebra::Point3::from(*p) - nalgebra::Point3::origin();
+        }
+        if m.rotation.angle() != 0.0 {
+            let r = *m.rotation.to_rotation_matrix().matrix();
+            for mat in [&mut out.mass, &mut out.stiffness, &mut out.damping] {
+                turn_blocks(mat, self.dim, &r);
+            }
+            // Per face and vertex, the three columns of `d t_j / d V_k`.
+            for g in out.face_jacobians.chunks_exact_mut(3) {
+                let j = r * Matrix3::from_columns(&[g[0], g[1], g[2]]) * r.transpose();
+                for (a, c) in g.iter_mut().enumerate() {
+                    *c = j.column(a).into_owned();
+                }
+            }
+        }
+        out
+    }
+
     /// Number of reduced coordinates (`3 x cage vertices`).
     pub fn dim(&self) -> usize {
         self.dim
@@ -300,6 +324,24 @@ impl ReducedModel {
     /// Whether steps are taken in the cage's corotated frame (free bodies).
     pub fn corotates(&self) -> bool {
         self.corotate
+    }
+}
+
+/// Turns every 3 x 3 block (a pair of cage vertices) of the row-major `dim x dim` matrix
+/// `m`: `R B R^T`.
+fn turn_blocks(m: &mut [f64], dim: usize, r: &Matrix3<f64>) {
+    let n = dim / 3;
+    for bi in 0..n {
+        for bj in 0..n {
+            let at = |i: usize, j: usize| (3 * bi + i) * dim + 3 * bj + j;
+            let b = Matrix3::from_fn(|i, j| m[at(i, j)]);
+            let t = r * b * r.transpose();
+            for i in 0..3 {
+                for j in 0..3 {
+                    m[at(i, j)] = t[(i, j)];
+                }
+            }
+        }
     }
 }
 
@@ -427,6 +469,28 @@ impl ReducedStepper {
             offset: vec![0.0; d],
             model,
         })
+    }
+
+    /// Moves the stepper with its cage rigidly by `m` (a teleport): the model moved (see
+    /// [`ReducedModel::moved`]; a turned model's system factored again) and the equilibrium
+    /// it holds turned with it. On error it is left as it was.
+    pub(crate) fn move_by(&mut self, m: &nalgebra::Isometry3<f64>) -> Result<(), CageError> {
+        let model = Arc::new(self.model.moved(m));
+        if m.rotation.angle() == 0.0 {
+            self.model = model;
+            return Ok(());
+        }
+        let mut next = ReducedStepper::new(model, self.dt)?;
+        for (to, from) in next
+            .offset
+            .chunks_exact_mut(3)
+            .zip(self.offset.chunks_exact(3))
+        {
+            let u = m.rotation * Vec3::new(from[0], from[1], from[2]);
+            to.copy_from_slice(u.as_slice());
+        }
+        *self = next;
+        Ok(())
     }
 
     /// The model.

@@ -40,6 +40,7 @@ mod packed;
 mod prefactored;
 pub mod rotation;
 mod step;
+mod teleport;
 
 use assembly::*;
 pub use config::{FemConfig, MassSpec};

@@ -30,6 +30,7 @@ mod contact;
 mod explicit;
 mod implicit;
 mod material;
+mod teleport;
 
 pub use material::{SpringStiffness, fit_tet_springs, material_stiffnesses};
 

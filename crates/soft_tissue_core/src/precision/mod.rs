@@ -60,6 +60,7 @@ mod fit;
 mod method;
 mod shadow;
 mod switch;
+mod teleport;
 mod undo;
 
 use build::{build_cage, build_precise, calibrated_model};
@@ -177,6 +178,11 @@ pub enum PrecisionError {
     /// A material refused (the field and why).
     #[error("material: {0}")]
     Material(String),
+    /// A rigid move ([`LeveledModel::teleport`]) that cannot be made (the model is left as
+    /// it was): not finite, or a turn of nodes held along some of their axes only (held axes
+    /// are world axes).
+    #[error("rigid move: {0}")]
+    Move(String),
     /// A switch met a non-finite state (the level is left as it was).
     #[error("switch from the {from:?} level: non-finite {what} at node {node}")]
     NonFiniteSwitch {

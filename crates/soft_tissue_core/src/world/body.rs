@@ -10,6 +10,8 @@ pub const SETTLE_STEPS: u32 = 5000;
 pub struct WorldBody {
     pub(crate) name: String,
     pub(crate) mesh: Arc<TetMesh>,
+    /// Where the mechanics sit relative to `mesh` (see [`WorldBody::frame`]).
+    pub(crate) frame: nalgebra::Isometry3<f64>,
     pub(crate) model: LeveledModel,
     pub(crate) collider: SurfaceCollider,
     pub(crate) heat: Option<HeatField>,
@@ -144,6 +146,7 @@ impl WorldBody {
             },
             name,
             mesh,
+            frame: nalgebra::Isometry3::identity(),
             model: body,
             collider,
             heat,
@@ -191,7 +194,9 @@ impl WorldBody {
         }
     }
 
-    /// The tetrahedral mesh (rest shape, scene coordinates).
+    /// The tetrahedral mesh: the rest shape in the coordinates the body was built in, those
+    /// of its heat field, cuts and burns. A body moved since ([`WorldBody::teleport`]) has
+    /// its mechanics at this mesh moved by [`WorldBody::frame`] ([`WorldBody::rest_mesh`]).
     pub fn mesh(&self) -> &Arc<TetMesh> {
         &self.mesh
     }
@@ -269,8 +274,9 @@ impl WorldBody {
     /// [`BodyDiagnostics::shadow`] then reports the distance between the two each step
     /// (see [`LeveledModel::set_shadow`]; it costs one precise step per step).
     pub fn set_shadow(&mut self, on: bool) -> Result<(), WorldError> {
+        let mesh = self.rest_mesh()?;
         self.model
-            .set_shadow(&self.mesh, on)
+            .set_shadow(&mesh, on)
             .map_err(|source| WorldError::Precision {
                 body: self.label(),
                 source,
@@ -288,7 +294,7 @@ impl WorldBody {
         msd: crate::material::MsdParams,
         springs: crate::msd::SpringStiffness,
     ) -> Result<(), WorldError> {
-        let mesh = self.mesh.clone();
+        let mesh = self.rest_mesh()?;
         self.model
             .set_materials(&mesh, fem, msd, springs)
             .map_err(|e| self.precision_err(e))?;

@@ -32,6 +32,7 @@ mod cut_job;
 mod scene;
 mod script;
 mod soft_world;
+mod teleport;
 
 pub use body::{SETTLE_STEPS, WorldBody};
 pub use burn::CARVE_GROWTH;
