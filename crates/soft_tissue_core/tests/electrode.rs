@@ -503,3 +503,76 @@ fn vaporized_tissue_leaves_the_mesh_and_the_electrode_sinks_in() {
         );
     }
 }
+
+/// A spot whose hot core no node samples (its centre in the middle of a 10 mm element's
+/// face, the nearest node 7 mm away) gives its heat to the nodes without heating any of
+/// them beyond the spot's own excess there plus an even share: the heat it holds, to
+/// round-off, and no node hotter than the field it hands over says.
+#[test]
+fn a_spot_the_mesh_does_not_sample_hands_its_heat_over_without_a_hot_node() {
+    use soft_tissue_core::mesh::generate::block;
+    let cell = 0.01;
+    let mesh = block(Vec3::zeros(), Vec3::new(4.0, 2.0, 4.0) * cell, [4, 2, 4]).unwrap();
+    let params = HeatParams {
+        meters_per_unit: 1.0,
+        ..HeatParams::liver()
+    };
+    let mut field = HeatField::new(&mesh, params, DT, &HeatBoundary::insulated()).unwrap();
+    // The middle of the top face of a cell (on its diagonal, 7.07 mm from its corners),
+    // heated through the face's corners.
+    let centre = Vec3::new(1.5, 2.0, 1.5) * cell;
+    let x = mesh.positions();
+    let corners: Vec<(usize, f64)> = (0..x.len())
+        .filter(|&i| {
+            (x[i].y - 2.0 * cell).abs() < 1e-12
+                && (x[i].x - centre.x).abs() < 0.6 * cell
+                && (x[i].z - centre.z).abs() < 0.6 * cell
+        })
+        .map(|i| (i, 0.25))
+        .collect();
+    assert_eq!(corners.len(), 4);
+    let source = ElectrodeSource {
+        center: centre,
+        watts: 0.5,
+        radius: RADIUS,
+        tissue_fraction: 0.5,
+    };
+    for _ in 0..64 {
+        field.add_electrode(&source, &corners).unwrap();
+        field.step().unwrap();
+    }
+    assert!(field.max_temperature() < 100.0, "nothing boils");
+    let before = field.temperatures().to_vec();
+    let c = field.capacities();
+    let after = field.temperatures_with_spots();
+    let handed: f64 = (0..c.len()).map(|i| c[i] * (after[i] - before[i])).sum();
+    let held = field.subgrid_heat_content();
+    assert!(
+        (handed - held).abs() <= 1e-9 * held,
+        "handed {handed} J of the spot's {held} J"
+    );
+    // The spot's excess at each node, and the even share the rest of its heat makes over
+    // the nodes within its reach (20 mm).
+    let excess: Vec<f64> = (0..c.len())
+        .map(|i| field.temperature_at(&x[i], &[(i as u32, 1.0)]).unwrap() - before[i])
+        .collect();
+    let reach: f64 = (0..c.len())
+        .filter(|&i| (x[i] - centre).norm() < 0.02)
+        .map(|i| c[i])
+        .sum();
+    let bound = held / reach;
+    let worst = (0..c.len())
+        .map(|i| after[i] - before[i] - excess[i])
+        .fold(f64::MIN, f64::max);
+    println!(
+        "spot {held:.4} J; largest rise {:.3} K, its excess there at most {:.3} K, even share at most {bound:.4} K",
+        (0..c.len())
+            .map(|i| after[i] - before[i])
+            .fold(f64::MIN, f64::max),
+        excess.iter().copied().fold(f64::MIN, f64::max)
+    );
+    assert!(
+        worst <= bound * (1.0 + 1e-9),
+        "a node rose {worst} K beyond the spot's excess at it (even share at most {bound} K)"
+    );
+}

@@ -220,24 +220,34 @@ impl HeatField {
     }
 
     /// Adds `spot`'s excess heat to the node temperatures `t` where it lies: each free node
-    /// within its reach by the excess at the node times its capacity, scaled so the heat
-    /// added is the spot's (at the spot's own nodes where no node is within reach).
+    /// within its reach takes the spot's excess at it, scaled down where those excesses hold
+    /// more heat than the spot (by the ratio), and where they hold less the rest goes evenly
+    /// (the same rise) to all of them. No node rises by more than the excess at it plus that
+    /// even share. Scaled up instead (as before), a spot whose hot core the mesh does not
+    /// sample (a crater's few fine nodes at its wall) put its heat into them by hundreds of
+    /// times their excess: thousands of kelvin. At the spot's own nodes where no node is
+    /// within reach.
     fn spread(&self, spot: &Spot, t: &mut [f64]) {
         let energy = spot.sensible_energy();
         let s = self.params.meters_per_unit;
-        let share = |i: usize| {
-            if self.fixed[i].is_some() {
-                0.0
+        let reach = spot.grid.outer / s;
+        let within =
+            |i: usize| self.fixed[i].is_none() && (self.positions[i] - spot.center).norm() < reach;
+        let (mut held, mut capacity) = (0.0, 0.0);
+        for i in (0..t.len()).filter(|&i| within(i)) {
+            held += spot.excess_at(&self.positions[i], s).max(0.0) * self.capacity[i];
+            capacity += self.capacity[i];
+        }
+        if capacity > 0.0 && held.is_finite() {
+            let scale = if held > 0.0 {
+                (energy / held).clamp(-1.0, 1.0)
             } else {
-                spot.excess_at(&self.positions[i], s).max(0.0) * self.capacity[i]
-            }
-        };
-        let total: f64 = (0..t.len()).map(share).sum();
-        if total > 0.0 && total.is_finite() {
+                0.0
+            };
+            let even = (energy - scale * held) / capacity;
             for (i, ti) in t.iter_mut().enumerate() {
-                let w = share(i);
-                if w > 0.0 {
-                    *ti += energy * (w / total) / self.capacity[i];
+                if within(i) {
+                    *ti += scale * spot.excess_at(&self.positions[i], s).max(0.0) + even;
                 }
             }
         } else {
@@ -385,15 +395,16 @@ impl HeatField {
         self.marks.push(mark);
     }
 
-    /// Ends spot `k`: its excess heat goes into the nodes where it lies, its volumes and
-    /// boiled heat are kept.
+    /// Ends spot `k`: the excess heat of its tissue goes into the nodes where it lies; its
+    /// volumes, boiled heat and the sensible heat of what vaporized are kept (with the
+    /// heat the water took: they left as steam).
     fn retire(&mut self, k: usize) {
         let spot = self.spots.remove(k);
         let mut t = std::mem::take(&mut self.temperature);
         self.spread(&spot, &mut t);
         self.temperature = t;
         self.retired += spot.volumes(&self.params);
-        self.retired_boiled += spot.boiled_energy();
+        self.retired_boiled += spot.boiled_energy() + spot.vaporized_sensible_energy();
         self.keep_mark(spot.mark());
     }
 

@@ -382,7 +382,8 @@ pub struct HeatField {
     /// Each spot's base temperature at its commit (scratch).
     spot_bases: Vec<f64>,
     grids: Vec<Arc<RadialGrid>>,
-    /// Burnt volumes of spots that ended, m^3, and the heat their water took, J.
+    /// Burnt volumes of spots that ended, m^3, and the heat their water took with the
+    /// sensible heat of their vaporized tissue (both left as steam), J.
     retired: BurnVolumes,
     retired_boiled: f64,
     /// What ended spots burnt, and those of the field before a change of the mesh (newest

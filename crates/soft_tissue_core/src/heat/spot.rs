@@ -381,14 +381,33 @@ impl Spot {
         self.fraction * (sensible + boiled)
     }
 
-    /// Heat in its excess only (tissue share), J: what the coarse field takes when it ends.
+    /// Whether cell `i`'s tissue has vaporized (its water all boiled).
+    fn cell_vaporized(&self, i: usize) -> bool {
+        let latent = self.grid.latent[i];
+        latent > 0.0 && self.boiled[i] >= latent * (1.0 - 1e-12)
+    }
+
+    /// Heat in the excess of its tissue that is still there (tissue share), J: what the
+    /// coarse field takes when it ends. The cells that vaporized hold none of it: their
+    /// tissue left as steam (see [`Spot::vaporized_sensible_energy`]).
     pub(crate) fn sensible_energy(&self) -> f64 {
         let g = &*self.grid;
         self.fraction
-            * g.capacity
-                .iter()
-                .zip(&self.u)
-                .map(|(c, u)| c * u)
+            * (0..CELLS)
+                .filter(|&i| !self.cell_vaporized(i))
+                .map(|i| g.capacity[i] * self.u[i])
+                .sum::<f64>()
+    }
+
+    /// Heat in the excess of its vaporized cells (tissue share), J: the sensible heat of
+    /// tissue that left as steam. Given to no node when the spot ends (pressed into the
+    /// few nodes at a crater's wall it heated them hundreds of kelvin above boiling).
+    pub(crate) fn vaporized_sensible_energy(&self) -> f64 {
+        let g = &*self.grid;
+        self.fraction
+            * (0..CELLS)
+                .filter(|&i| self.cell_vaporized(i))
+                .map(|i| g.capacity[i] * self.u[i])
                 .sum::<f64>()
     }
 
@@ -410,7 +429,7 @@ impl Spot {
             if self.boiled[i] > 0.0 || self.peak[i] >= boil {
                 v.charred += share;
             }
-            if g.latent[i] > 0.0 && self.boiled[i] >= g.latent[i] * (1.0 - 1e-12) {
+            if self.cell_vaporized(i) {
                 v.vaporized += share;
             }
         }
