@@ -76,7 +76,10 @@ impl WorldBody {
         }
         self.collider.reset_motion(self.model.node_positions());
         self.written_asleep = false;
-        self.write_surface()
+        self.write_surface()?;
+        // The next writeback writes the surface again (and says so) though the body sleeps.
+        self.written_asleep = false;
+        Ok(())
     }
 
     /// Changes the precise method at run time (see [`LeveledModel::set_precise_method`]: no
