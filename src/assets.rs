@@ -535,9 +535,10 @@ impl AssetLoader for SceneLoader {
     }
 }
 
-/// Spawns the bodies of a scene asset as children of this entity once it has loaded, and
-/// sets [`SoftTissueConfig`]'s step, contact scale and gravity to the scene's. The bodies
-/// keep the scene's placements; the entity's own transform moves them all.
+/// Spawns the bodies of a scene asset as children of this entity once it has loaded, sets
+/// the simulation's step (the app's fixed timestep, `Time<Fixed>`) to the scene's and
+/// [`SoftTissueConfig`]'s contact scale and gravity to the scene's. The bodies keep the
+/// scene's placements; the entity's own transform moves them all.
 #[derive(Component, Reflect, Clone, Debug, Default)]
 #[reflect(Component)]
 #[require(Transform)]
@@ -587,6 +588,7 @@ fn spawn_scenes(
     scenes: Res<Assets<SceneAsset>>,
     meshes: Res<Assets<TetMeshAsset>>,
     mut config: ResMut<SoftTissueConfig>,
+    mut fixed: Option<ResMut<Time<Fixed>>>,
 ) {
     for (root, handle) in &roots {
         let Some(asset) = scenes.get(&handle.0) else {
@@ -607,7 +609,16 @@ fn spawn_scenes(
             } else {
                 first.msd.map(|m| m.dt)
             };
-            config.dt = dt.or(config.dt);
+            // The simulation steps at the fixed timestep.
+            if let (Some(dt), Some(fixed)) = (dt, fixed.as_mut())
+                && dt.is_finite()
+                && dt > 0.0
+            {
+                let step = std::time::Duration::from_secs_f64(dt);
+                if fixed.timestep() != step {
+                    fixed.set_timestep(step);
+                }
+            }
         }
         let scale = placed
             .iter()
@@ -654,16 +665,15 @@ fn spawn_scenes(
 /// unpaused. For tests, benchmarks and headless tools: an app spawns a
 /// [`SoftTissueSceneRoot`] and carries on.
 pub fn spawn_scene_and_wait(app: &mut App, path: &str) -> Result<Vec<Entity>, String> {
-    use crate::physics::SoftTissueStatus;
+    use crate::physics::{SoftPhysics, SoftPhysicsTime};
     let handle: Handle<SceneAsset> = app.world().resource::<AssetServer>().load(path.to_owned());
     let root = app
         .world_mut()
         .spawn(SoftTissueSceneRoot(handle.clone()))
         .id();
-    let was_paused = std::mem::replace(
-        &mut app.world_mut().resource_mut::<SoftTissueStatus>().paused,
-        true,
-    );
+    let mut clock = app.world_mut().resource_mut::<Time<SoftPhysics>>();
+    let was_paused = clock.is_paused();
+    clock.pause();
     let start = std::time::Instant::now();
     let result = loop {
         app.update();
@@ -682,7 +692,11 @@ pub fn spawn_scene_and_wait(app: &mut App, path: &str) -> Result<Vec<Entity>, St
         }
         std::thread::sleep(std::time::Duration::from_millis(1));
     };
-    app.world_mut().resource_mut::<SoftTissueStatus>().paused = was_paused;
+    if !was_paused {
+        app.world_mut()
+            .resource_mut::<Time<SoftPhysics>>()
+            .unpause();
+    }
     result
 }
 

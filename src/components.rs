@@ -30,8 +30,11 @@ use crate::assets::TetMeshAsset;
 /// The entity's global transform at that moment places the mesh (scale, rotation and
 /// translation are baked into the simulation, which runs in world coordinates); the
 /// rendered mesh is written in the entity's own frame, so parents and the `Transform` stay
-/// as the user set them. Moving the entity (or a parent) later places the body again: it
-/// is rebuilt at rest at its new global pose.
+/// as the user set them. Moving or turning the entity (or a parent) later moves the whole
+/// body rigidly with it at the next step (a teleport): its deformation, velocities (turned),
+/// level, temperatures and damage are kept, and nothing springs back
+/// ([`soft_tissue_core::world::WorldBody::teleport`]); a change of scale builds it again at
+/// rest.
 ///
 /// Every field, and the optional components [`TissueMaterial`], [`TissueHeat`],
 /// [`SoftBodyTuning`] and [`PinnedLevel`], may be written at run time and takes effect at
@@ -426,7 +429,11 @@ pub struct SoftBodyState {
     pub(crate) dirty: bool,
     /// The entity's global transform baked into the simulation mesh when the body was built.
     pub(crate) placement: GlobalTransform,
-    /// Its inverse: world to the entity's frame, for the rendered mesh (`None`: identity).
+    /// The entity's global transform the simulation is at now: `placement` until the entity
+    /// moves, then where its moves (teleports) took it.
+    pub(crate) pose: GlobalTransform,
+    /// The inverse of `pose`: world to the entity's frame, for the rendered mesh (`None`:
+    /// identity).
     pub(crate) to_local: Option<bevy::math::Affine3A>,
     /// What it was built from, beyond what changes in place.
     pub(crate) built_from: crate::physics::BuiltFrom,
@@ -449,9 +456,25 @@ impl SoftBodyState {
     }
 
     /// The entity's global transform when the body was built, baked into the simulation
-    /// mesh (it maps the mesh file's coordinates to the simulation's, world coordinates).
+    /// mesh (it maps the mesh file's coordinates to those of the core body's mesh, where its
+    /// heat field and cuts live; see [`WorldBody::frame`]).
     pub fn placement(&self) -> GlobalTransform {
         self.placement
+    }
+
+    /// The entity's global transform the simulation is at now: [`SoftBodyState::placement`]
+    /// moved by the body's teleports (its mechanics are at the core body's mesh moved by
+    /// [`WorldBody::frame`]).
+    pub fn pose(&self) -> GlobalTransform {
+        self.pose
+    }
+
+    /// Records that the simulation is at `pose` now (the rendered mesh is written in its
+    /// frame).
+    pub(crate) fn set_pose(&mut self, pose: GlobalTransform) {
+        self.pose = pose;
+        self.to_local =
+            (pose.affine() != bevy::math::Affine3A::IDENTITY).then(|| pose.affine().inverse());
     }
 
     /// Kinetic and elastic energy of the body now, computed on this call (nothing is
@@ -522,6 +545,8 @@ pub struct UncutBody {
     pub(crate) body: Option<Box<soft_tissue_core::world::WorldBody>>,
     pub(crate) mesh: Handle<crate::assets::TetMeshAsset>,
     pub(crate) built_from: crate::physics::BuiltFrom,
+    /// Where the body was when it was first cut (see [`SoftBodyState::pose`]).
+    pub(crate) pose: GlobalTransform,
 }
 
 /// A kinematic tool driven by its entity's `Transform` (position: translation; the tool

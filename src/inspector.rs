@@ -16,7 +16,7 @@ use crate::assets::body_label;
 use crate::components::*;
 use crate::core::contact::ToolShape;
 use crate::core::timing::StageTimes;
-use crate::physics::{ResetSimulation, SoftPhysics, SoftTissueStatus};
+use crate::physics::{ResetSimulation, SoftPhysics, SoftPhysicsTime, SoftTissueStatus};
 
 /// Adds the panel (and `EguiPlugin` when the app has none).
 pub struct SoftTissueInspectorPlugin;
@@ -107,7 +107,7 @@ fn inspector_panel(
         .default_width(560.0)
         .show(ctx, |ui| {
             let t = status.times;
-            let dt = status.dt.unwrap_or(f64::NAN);
+            let dt = clock.timestep().as_secs_f64();
             ui.label(format!(
                 "physics {:.0} Hz (dt {} s), step {}: {:.0} us, simulated {:.2} s",
                 1.0 / dt,
@@ -116,12 +116,13 @@ fn inspector_panel(
                 t.total_us(),
                 clock.elapsed_secs_f64(),
             ));
-            let mut speed = clock.context().speed;
+            let mut speed = clock.relative_speed();
             if ui
                 .add(egui::Slider::new(&mut speed, 0.0..=2.0).text("speed"))
                 .changed()
             {
-                clock.context_mut().speed = speed;
+                // The slider's range is a valid speed.
+                let _ = clock.set_relative_speed(speed);
             }
             // Real time is decided by the worst step: the last one, and the median, 99th
             // percentile and largest of the last steps, whole and per stage.
@@ -149,17 +150,19 @@ fn inspector_panel(
             });
             ui.label(format!("over the last {} steps", stats.step.count));
             ui.horizontal(|ui| {
-                let label = if status.paused { "Resume" } else { "Pause" };
+                let label = if clock.is_paused() { "Resume" } else { "Pause" };
                 if ui.button(label).clicked() {
-                    status.paused = !status.paused;
-                    // Resuming after a failed step carries on from the state it left.
-                    if !status.paused {
+                    if clock.is_paused() {
+                        // Resuming after a failed step carries on from the state it left.
+                        clock.unpause();
                         status.error = None;
+                    } else {
+                        clock.pause();
                     }
                 }
                 if ui.button("Step").clicked() {
-                    status.paused = true;
-                    status.step_once = true;
+                    clock.pause();
+                    clock.step_once();
                 }
                 if ui.button("Reset").clicked() {
                     reset.write(ResetSimulation);

@@ -37,9 +37,10 @@
 //!
 //! Optional components change a body: [`TissueMaterial`], [`TissueHeat`],
 //! [`SoftBodyTuning`], [`PinnedLevel`], [`ShadowSimulation`], [`VisualMesh`]. Written at
-//! run time, they take effect at the next step. The simulation steps at
-//! [`SoftTissueConfig::dt`] (by default the app's fixed timestep) on its own clock,
-//! `Time<`[`SoftPhysics`]`>`, with pause and speed; contacts name entities
+//! run time, they take effect at the next step. The simulation steps in `FixedUpdate` at the
+//! app's fixed timestep on its own clock, `Time<`[`SoftPhysics`]`>`, which owns pause, speed
+//! and the step ([`SoftPhysicsTime`]); moving a body's entity moves the whole body rigidly,
+//! deformation and heat kept; contacts name entities
 //! ([`SoftTissueContacts`]), and so do the messages [`LevelChanged`] and [`BodyTouched`].
 //!
 //! ## Where to read more
@@ -94,10 +95,10 @@ pub use assets::{
 pub use components::*;
 pub use messages::{BodyTouched, LevelChanged};
 pub use physics::{
-    ContactPartner, ResetSimulation, SoftBodyError, SoftContact, SoftPhysics, SoftTissueConfig,
-    SoftTissueContacts, SoftTissueError, SoftTissueObstacles, SoftTissuePhysicsPlugin,
-    SoftTissueSchedule, SoftTissueStage, SoftTissueStatus, SoftTissueStep, SoftTissueSystems,
-    SoftTissueThreads,
+    BadSpeed, ContactPartner, ResetSimulation, SoftBodyError, SoftContact, SoftPhysics,
+    SoftPhysicsTime, SoftTissueConfig, SoftTissueContacts, SoftTissueError, SoftTissueObstacles,
+    SoftTissuePhysicsPlugin, SoftTissueSchedule, SoftTissueStage, SoftTissueStatus, SoftTissueStep,
+    SoftTissueSystems, SoftTissueThreads,
 };
 pub use render::{
     EmbeddedVisual, INSIDE_COLOUR, RenderedSurface, SoftBodyMesh, SoftTissueMeshPlugin,
@@ -116,9 +117,9 @@ pub mod prelude {
     pub use crate::core::scenario::{Anchor, CageKind};
     pub use crate::messages::{BodyTouched, LevelChanged};
     pub use crate::physics::{
-        ContactPartner, ResetSimulation, SoftContact, SoftPhysics, SoftTissueConfig,
-        SoftTissueContacts, SoftTissueObstacles, SoftTissueSchedule, SoftTissueStatus,
-        SoftTissueStep, SoftTissueSystems,
+        ContactPartner, ResetSimulation, SoftContact, SoftPhysics, SoftPhysicsTime,
+        SoftTissueConfig, SoftTissueContacts, SoftTissueObstacles, SoftTissueSchedule,
+        SoftTissueStatus, SoftTissueStep, SoftTissueSystems,
     };
 }
 

@@ -15,7 +15,7 @@ pub(super) fn keys(
     keys: Res<ButtonInput<KeyCode>>,
     options: Res<ExampleOptions>,
     driver: Option<ResMut<ToolDriver>>,
-    mut status: ResMut<SoftTissueStatus>,
+    mut clock: ResMut<Time<SoftPhysics>>,
     mut tools: Query<&mut SoftTool>,
     mut reset: MessageWriter<ResetSimulation>,
 ) {
@@ -69,11 +69,15 @@ pub(super) fn keys(
         info!("tool: {:?}", t.shape);
     }
     if keys.just_pressed(KeyCode::KeyP) {
-        status.paused = !status.paused;
+        if clock.is_paused() {
+            clock.unpause();
+        } else {
+            clock.pause();
+        }
     }
     if keys.just_pressed(KeyCode::KeyN) {
-        status.paused = true;
-        status.step_once = true;
+        clock.pause();
+        clock.step_once();
     }
     if keys.just_pressed(KeyCode::KeyR) {
         reset.write(ResetSimulation);

@@ -165,11 +165,9 @@ pub fn run(example: ExampleScene, configure: impl FnOnce(&mut App)) -> AppExit {
     } else {
         SoftTissuePlugins::default().build()
     })
-    // One simulation step per fixed run, at the scene's step.
-    .insert_resource(SoftTissueConfig {
-        drive_fixed_timestep: true,
-        ..default()
-    })
+    // The simulation steps at the fixed timestep: the scene's step (the scene root sets it
+    // too, once the scene has loaded).
+    .insert_resource(Time::<Fixed>::from_seconds(dt))
     .insert_resource(options.clone())
     .insert_resource(Controls(example.extra_controls.clone()))
     .insert_resource(ClearColor(Color::srgb(0.08, 0.09, 0.11)));

@@ -148,7 +148,7 @@ impl BuiltFrom {
 pub(super) fn build_bodies(
     mut commands: Commands,
     config: Res<SoftTissueConfig>,
-    status: Res<SoftTissueStatus>,
+    clock: Res<Time<SoftPhysics>>,
     meshes: Res<Assets<TetMeshAsset>>,
     new: Query<
         (
@@ -167,9 +167,7 @@ pub(super) fn build_bodies(
     poses: TransformHelper,
     mut next: ResMut<NextBodyOrder>,
 ) {
-    let Some(dt) = status.dt else {
-        return;
-    };
+    let dt = clock.timestep().as_secs_f64();
     for (entity, spec, material, heat, tuning, name, shadow, pin, share) in &new {
         // A cut body or piece built again: its share of the masses.
         let material = &CutShare::of(share, material);
@@ -239,17 +237,18 @@ pub(super) fn build_bodies(
                 } else {
                     e.remove::<Temperature>();
                 }
-                let to_local = (placement.affine() != bevy::math::Affine3A::IDENTITY)
-                    .then(|| placement.affine().inverse());
-                e.insert(SoftBodyState {
+                let mut state = SoftBodyState {
                     body,
                     order: next.0,
                     dirty: true,
                     placement,
-                    to_local,
+                    pose: placement,
+                    to_local: None,
                     built_from: BuiltFrom::of(spec, tuning, dt, &config),
                     shape: 0,
-                });
+                };
+                state.set_pose(placement);
+                e.insert(state);
                 next.0 += 1;
             }
             Err(error) => {

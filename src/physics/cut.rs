@@ -36,7 +36,7 @@ type BodyItem<'a> = (
 );
 
 /// A piece a cut made, to spawn: the entity it came from, its share of the uncut body's
-/// mass, its body, description, build inputs, placement, frame, and where each blade's
+/// mass, its body, description, build inputs, placement, pose, and where each blade's
 /// incision had its body's pending strips start when it was cut (blade, incision id,
 /// first pending strip): the piece's start the same.
 type Made = (
@@ -46,7 +46,7 @@ type Made = (
     SoftBody,
     BuiltFrom,
     GlobalTransform,
-    Option<Affine>,
+    GlobalTransform,
     Vec<(Entity, u64, u64)>,
 );
 
@@ -250,7 +250,7 @@ pub(super) fn cut_stage(
             }
         }
     }
-    for (from, share, body, spec, built_from, placement, to_local, incision) in made {
+    for (from, share, body, spec, built_from, placement, pose, incision) in made {
         let name = Name::new(body.name().to_owned());
         let heat = body.heat().is_some();
         let order = next.0;
@@ -269,18 +269,21 @@ pub(super) fn cut_stage(
                 Temperature,
             )>();
         });
+        let mut state = SoftBodyState {
+            body,
+            order,
+            dirty: true,
+            placement,
+            pose,
+            to_local: None,
+            built_from,
+            shape: 0,
+        };
+        state.set_pose(pose);
         e.insert((
             spec,
             CutShare(share),
-            SoftBodyState {
-                body,
-                order,
-                dirty: true,
-                placement,
-                to_local,
-                built_from,
-                shape: 0,
-            },
+            state,
             name,
             CutPiece { from },
             GreenCage::default(),
@@ -347,10 +350,19 @@ fn landed(
     {
         inc.consumed(entity.to_bits(), mark);
     }
-    let Some(cut) = cut else {
+    let Some(mut cut) = cut else {
         return true;
     };
     let sim = &mut **sim;
+    // The kept body and the pieces were built where the body's mesh is: they go where the
+    // body had moved.
+    if let Err(e) = sim.body.carry_frame(&mut cut) {
+        fail(
+            status,
+            stage_error(SoftTissueStage::Cut, "cutting", Some(*entity), e),
+        );
+        return false;
+    }
     let placement = sim.placement;
     // Each part's share of the uncut body's mass: the share the body had (a body
     // built again after a cut keeps it only in `CutShare`) by volume.
@@ -360,6 +372,7 @@ fn landed(
             body: Some(cut.previous),
             mesh: spec.mesh.clone(),
             built_from: sim.built_from,
+            pose: sim.pose,
         });
         *has_uncut = true;
     }
@@ -403,7 +416,7 @@ fn landed(
             piece_spec,
             built_from,
             placement,
-            sim.to_local,
+            sim.pose,
             pending.clone(),
         ));
     }
@@ -419,5 +432,3 @@ fn landed(
     }
     true
 }
-
-type Affine = bevy::math::Affine3A;

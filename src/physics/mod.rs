@@ -185,89 +185,59 @@ impl Plugin for SoftTissuePhysicsPlugin {
             self.schedule,
             (reset_simulation, run_steps.in_set(SoftTissueStep)).chain(),
         );
-        app.add_systems(PreUpdate, drive_fixed_timestep);
     }
 }
 
-/// The step a run uses: the configured one, or the app's fixed timestep.
-fn resolved_dt(world: &World) -> f64 {
-    let config = world.resource::<SoftTissueConfig>();
-    config.dt.unwrap_or_else(|| {
-        world
-            .get_resource::<Time<Fixed>>()
-            .map_or(1.0 / 64.0, |t| t.timestep().as_secs_f64())
-    })
-}
-
-/// Runs the simulation steps the host's elapsed time asks for ([`SoftTissueSchedule`] once
-/// per step), or one while paused with `step_once`.
+/// Runs the simulation steps the clock owes ([`SoftTissueSchedule`] once per step): at
+/// speed 1 in `FixedUpdate`, one per run; while paused, those `step_once` asked for.
 fn run_steps(world: &mut World) {
-    let dt = resolved_dt(world);
-    let host = world.resource::<Time>().delta_secs_f64();
-    let max_steps = world.resource::<SoftTissueConfig>().max_steps_per_run;
-    let mut status = world.resource_mut::<SoftTissueStatus>();
-    if !(dt.is_finite() && dt > 0.0) {
-        if status.error.is_none() {
-            fail(
-                &mut status,
-                SoftTissueError {
-                    stage: SoftTissueStage::Step,
-                    what: "the step",
-                    body: None,
-                    message: format!("the step must be positive and finite, found {dt} s"),
-                },
-            );
-        }
+    let step = world
+        .get_resource::<Time<Fixed>>()
+        .map_or_else(|| Time::<Fixed>::default().timestep(), |t| t.timestep());
+    let host = world.resource::<Time>().delta();
+    let max = world.resource::<SoftTissueConfig>().max_steps_per_run;
+    if world.resource::<SoftTissueStatus>().error.is_some() {
         return;
     }
-    status.dt = Some(dt);
-    if !status.running() {
+    if step.is_zero() {
+        let mut status = world.resource_mut::<SoftTissueStatus>();
+        fail(
+            &mut status,
+            stage_error(
+                SoftTissueStage::Step,
+                "the step",
+                None,
+                "the fixed timestep is 0 s",
+            ),
+        );
+        world.resource_mut::<Time<SoftPhysics>>().pause();
         return;
     }
-    let steps = if status.paused {
-        1
-    } else {
-        let mut clock = world.resource_mut::<Time<SoftPhysics>>();
-        let c = clock.context_mut();
-        let pending = c.pending + host * c.speed.max(0.0);
-        // A step is due when its time has come, to rounding.
-        let due = ((pending + 1e-9 * dt) / dt).floor().max(0.0) as u64;
-        let steps = due.min(u64::from(max_steps));
-        c.pending = if steps < due {
-            0.0
-        } else {
-            (pending - steps as f64 * dt).max(0.0)
-        };
-        steps
-    };
+    let steps = world
+        .resource_mut::<Time<SoftPhysics>>()
+        .context_mut()
+        .steps_due(host, step, max);
     for _ in 0..steps {
+        let mut clock = world.resource_mut::<Time<SoftPhysics>>();
+        clock.advance_by(step);
+        // The step's systems see the simulation's clock as the generic `Time`.
+        let physics = clock.as_generic();
+        let host_clock = std::mem::replace(&mut *world.resource_mut::<Time>(), physics);
         world.run_schedule(SoftTissueSchedule);
-        world
-            .resource_mut::<Time<SoftPhysics>>()
-            .advance_by(std::time::Duration::from_secs_f64(dt));
+        *world.resource_mut::<Time>() = host_clock;
         if world.resource::<SoftTissueStatus>().error.is_some() {
+            // A failed step pauses the simulation.
+            world.resource_mut::<Time<SoftPhysics>>().pause();
             break;
         }
     }
 }
 
-/// Sets `Time<Fixed>` to the configured step when [`SoftTissueConfig::drive_fixed_timestep`]
-/// asks for it.
-fn drive_fixed_timestep(config: Res<SoftTissueConfig>, time: Option<ResMut<Time<Fixed>>>) {
-    let (Some(dt), true, Some(mut time)) = (config.dt, config.drive_fixed_timestep, time) else {
-        return;
-    };
-    let want = std::time::Duration::from_secs_f64(dt);
-    if dt > 0.0 && dt.is_finite() && time.timestep() != want {
-        time.set_timestep(want);
-    }
-}
-
+/// Records a step's error (the stages after it in this step do not run, and the clock
+/// pauses when the step ends).
 fn fail(status: &mut SoftTissueStatus, error: SoftTissueError) {
     error!("soft tissue: {error}; the simulation is paused");
     status.error = Some(error);
-    status.paused = true;
-    status.step_once = false;
 }
 
 /// A stage's error about `body` (or the whole step).

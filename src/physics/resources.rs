@@ -3,23 +3,14 @@
 use super::*;
 use soft_tissue_core::mesh::cut::CutOptions;
 
-/// Settings of the simulation.
+/// Settings of the simulation. Time (pause, speed, the step) is not here: it is the clock
+/// `Time<`[`SoftPhysics`]`>`, which steps at the app's fixed timestep.
 #[derive(Resource, Clone, Copy, Debug)]
 pub struct SoftTissueConfig {
-    /// Simulation step, s. `None` (the default): the app's fixed timestep (`Time<Fixed>`,
-    /// 1/64 s unless the app sets it). Every run of the host schedule advances the
-    /// simulation by the host's elapsed time (times [`SoftPhysics::speed`]) in steps of
-    /// this size, so a body steps at it whatever the host schedule's rate; a body whose
-    /// method needs a smaller step (an explicit MSD) substeps inside it. Changing the step
-    /// builds every body again.
-    pub dt: Option<f64>,
-    /// Most steps one run of the host schedule takes; elapsed time beyond them is dropped
-    /// (default 4), so a slow frame cannot snowball.
+    /// Most steps one run of the host schedule takes (default 4): at a speed above 1 a run
+    /// owes several, and a slow frame run outside `FixedUpdate` cannot snowball; steps owed
+    /// beyond it are dropped.
     pub max_steps_per_run: u32,
-    /// Set `Time<Fixed>` to [`SoftTissueConfig::dt`] (default off: the plugin leaves the
-    /// app's fixed timestep alone). With it, the default `FixedUpdate` runs exactly one
-    /// step per fixed run.
-    pub drive_fixed_timestep: bool,
     /// Gravity on the precise level, scene units / s^2 (default none; double precision, as
     /// the simulation). Read when a body is built: a change builds every body again.
     pub gravity: bevy::math::DVec3,
@@ -45,9 +36,7 @@ pub const DEFAULT_CUT_BACKGROUND_STEPS: u32 = 3;
 impl Default for SoftTissueConfig {
     fn default() -> Self {
         SoftTissueConfig {
-            dt: None,
             max_steps_per_run: 4,
-            drive_fixed_timestep: false,
             gravity: bevy::math::DVec3::ZERO,
             contact: ContactConfig::for_scale(1.0),
             threads: 0,
@@ -59,22 +48,150 @@ impl Default for SoftTissueConfig {
     }
 }
 
-/// The simulation's clock, `Time<SoftPhysics>`: its elapsed time is simulated time (it
-/// advances by one step per step), its context the speed and the time not yet stepped.
-#[derive(Clone, Copy, Debug)]
+/// The simulation's clock, `Time<SoftPhysics>` (a resource the plugin inserts): the one
+/// owner of pause, speed and the step, as Avian's `Time<Physics>` is.
+///
+/// - **The step** is the app's fixed timestep (`Time<Fixed>`, 1/64 s unless the app sets
+///   it; a scene root sets it to its scene's): the simulation runs in `FixedUpdate`, one
+///   step per fixed run at speed 1. [`SoftPhysicsTime::timestep`] reads the step in use.
+///   Changing the fixed timestep builds every body again (a step length is factored into
+///   the implicit solvers).
+/// - **Pause**: [`SoftPhysicsTime::pause`], [`SoftPhysicsTime::unpause`],
+///   [`SoftPhysicsTime::is_paused`]; [`SoftPhysicsTime::step_once`] runs one step while
+///   paused. A step that fails pauses the clock (see [`SoftTissueStatus::error`]).
+/// - **Speed** ([`SoftPhysicsTime::relative_speed`], default 1): simulated seconds per
+///   second of the host schedule's clock. Avian scales the step's length by it; here a step
+///   length is factored into the precise solvers, so the speed scales how many steps run:
+///   each fixed run owes `speed` steps (0.5: one step every second run, 2: two per run, at
+///   most [`SoftTissueConfig::max_steps_per_run`]), and the step stays the fixed timestep.
+///
+/// Its elapsed time is simulated time (it advances by one step per step) and its delta the
+/// step. While [`SoftTissueSchedule`] runs, the generic `Time` resource is this clock (as
+/// Avian does for its schedule), so a system added there reads the step from `Res<Time>`.
+#[derive(Clone, Copy, Debug, Reflect)]
 pub struct SoftPhysics {
-    /// Simulated seconds per host second (default 1; 0.5 is slow motion).
-    pub speed: f64,
-    /// Host time not yet stepped, s.
-    pub(super) pending: f64,
+    paused: bool,
+    relative_speed: f64,
+    /// Steps owed and not yet run (a fraction at speeds other than 1).
+    owed: f64,
+    /// Steps asked for by [`SoftPhysicsTime::step_once`] while paused.
+    queued: u32,
+    /// The step in use: the fixed timestep at the last run.
+    timestep: std::time::Duration,
 }
 
 impl Default for SoftPhysics {
     fn default() -> Self {
         SoftPhysics {
-            speed: 1.0,
-            pending: 0.0,
+            paused: false,
+            relative_speed: 1.0,
+            owed: 0.0,
+            queued: 0,
+            timestep: Time::<Fixed>::default().timestep(),
         }
+    }
+}
+
+/// A speed the clock refused (negative or not finite).
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error("relative speed must be finite and >= 0, found {0}")]
+pub struct BadSpeed(pub f64);
+
+/// Pause, speed and the step of `Time<`[`SoftPhysics`]`>` (the names of Avian's
+/// `PhysicsTime`).
+pub trait SoftPhysicsTime: Sized {
+    /// Simulated seconds per second of the host schedule's clock (default 1).
+    fn relative_speed(&self) -> f64;
+    /// Sets the relative speed (0 holds the simulation as a pause does; a negative or
+    /// non-finite value is refused and the speed kept).
+    fn set_relative_speed(&mut self, ratio: f64) -> Result<(), BadSpeed>;
+    /// The clock with another relative speed (see [`SoftPhysicsTime::set_relative_speed`]).
+    fn with_relative_speed(self, ratio: f64) -> Result<Self, BadSpeed>;
+    /// Whether the simulation is paused.
+    fn is_paused(&self) -> bool;
+    /// Stops the simulation: no step runs (bodies and tools keep their state).
+    fn pause(&mut self);
+    /// Lets the simulation run again.
+    fn unpause(&mut self);
+    /// While paused, runs one more step at the next run of the host schedule (ignored while
+    /// running).
+    fn step_once(&mut self);
+    /// The length of a step: the app's fixed timestep as of the last run (its default,
+    /// 1/64 s, before the first).
+    fn timestep(&self) -> std::time::Duration;
+}
+
+impl SoftPhysicsTime for Time<SoftPhysics> {
+    fn relative_speed(&self) -> f64 {
+        self.context().relative_speed
+    }
+
+    fn set_relative_speed(&mut self, ratio: f64) -> Result<(), BadSpeed> {
+        if !(ratio.is_finite() && ratio >= 0.0) {
+            return Err(BadSpeed(ratio));
+        }
+        self.context_mut().relative_speed = ratio;
+        Ok(())
+    }
+
+    fn with_relative_speed(mut self, ratio: f64) -> Result<Self, BadSpeed> {
+        self.set_relative_speed(ratio)?;
+        Ok(self)
+    }
+
+    fn is_paused(&self) -> bool {
+        self.context().paused
+    }
+
+    fn pause(&mut self) {
+        self.context_mut().paused = true;
+    }
+
+    fn unpause(&mut self) {
+        let c = self.context_mut();
+        c.paused = false;
+        c.queued = 0;
+    }
+
+    fn step_once(&mut self) {
+        let c = self.context_mut();
+        if c.paused {
+            c.queued = c.queued.saturating_add(1);
+        }
+    }
+
+    fn timestep(&self) -> std::time::Duration {
+        self.context().timestep
+    }
+}
+
+impl SoftPhysics {
+    /// The steps a run of the host schedule runs, its clock having advanced `host`, at most
+    /// `max`; the fixed timestep `step` becomes the step in use.
+    pub(super) fn steps_due(
+        &mut self,
+        host: std::time::Duration,
+        step: std::time::Duration,
+        max: u32,
+    ) -> u32 {
+        self.timestep = step;
+        if self.paused {
+            let n = self.queued.min(max);
+            self.queued -= n;
+            return n;
+        }
+        // In `FixedUpdate` the host's time is the step: `speed` steps owed per run.
+        self.owed += host.as_secs_f64() / step.as_secs_f64() * self.relative_speed;
+        // A step is due when its time has come, to rounding.
+        let due = (self.owed + 1e-9).floor().max(0.0);
+        let n = due.min(f64::from(max));
+        // Steps owed beyond the cap are dropped (a slow frame does not snowball).
+        self.owed = if n < due {
+            0.0
+        } else {
+            (self.owed - n).max(0.0)
+        };
+        n as u32
     }
 }
 
@@ -92,18 +209,12 @@ impl SoftTissueThreads {
     }
 }
 
-/// State of the simulation as a whole: pause, single step, counters, stage times and the
-/// last error.
+/// State of the simulation as a whole: counters, stage times and the last error (pause and
+/// the step are the clock's, `Time<`[`SoftPhysics`]`>`).
 #[derive(Resource, Clone, Debug)]
 pub struct SoftTissueStatus {
-    /// No steps run while set (bodies and tools keep their state).
-    pub paused: bool,
-    /// Runs exactly one step while paused, then clears itself.
-    pub step_once: bool,
     /// Steps run so far.
     pub steps: u64,
-    /// The step in use, s (resolved from [`SoftTissueConfig::dt`] at the first step).
-    pub dt: Option<f64>,
     /// Wall time of each stage of the last step (this machine).
     pub times: StageTimes,
     /// Stage times of the last [`STAGE_WINDOW`] steps: their median, 99th percentile and
@@ -112,9 +223,9 @@ pub struct SoftTissueStatus {
     /// The error of the step that failed (a solver that failed, a NaN caught), if one did.
     /// The stages after the failing one do not run, the failing one leaves the bodies as it
     /// found them (see [`soft_tissue_core::world::SoftTissueWorld::step_fixed`]), no
-    /// non-finite position reaches a mesh, and the simulation pauses. No step runs while it
-    /// is set: a [`ResetSimulation`] clears it, or set it to `None` (and unpause) to carry on
-    /// from the state the failed step left.
+    /// non-finite position reaches a mesh, and the clock pauses. No step runs while it is
+    /// set: a [`ResetSimulation`] clears it, or set it to `None` (and unpause the clock) to
+    /// carry on from the state the failed step left.
     pub error: Option<SoftTissueError>,
 }
 
@@ -160,10 +271,7 @@ pub const STAGE_WINDOW: usize = 1000;
 impl Default for SoftTissueStatus {
     fn default() -> Self {
         SoftTissueStatus {
-            paused: false,
-            step_once: false,
             steps: 0,
-            dt: None,
             times: StageTimes::default(),
             recent: StageRecorder::windowed(STAGE_WINDOW),
             error: None,
@@ -172,10 +280,6 @@ impl Default for SoftTissueStatus {
 }
 
 impl SoftTissueStatus {
-    pub(super) fn running(&self) -> bool {
-        (!self.paused || self.step_once) && self.error.is_none()
-    }
-
     /// Whether a step stopped on an error (see [`SoftTissueStatus::error`]).
     pub fn failed(&self) -> bool {
         self.error.is_some()

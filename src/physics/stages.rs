@@ -1,12 +1,14 @@
 //! The systems of a step: reset, prepare (run-time changes), the core's stages and the
 //! writeback of the read-out components.
 
+use nalgebra::Isometry3;
+
 use super::*;
 
 /// A reset when asked for: every body and tool back to its initial state, counters and the
 /// error cleared. Runs before the step, also while the simulation is paused or stopped by an
 /// error.
-#[allow(clippy::type_complexity)]
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
 pub(super) fn reset_simulation(
     mut commands: Commands,
     mut requests: MessageReader<ResetSimulation>,
@@ -21,6 +23,7 @@ pub(super) fn reset_simulation(
     mut contacts: ResMut<SoftTissueContacts>,
     mut jobs: ResMut<CutJobs>,
     mut status: ResMut<SoftTissueStatus>,
+    mut clock: ResMut<Time<SoftPhysics>>,
 ) {
     if requests.read().count() == 0 {
         return;
@@ -41,6 +44,9 @@ pub(super) fn reset_simulation(
         {
             b.body = *whole;
             b.built_from = uncut.built_from;
+            // Where the body was when it was first cut: the prepare stage moves it to where
+            // its entity is now.
+            b.set_pose(uncut.pose);
             b.shape += 1;
             if let Some(mut spec) = spec {
                 spec.bypass_change_detection().mesh = uncut.mesh.clone();
@@ -55,6 +61,7 @@ pub(super) fn reset_simulation(
                 &mut status,
                 stage_error(SoftTissueStage::Reset, "resetting", Some(e), err),
             );
+            clock.pause();
         }
         b.dirty = true;
     }
@@ -69,6 +76,37 @@ pub(super) fn reset_simulation(
 /// Whether two placements are the same to rounding.
 fn same_placement(a: &GlobalTransform, b: &GlobalTransform) -> bool {
     a.affine().abs_diff_eq(b.affine(), 1e-6)
+}
+
+/// The rigid move (in double precision) that takes a body placed at `from` to `to`, when the
+/// two differ by one: the same scale (to 1e-6 of it) and both made of a scale, a rotation
+/// and a translation. `None` for a change of scale or a shear: the body is built again.
+fn rigid_move(from: &GlobalTransform, to: &GlobalTransform) -> Option<Isometry3<f64>> {
+    let parts = |g: &GlobalTransform| {
+        let (s, r, t) = g.to_scale_rotation_translation();
+        let rebuilt = bevy::math::Affine3A::from_scale_rotation_translation(s, r, t);
+        rebuilt
+            .abs_diff_eq(g.affine(), 1e-5 * s.abs().max_element().max(1.0))
+            .then_some((s, r, t))
+    };
+    let ((s0, r0, t0), (s1, r1, t1)) = (parts(from)?, parts(to)?);
+    if !s0.abs_diff_eq(s1, 1e-6 * s0.abs().max_element()) {
+        return None;
+    }
+    let q = |r: Quat| {
+        nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            r.w as f64, r.x as f64, r.y as f64, r.z as f64,
+        ))
+    };
+    // The same rotation gives exactly none (a shift factors nothing).
+    let turn = if r0 == r1 {
+        nalgebra::UnitQuaternion::identity()
+    } else {
+        q(r1) * q(r0).inverse()
+    };
+    let (t0, t1) = (to_core(t0), to_core(t1));
+    let shift = t1 - turn * t0;
+    Some(Isometry3::from_parts(shift.into(), turn))
 }
 
 /// The prepare stage: run-time changes of the bodies' inputs (those that need a new body
@@ -93,11 +131,12 @@ pub(super) fn prepare_stage(
     mut tools: Query<(Entity, &SoftTool, &mut ToolState)>,
     poses: TransformHelper,
     config: Res<SoftTissueConfig>,
+    clock: Res<Time<SoftPhysics>>,
     mut contacts: ResMut<SoftTissueContacts>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let mut t = Instant::now();
-    let dt = status.dt.unwrap_or_default();
+    let dt = clock.timestep().as_secs_f64();
     // Bodies queued for a rebuild: gone before the next stage runs, so not among this step's
     // bodies (their indices would shift the contact indices of the bodies after them).
     let mut rebuilt: SmallVec<[Entity; 4]> = SmallVec::new();
@@ -105,20 +144,35 @@ pub(super) fn prepare_stage(
         let now = BuiltFrom::of(&spec, tuning, dt, &config);
         // Computed from the transforms now (the entity's or a parent's may have been written
         // since the last propagation).
-        let moved = poses
+        let pose = poses
             .compute_global_transform(entity)
-            .is_ok_and(|g| !same_placement(&g, &sim.placement));
-        if now != sim.built_from || moved {
+            .ok()
+            .filter(|g| !same_placement(g, &sim.pose));
+        // Moved rigidly: the whole state moves with it (a teleport). A change of scale
+        // builds the body again at rest, as a change of its inputs does.
+        let teleport = pose.and_then(|g| Some((g, rigid_move(&sim.pose, &g)?)));
+        if now != sim.built_from || pose.is_some() && teleport.is_none() {
             // Built again at the next step, at rest, from the inputs then.
             commands.entity(entity).remove::<SoftBodyState>();
             rebuilt.push(entity);
             continue;
         }
+        if let Some((g, m)) = teleport {
+            match sim.body.teleport(m) {
+                Ok(()) => {
+                    sim.set_pose(g);
+                    sim.dirty = true;
+                }
+                Err(e) => fail(
+                    &mut status,
+                    stage_error(SoftTissueStage::Prepare, "moving a body", Some(entity), e),
+                ),
+            }
+        }
         let b = &mut sim.body;
         if spec.method != b.model().settings().precise {
-            let mesh = b.mesh().clone();
             let was_fem = b.model().settings().precise.is_fem();
-            match b.model_mut().set_precise_method(&mesh, spec.method) {
+            match b.set_precise_method(spec.method) {
                 // The state component follows the solver's kind.
                 Ok(()) if was_fem != spec.method.is_fem() => {
                     let mut e = commands.entity(entity);
@@ -649,5 +703,4 @@ pub(super) fn writeback_stage(
     let times = status.times;
     status.recent.push(&times);
     status.steps += 1;
-    status.step_once = false;
 }

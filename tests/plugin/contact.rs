@@ -93,11 +93,12 @@ fn a_grasper_follows_its_jaws_setting() {
     assert_eq!(r.contacts, 0);
 }
 
-/// A body rebuilt because its transform moved is not counted among the contact bodies of
-/// the step that queued its rebuild: the contacts of a body built after it keep naming that
-/// body, not the one being rebuilt (whose index it would take).
+/// A body built again because its scale changed is not counted among the contact bodies
+/// of the step that queued its rebuild: the contacts of a body built after it keep naming
+/// that body, not the one being rebuilt (whose index it would take). A body moved by its
+/// transform every step (a teleport each step) keeps its place among them.
 #[test]
-fn contacts_name_the_touched_body_while_another_is_rebuilt() {
+fn contacts_name_the_touched_body_while_another_moves_or_is_rebuilt() {
     let dt = 0.01;
     let mut app = app(dt);
     let mesh = cylinder_asset(&mut app);
@@ -130,14 +131,22 @@ fn contacts_name_the_touched_body_while_another_is_rebuilt() {
         ))
         .id();
     let mut touches = 0;
+    let id = |app: &App| {
+        app.world()
+            .get::<SoftBodyState>(moving)
+            .map(|s| s.body().id())
+    };
+    let mut built = None;
     for k in 0..60 {
-        // Moved once while it still comes first in build order, then every step.
-        if k == 20 || k > 40 {
-            app.world_mut()
-                .get_mut::<Transform>(moving)
-                .unwrap()
-                .translation
-                .x = 5.0 + 0.001 * k as f32;
+        // Scaled (built again) once while it still comes first in build order, then moved
+        // and turned every step.
+        let mut t = app.world_mut().get_mut::<Transform>(moving).unwrap();
+        if k == 20 {
+            t.scale = Vec3::splat(1.01);
+        }
+        if k > 40 {
+            t.translation.x = 5.0 + 0.001 * k as f32;
+            t.rotation = Quat::from_rotation_y(0.01 * k as f32);
         }
         app.update();
         let contacts = app.world().resource::<SoftTissueContacts>();
@@ -147,6 +156,14 @@ fn contacts_name_the_touched_body_while_another_is_rebuilt() {
             touches += 1;
         }
         assert_eq!(contacts.involving(moving).count(), 0, "step {k}");
+        // Built again after its new scale; moved, never again.
+        match k {
+            20 => assert_eq!(id(&app), None, "being built again"),
+            40 => built = id(&app),
+            41.. => assert_eq!(id(&app), built, "step {k}: built again"),
+            _ => {}
+        }
     }
+    assert!(built.is_some());
     assert!(touches > 30, "the probe pressed the body: {touches} steps");
 }

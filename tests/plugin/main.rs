@@ -9,6 +9,7 @@ mod contact;
 mod cut;
 mod inputs;
 mod steps;
+mod teleport;
 mod visual;
 
 use std::path::Path;
@@ -45,11 +46,8 @@ fn app(dt: f64) -> App {
         SoftTissuePhysicsPlugin::default(),
         SoftTissueMeshPlugin,
     ));
+    // The simulation steps at the fixed timestep.
     app.insert_resource(Time::<Fixed>::from_seconds(dt));
-    app.insert_resource(SoftTissueConfig {
-        dt: Some(dt),
-        ..default()
-    });
     app.insert_resource(TimeUpdateStrategy::ManualDuration(Duration::from_secs_f64(
         dt,
     )));

@@ -168,15 +168,18 @@ fn pause_single_step_method_change_and_reset() {
     app.update();
     let steps = |app: &App| app.world().resource::<SoftTissueStatus>().steps;
     assert_eq!(steps(&app), 1);
-    app.world_mut().resource_mut::<SoftTissueStatus>().paused = true;
+    fn clock(app: &mut App) -> Mut<'_, Time<SoftPhysics>> {
+        app.world_mut().resource_mut::<Time<SoftPhysics>>()
+    }
+    clock(&mut app).pause();
     app.update();
     app.update();
     assert_eq!(steps(&app), 1, "paused");
-    app.world_mut().resource_mut::<SoftTissueStatus>().step_once = true;
+    clock(&mut app).step_once();
     app.update();
     app.update();
     assert_eq!(steps(&app), 2, "exactly one step");
-    app.world_mut().resource_mut::<SoftTissueStatus>().paused = false;
+    clock(&mut app).unpause();
     // Method changed at run time.
     app.world_mut()
         .get_mut::<SoftBody>(bodies[0])
@@ -215,6 +218,69 @@ fn pause_single_step_method_change_and_reset() {
     }
 }
 
+/// The clock owns pause, speed and the step: the step is the fixed timestep, one step per
+/// fixed run at speed 1, one every second run at 0.5, two a run at 2; a refused speed keeps
+/// the speed; `step_once` queues steps while paused; simulated time is the steps run times
+/// the step, and the step's systems read that clock as `Res<Time>`; a new fixed timestep
+/// builds the bodies again at it.
+#[test]
+fn the_clock_owns_pause_speed_and_the_step() {
+    #[derive(Resource, Default)]
+    struct Seen(Vec<f64>);
+    let (mut app, bodies, world) = scene_app(CYLINDERS);
+    let dt = world.config().dt;
+    app.init_resource::<Seen>();
+    app.add_systems(
+        SoftTissueSchedule,
+        (|t: Res<Time>, mut seen: ResMut<Seen>| seen.0.push(t.delta_secs_f64()))
+            .in_set(SoftTissueSystems::First),
+    );
+    fn clock(app: &mut App) -> Mut<'_, Time<SoftPhysics>> {
+        app.world_mut().resource_mut::<Time<SoftPhysics>>()
+    }
+    let run = |app: &mut App, n: usize| {
+        let before = app.world().resource::<SoftTissueStatus>().steps;
+        for _ in 0..n {
+            app.update();
+        }
+        app.world().resource::<SoftTissueStatus>().steps - before
+    };
+    assert_eq!(run(&mut app, 4), 4, "one step per fixed run");
+    assert_eq!(clock(&mut app).timestep().as_secs_f64(), dt);
+    clock(&mut app).set_relative_speed(0.5).unwrap();
+    assert_eq!(run(&mut app, 10), 5, "half speed");
+    clock(&mut app).set_relative_speed(2.0).unwrap();
+    assert_eq!(run(&mut app, 3), 6, "double speed");
+    let refused = clock(&mut app).set_relative_speed(-1.0);
+    assert_eq!(refused, Err(bevy_soft_tissue::BadSpeed(-1.0)));
+    assert_eq!(clock(&mut app).relative_speed(), 2.0);
+    clock(&mut app).set_relative_speed(1.0).unwrap();
+    clock(&mut app).pause();
+    assert_eq!(run(&mut app, 3), 0, "paused");
+    clock(&mut app).step_once();
+    clock(&mut app).step_once();
+    assert_eq!(run(&mut app, 1), 2, "two steps asked for");
+    assert_eq!(run(&mut app, 2), 0, "paused again");
+    clock(&mut app).unpause();
+    assert_eq!(run(&mut app, 2), 2);
+    let steps = app.world().resource::<SoftTissueStatus>().steps;
+    let elapsed = clock(&mut app).elapsed_secs_f64();
+    assert!((elapsed - steps as f64 * dt).abs() < 1e-9, "{elapsed} s");
+    let seen = &app.world().resource::<Seen>().0;
+    assert_eq!(seen.len() as u64, steps, "every step");
+    assert!(seen.iter().all(|&d| d == dt), "{seen:?}");
+    // A new fixed timestep is the step: the bodies are built again at it.
+    app.world_mut()
+        .resource_mut::<Time<Fixed>>()
+        .set_timestep(Duration::from_secs_f64(dt / 2.0));
+    run(&mut app, 2);
+    assert_eq!(clock(&mut app).timestep().as_secs_f64(), dt / 2.0);
+    for b in bodies {
+        let sim = app.world().get::<SoftBodyState>(b).unwrap();
+        assert_eq!(sim.body().model().settings().dt, dt / 2.0);
+    }
+}
+
 #[test]
 fn a_failed_stage_stops_the_step_there_and_no_nan_reaches_a_mesh() {
     let (mut app, bodies, world) = scene_app(CYLINDERS);
@@ -247,7 +313,10 @@ fn a_failed_stage_stops_the_step_there_and_no_nan_reaches_a_mesh() {
     assert!(error.to_string().contains("tool"), "{error}");
     assert_eq!(error.body, Some(tool), "the error names the tool's entity");
     assert_eq!(error.stage, bevy_soft_tissue::SoftTissueStage::Prepare);
-    assert!(s.paused);
+    assert!(
+        app.world().resource::<Time<SoftPhysics>>().is_paused(),
+        "the failure paused the clock"
+    );
     // The stages after the failing one did not run: no step was counted, no state moved,
     // and the rendered mesh kept its finite positions.
     assert_eq!(s.steps, steps);
@@ -256,7 +325,9 @@ fn a_failed_stage_stops_the_step_there_and_no_nan_reaches_a_mesh() {
     assert_eq!(mesh_now, mesh_before);
     assert!(mesh_now.iter().flatten().all(|c| c.is_finite()));
     // Unpaused with the error still set, nothing runs.
-    app.world_mut().resource_mut::<SoftTissueStatus>().paused = false;
+    app.world_mut()
+        .resource_mut::<Time<SoftPhysics>>()
+        .unpause();
     app.update();
     assert_eq!(status(&app).steps, steps);
     // A reset clears the error though the simulation is stopped, and steps run again.
