@@ -27,14 +27,14 @@ fn cylinder() -> Arc<TetMesh> {
     Arc::new(read_tet_mesh(path).unwrap().mesh)
 }
 
-/// A world with one heated cylinder of `method`, held by `anchor`, pinned to `level`.
-fn world(
+/// A heated cylinder of `method`, held by `boundary`, pinned to `level`.
+fn body(
     mesh: &Arc<TetMesh>,
     method: PreciseMethod,
     boundary: Boundary,
     cage: CageDynamics,
     level: Level,
-) -> SoftTissueWorld {
+) -> WorldBody {
     let mut s = BodySettings::new(CYLINDER_FEM.params, CYLINDER_MSD.params, DT);
     s.precise = method;
     s.boundary = boundary;
@@ -42,6 +42,11 @@ fn world(
     let heat = Some((HeatParams::liver(), HeatBoundary::insulated()));
     let mut body = WorldBody::new("cylinder", mesh.clone(), s, heat).unwrap();
     body.model_mut().pin(Some(level)).unwrap();
+    body
+}
+
+/// A world of `body` alone.
+fn alone(body: WorldBody) -> SoftTissueWorld {
     let mut w = SoftTissueWorld::new(WorldConfig {
         dt: DT,
         contact: ContactConfig::for_scale(1.0),
@@ -49,6 +54,17 @@ fn world(
     .unwrap();
     w.add_body(body).unwrap();
     w
+}
+
+/// A world with one heated cylinder (see [`body`]).
+fn world(
+    mesh: &Arc<TetMesh>,
+    method: PreciseMethod,
+    boundary: Boundary,
+    cage: CageDynamics,
+    level: Level,
+) -> SoftTissueWorld {
+    alone(body(mesh, method, boundary, cage, level))
 }
 
 /// The move of the tests: a turn about a skew axis and a shift.
@@ -267,4 +283,114 @@ fn a_turn_of_nodes_held_along_one_axis_is_refused_and_changes_nothing() {
         .teleport(Isometry3::translation(1.0, 0.0, 0.0))
         .unwrap();
     assert!((state(&w).0[0] - before.0[0] - Vec3::x()).norm() < 1e-12);
+}
+
+/// A moved body cut through: the kept part and the loose piece are built in the mesh's
+/// coordinates with the state where the body is, and `carry_frame` gives them the body's
+/// frame, so their rests are where they are. Each part is then the part of the same cut of
+/// the body left in place, seen through the move, and steps on as it does: an anchored part
+/// whose anchors stayed behind would be pulled back across the move.
+#[test]
+fn the_parts_of_a_moved_body_cut_through_go_on_where_they_are() {
+    use soft_tissue_core::mesh::cut::{CutOptions, CutTriangle};
+    let mesh = cylinder();
+    let m = skew_move();
+    // A slanted plane across the cylinder's axis (z), in the mesh's coordinates.
+    let (lo, hi) = (mesh.bbox().min, mesh.bbox().max);
+    let z = 0.5 * (lo.z + hi.z);
+    let corner = |x: f64, y: f64| Vec3::new(x, y, z + 0.1 * x);
+    let (a, b) = (2.0 * lo - hi, 2.0 * hi - lo);
+    let quad = [
+        corner(a.x, a.y),
+        corner(b.x, a.y),
+        corner(b.x, b.y),
+        corner(a.x, b.y),
+    ];
+    let blade = |mv: &Isometry3<f64>| {
+        let q = quad.map(|p| at(mv, &p));
+        [
+            CutTriangle {
+                corners: [q[0], q[1], q[2]],
+            },
+            CutTriangle {
+                corners: [q[0], q[2], q[3]],
+            },
+        ]
+    };
+    let options = CutOptions {
+        background_steps: 0,
+        ..CutOptions::default()
+    };
+    let anchored = Anchor::SoftToRest { stiffness: 40.0 }.boundary(&mesh);
+    // A temperature field that varies over the mesh's coordinates.
+    let warm = |p: &Vec3| 37.0 + 20.0 * p.x - 10.0 * p.y + 5.0 * p.z;
+    // Each part in a world of its own: the cut faces of two parts in one world touch, and a
+    // contact solve's order follows the world's axes.
+    let parts = |mv: Isometry3<f64>| -> Vec<SoftTissueWorld> {
+        let mut b = body(
+            &mesh,
+            PreciseMethod::LinearFem,
+            anchored.clone(),
+            CageDynamics::Calibrated,
+            Level::Precise,
+        );
+        b.model_mut().pin(None).unwrap();
+        let rest = b.mesh().positions().to_vec();
+        b.heat_mut()
+            .unwrap()
+            .set_temperatures(|i| warm(&rest[i]))
+            .unwrap();
+        b.teleport(mv).unwrap();
+        let mut cut = b.cut(&blade(&mv), &options).unwrap().expect("cut through");
+        b.carry_frame(&mut cut).unwrap();
+        std::iter::once(b).chain(cut.pieces).map(alone).collect()
+    };
+    let mut still = parts(Isometry3::identity());
+    let mut moved = parts(m);
+    assert!(moved.len() > 1, "the cut made a loose piece");
+    assert_eq!(still.len(), moved.len());
+    for step in 0..20 {
+        for (wa, wb) in still.iter_mut().zip(&mut moved) {
+            let (a, b) = (&wa.bodies()[0], &wb.bodies()[0]);
+            assert_eq!(b.frame(), &m);
+            // The rest is where the state is: the mesh moved by the frame.
+            let rest = b.rest_mesh().unwrap();
+            let off = rest
+                .positions()
+                .iter()
+                .zip(b.model().precise().rest_positions())
+                .map(|(p, q)| (p - q).norm())
+                .fold(0.0, f64::max);
+            assert!(off < 1e-12, "{}: rest {off} from the moved mesh", b.name());
+            let gap = a
+                .model()
+                .node_positions()
+                .iter()
+                .zip(b.model().node_positions())
+                .map(|(p, q)| (at(&m, p) - q).norm())
+                .fold(0.0, f64::max);
+            assert!(gap < 1e-9, "step {step}, {}: {gap} off", b.name());
+            // Heat is on the mesh's coordinates: the field the body had there, then the same
+            // as the part left in place (the cut weighs new nodes from the shape where each
+            // body is: the same weights to rounding).
+            let (ha, hb) = (a.heat().unwrap(), b.heat().unwrap());
+            for ((ta, tb), p) in ha
+                .temperatures()
+                .iter()
+                .zip(hb.temperatures())
+                .zip(b.mesh().positions())
+            {
+                assert!(
+                    (ta - tb).abs() < 1e-9,
+                    "step {step}, {}: {ta} against {tb} C",
+                    b.name()
+                );
+                if step == 0 {
+                    assert!((tb - warm(p)).abs() < 1e-6, "{}: {tb} C at {p}", b.name());
+                }
+            }
+            wa.step_fixed().unwrap();
+            wb.step_fixed().unwrap();
+        }
+    }
 }
