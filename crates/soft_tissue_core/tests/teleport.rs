@@ -394,3 +394,48 @@ fn the_parts_of_a_moved_body_cut_through_go_on_where_they_are() {
         }
     }
 }
+
+/// A moved body of a world cut there (`SoftTissueWorld::cut_body`): the world gives the kept
+/// body and the loose piece the body's frame, so each one's rest is the mesh moved by it
+/// (where its state is), not the mesh where the body was built.
+#[test]
+fn a_world_cutting_a_moved_body_gives_its_parts_its_frame() {
+    use soft_tissue_core::mesh::cut::CutTriangle;
+    let mesh = cylinder();
+    let m = skew_move();
+    let mut w = world(
+        &mesh,
+        PreciseMethod::CorotationalFem,
+        Anchor::SoftToRest { stiffness: 40.0 }.boundary(&mesh),
+        CageDynamics::Calibrated,
+        Level::Precise,
+    );
+    w.bodies_mut()[0].teleport(m).unwrap();
+    // A plane across the axis (z) half-way, in the mesh's coordinates, where the body is now.
+    let (lo, hi) = (mesh.bbox().min, mesh.bbox().max);
+    let z = 0.5 * (lo.z + hi.z);
+    let (a, b) = (2.0 * lo - hi, 2.0 * hi - lo);
+    let q =
+        [(a.x, a.y), (b.x, a.y), (b.x, b.y), (a.x, b.y)].map(|(x, y)| at(&m, &Vec3::new(x, y, z)));
+    let blade = [
+        CutTriangle {
+            corners: [q[0], q[1], q[2]],
+        },
+        CutTriangle {
+            corners: [q[0], q[2], q[3]],
+        },
+    ];
+    let made = w.cut_body(0, &blade).unwrap();
+    assert_eq!(made.len(), 1, "one loose piece");
+    for b in w.bodies() {
+        assert_eq!(b.frame(), &m, "{}", b.name());
+        let rest = b.rest_mesh().unwrap();
+        let off = rest
+            .positions()
+            .iter()
+            .zip(b.model().precise().rest_positions())
+            .map(|(p, q)| (p - q).norm())
+            .fold(0.0, f64::max);
+        assert!(off < 1e-12, "{}: rest {off} from the moved mesh", b.name());
+    }
+}

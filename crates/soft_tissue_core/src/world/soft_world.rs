@@ -120,12 +120,19 @@ impl SoftTissueWorld {
             super::cut::BladeOutcome::Cut(c) => *c,
             _ => return Ok(Vec::new()),
         };
-        Ok(self.add_cut(index, cut))
+        self.add_cut(index, cut)
     }
 
     /// Adds the pieces of body `index`'s cut as bodies (names made unique), keeps the body
-    /// as it was before its first cut for `reset`, moves grips; returns the new indices.
-    fn add_cut(&mut self, index: usize, cut: super::cut::BladeCut) -> Vec<usize> {
+    /// as it was before its first cut for `reset`, moves grips; returns the new indices. The
+    /// kept body and the pieces take the frame of a body that was moved
+    /// ([`WorldBody::carry_frame`]).
+    fn add_cut(
+        &mut self,
+        index: usize,
+        mut cut: super::cut::BladeCut,
+    ) -> Result<Vec<usize>, WorldError> {
+        self.bodies[index].carry_frame(&mut cut)?;
         let first = self.bodies.len();
         let super::cut::BladeCut {
             pieces,
@@ -155,7 +162,7 @@ impl SoftTissueWorld {
             }
         }
         super::cut::remap_grips(&mut self.tools, &self.bodies, index, &node_map, first);
-        made
+        Ok(made)
     }
 
     /// The cut stage: every blade with cutting on cuts the bodies its edge crossed since the
@@ -200,9 +207,9 @@ impl SoftTissueWorld {
             let f = self.in_flight.remove(k);
             let outcome = self.bodies[f.body].finish_cut(f.job)?;
             if !f.vaporized.is_empty() {
-                self.vaporize_landed(f.body, &f.vaporized, outcome);
+                self.vaporize_landed(f.body, &f.vaporized, outcome)?;
             } else {
-                self.cut_landed(f.tool, f.incision, f.body, f.mark, outcome);
+                self.cut_landed(f.tool, f.incision, f.body, f.mark, outcome)?;
             }
         }
         let background = self.cut_options.background_steps;
@@ -228,10 +235,10 @@ impl SoftTissueWorld {
                 let job =
                     self.bodies[i].begin_cut_at(&strips, stroke, id, &self.cut_options, place)?;
                 match job {
-                    None => self.cut_landed(t, id, i, mark, super::BladeOutcome::Missed),
+                    None => self.cut_landed(t, id, i, mark, super::BladeOutcome::Missed)?,
                     Some(job) if background == 0 => {
                         let outcome = self.bodies[i].finish_cut(job)?;
-                        self.cut_landed(t, id, i, mark, outcome);
+                        self.cut_landed(t, id, i, mark, outcome)?;
                     }
                     Some(job) => self.in_flight.push(InFlight {
                         body: i,
@@ -272,7 +279,7 @@ impl SoftTissueWorld {
             };
             if background == 0 {
                 let outcome = self.bodies[i].finish_cut(job)?;
-                self.vaporize_landed(i, &balls, outcome);
+                self.vaporize_landed(i, &balls, outcome)?;
             } else {
                 self.in_flight.push(InFlight {
                     body: i,
@@ -294,10 +301,10 @@ impl SoftTissueWorld {
         body: usize,
         balls: &[crate::mesh::cut::Ball],
         outcome: super::BladeOutcome,
-    ) {
+    ) -> Result<(), WorldError> {
         match outcome {
             super::BladeOutcome::Cut(c) => {
-                self.add_cut(body, *c);
+                self.add_cut(body, *c)?;
             }
             // Refused by the mesh (a warning said why, or nothing was inside): tried again once
             // its balls have grown by `CARVE_GROWTH`.
@@ -306,6 +313,7 @@ impl SoftTissueWorld {
             // invert): tried again next step.
             super::BladeOutcome::Crossed => {}
         }
+        Ok(())
     }
 
     /// A cut of body `body` by tool `tool`'s incision `incision` with its strips up to
@@ -318,11 +326,11 @@ impl SoftTissueWorld {
         body: usize,
         mark: u64,
         outcome: super::BladeOutcome,
-    ) {
+    ) -> Result<(), WorldError> {
         let made = match outcome {
-            super::BladeOutcome::Crossed => return,
+            super::BladeOutcome::Crossed => return Ok(()),
             super::BladeOutcome::Missed => Vec::new(),
-            super::BladeOutcome::Cut(c) => self.add_cut(body, *c),
+            super::BladeOutcome::Cut(c) => self.add_cut(body, *c)?,
         };
         if let Some(Some(inc)) = self.incisions.get_mut(tool)
             && inc.id() == incision
@@ -332,6 +340,7 @@ impl SoftTissueWorld {
                 inc.consumed(p as u64, mark);
             }
         }
+        Ok(())
     }
 
     /// Cuts (and removals of vaporized tissue) being prepared beside the steps (see
