@@ -421,12 +421,16 @@ impl ContactSolver {
                     pos += 1;
                 }
                 let rc = row as usize;
-                // Pair (row, d) for every row d of this body: walk d's incidences.
+                // Pair (row, d) for every row d of this body from `row` on (the gathered
+                // compliance is symmetric: (d, row) is the transpose): walk d's incidences.
                 let mut q = 0;
                 for &d in rows_of {
                     let t = q;
                     while q < inc.len() && inc[q].row == d {
                         q += 1;
+                    }
+                    if d < row {
+                        continue;
                     }
                     let mut g = Matrix3::zeros();
                     for ia in &inc[s..pos] {
@@ -435,10 +439,12 @@ impl ContactSolver {
                                 * (ia.coef * ib.coef);
                         }
                     }
-                    let lo = self.start[rc] as usize;
-                    let hi = self.start[rc + 1] as usize;
-                    let j = lo + self.cols[lo..hi].binary_search(&d).expect("pattern");
+                    let j = Self::index_in(&self.start, &self.cols, rc, d);
                     self.blocks[j] += g;
+                    if d != row {
+                        let j = Self::index_in(&self.start, &self.cols, d as usize, row);
+                        self.blocks[j] += g.transpose();
+                    }
                 }
             }
         }
@@ -449,9 +455,21 @@ impl ContactSolver {
         for c in 0..n {
             let (lo, hi) = (self.start[c] as usize, self.start[c + 1] as usize);
             let fc = rows[c].frame.transpose();
+            // From the diagonal on; the block below it is the transpose (W is symmetric).
             for j in lo..hi {
                 let d = self.cols[j] as usize;
-                self.blocks[j] = fc * self.blocks[j] * rows[d].frame;
+                if d < c {
+                    continue;
+                }
+                let mut b = fc * self.blocks[j] * rows[d].frame;
+                if d == c {
+                    b = (b + b.transpose()) * 0.5;
+                }
+                self.blocks[j] = b;
+                if d != c {
+                    let k = Self::index_in(&self.start, &self.cols, d, c as u32);
+                    self.blocks[k] = b.transpose();
+                }
             }
             let dj = lo
                 + self.cols[lo..hi]
@@ -465,6 +483,12 @@ impl ContactSolver {
             self.block_inv
                 .push(w.try_inverse().unwrap_or_else(Matrix3::zeros));
         }
+    }
+
+    /// Where block `(c, d)` of the pattern is stored.
+    fn index_in(start: &[u32], cols: &[u32], c: usize, d: u32) -> usize {
+        let (lo, hi) = (start[c] as usize, start[c + 1] as usize);
+        lo + cols[lo..hi].binary_search(&d).expect("pattern")
     }
 
     /// The assembled Delassus block between rows `c` and `d` (row frames), if they couple.
@@ -782,6 +806,100 @@ mod tests {
         s.solve(&mut rows, &SolverSettings::default());
         assert!((rows[0].force.x - 0.4).abs() < 1e-6, "{:?}", rows[0].force);
         assert!((rows[1].force.x - 0.2).abs() < 1e-6, "{:?}", rows[1].force);
+    }
+
+    /// The Delassus operator of rows on vertices and weighted triangle points of two bodies
+    /// is `H C H^T` computed densely, block by block, and exactly symmetric (its lower
+    /// blocks are the transposes of the upper ones).
+    #[test]
+    fn the_delassus_operator_is_h_c_ht_and_symmetric() {
+        // Each body's compliance between its 4 vertices: a fixed SPD matrix A A^T + I.
+        let dense = |b: u32| {
+            let a = nalgebra::DMatrix::<f64>::from_fn(12, 12, |i, j| {
+                (((i * 7 + j * 13 + 5 * b as usize) % 11) as f64 - 5.0) / 7.0
+            });
+            &a * a.transpose() + nalgebra::DMatrix::identity(12, 12)
+        };
+        let block_of = |b: u32, u: u32, v: u32| -> Matrix3<f64> {
+            let c = dense(b);
+            Matrix3::from_fn(|i, j| c[(3 * u as usize + i, 3 * v as usize + j)])
+        };
+        let mut compliance = |b: u32, v: &[u32], out: &mut [Matrix3<f64>]| {
+            let n = v.len();
+            for i in 0..n {
+                for j in 0..n {
+                    out[i * n + j] = block_of(b, v[i], v[j]);
+                }
+            }
+        };
+        let normal = |x: f64, y: f64, z: f64| Vec3::new(x, y, z).normalize();
+        let rows = vec![
+            row(
+                BodyPoint::vertex(0, 0),
+                Counterpart::Obstacle(0),
+                normal(0.0, 1.0, 0.2),
+                -0.1,
+                Vec3::zeros(),
+                0.3,
+            ),
+            row(
+                BodyPoint::triangle(0, [1, 2, 3], [0.2, 0.3, 0.5]),
+                Counterpart::Body(BodyPoint::vertex(1, 0)),
+                normal(1.0, -0.5, 0.3),
+                -0.05,
+                Vec3::zeros(),
+                0.3,
+            ),
+            row(
+                BodyPoint::vertex(1, 2),
+                Counterpart::Obstacle(1),
+                normal(-0.2, 0.1, 1.0),
+                -0.02,
+                Vec3::zeros(),
+                0.3,
+            ),
+            row(
+                BodyPoint::triangle(1, [0, 1, 3], [0.6, 0.3, 0.1]),
+                Counterpart::Body(BodyPoint::vertex(0, 2)),
+                normal(0.4, 0.4, -1.0),
+                -0.03,
+                Vec3::zeros(),
+                0.3,
+            ),
+        ];
+        let mut s = ContactSolver::default();
+        s.assemble(&rows, &mut compliance);
+        // (body, vertex, weight) of each row's relative displacement.
+        let terms = |r: &ContactRow| {
+            let mut t: Vec<(u32, u32, f64)> = r.a.terms().map(|(v, w)| (r.a.body, v, w)).collect();
+            if let Counterpart::Body(p) = &r.other {
+                t.extend(p.terms().map(|(v, w)| (p.body, v, -w)));
+            }
+            t
+        };
+        for (c, rc) in rows.iter().enumerate() {
+            for (d, rd) in rows.iter().enumerate() {
+                let mut g = Matrix3::zeros();
+                for &(ba, va, wa) in &terms(rc) {
+                    for &(bb, vb, wb) in &terms(rd) {
+                        if ba == bb {
+                            g += block_of(ba, va, vb) * (wa * wb);
+                        }
+                    }
+                }
+                let expected = rc.frame.transpose() * g * rd.frame;
+                match s.block(c, d) {
+                    Some(w) => {
+                        assert!(
+                            (w - expected).amax() <= 1e-12 * expected.amax().max(1.0),
+                            "({c}, {d}): {w} against {expected}"
+                        );
+                        assert_eq!(Some(w.transpose()), s.block(d, c));
+                    }
+                    None => assert_eq!(expected, Matrix3::zeros(), "({c}, {d})"),
+                }
+            }
+        }
     }
 
     /// A frame is orthonormal, right-handed, with the normal first.

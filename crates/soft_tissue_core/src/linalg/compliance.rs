@@ -182,8 +182,8 @@ pub fn without_columns(nodes: &[u32], slots: &[u32], out: &mut Vec<u32>) {
     );
 }
 
-/// Writes the compliance blocks between `nodes` (row-major, `nodes.len()^2` blocks): `scale`
-/// times the blocks of `A^-1`, turned by `rotations[i] * block * rotations[j]^T` when
+/// Writes the compliance blocks between `nodes` (row-major, `nodes.len()^2` blocks, the
+/// lower triangle the transpose of the upper): `scale` times the blocks of `A^-1`, turned by `rotations[i] * block * rotations[j]^T` when
 /// `rotations` is given (the warped compliance of a corotational body). `slots[i]` is the
 /// slot of node `i` in `cache`, or `u32::MAX` when it has no columns: then `lumped[a]` must
 /// hold `A^-1` applied to unit forces along axis `a` on every node without columns
@@ -203,8 +203,10 @@ pub fn assemble_blocks(
     out: &mut [Matrix3<f64>],
 ) {
     let m = nodes.len();
+    // The compliance is symmetric: each block above the diagonal is computed, the one below
+    // is its transpose.
     for (j, &kj) in nodes.iter().enumerate() {
-        for (i, &ki) in nodes.iter().enumerate() {
+        for (i, &ki) in nodes.iter().enumerate().take(j + 1) {
             let (si, sj) = (slots[i], slots[j]);
             let block = if sj != u32::MAX {
                 cache.block(sj, ki as usize) * scale
@@ -228,10 +230,14 @@ pub fn assemble_blocks(
             } else {
                 Matrix3::zeros()
             };
-            out[i * m + j] = match rotations {
+            let turned = match rotations {
                 Some(r) => r[i] * block * r[j].transpose(),
                 None => block,
             };
+            out[i * m + j] = turned;
+            if i != j {
+                out[j * m + i] = turned.transpose();
+            }
         }
     }
 }
