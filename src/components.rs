@@ -696,13 +696,19 @@ impl ObstacleCollider {
         }
     }
 
-    /// A mesh obstacle from a Bevy triangle mesh's positions and indices (its own frame); a
-    /// mesh without positions or triangles is refused, naming what is missing.
-    pub fn from_mesh(mesh: &Mesh) -> Result<Self, String> {
+    /// A mesh obstacle from a Bevy triangle-list mesh's positions and indices (its own
+    /// frame). A mesh of another topology, without positions, with indices that are not
+    /// whole triangles, or whose surface the contact refuses (no triangles, a bad index, a
+    /// non-finite vertex) is refused by name.
+    pub fn from_mesh(mesh: &Mesh) -> Result<Self, ObstacleMeshError> {
+        let topology = mesh.primitive_topology();
+        if topology != bevy::mesh::PrimitiveTopology::TriangleList {
+            return Err(ObstacleMeshError::NotTriangles(topology));
+        }
         let positions = mesh
             .attribute(Mesh::ATTRIBUTE_POSITION)
             .and_then(|a| a.as_float3())
-            .ok_or("the mesh has no float3 positions")?;
+            .ok_or(ObstacleMeshError::NoPositions)?;
         let vertices: Vec<_> = positions
             .iter()
             .map(|p| crate::convert::to_core(Vec3::from_array(*p)))
@@ -711,14 +717,39 @@ impl ObstacleCollider {
             Some(i) => i.iter().map(|k| k as u32).collect(),
             None => (0..vertices.len() as u32).collect(),
         };
+        if !indices.len().is_multiple_of(3) {
+            return Err(ObstacleMeshError::PartialTriangle {
+                count: indices.len(),
+            });
+        }
         let triangles = indices
             .chunks_exact(3)
             .map(|t| [t[0], t[1], t[2]])
             .collect();
-        MeshShape::new(vertices, triangles)
-            .map(|m| ObstacleCollider::Mesh(std::sync::Arc::new(m)))
-            .map_err(|e| e.to_string())
+        Ok(ObstacleCollider::Mesh(std::sync::Arc::new(MeshShape::new(
+            vertices, triangles,
+        )?)))
     }
+}
+
+/// Why a Bevy mesh makes no obstacle ([`ObstacleCollider::from_mesh`]).
+#[derive(Debug, thiserror::Error)]
+pub enum ObstacleMeshError {
+    /// Not a triangle list.
+    #[error("obstacle mesh: a {0:?} mesh, not a triangle list")]
+    NotTriangles(bevy::mesh::PrimitiveTopology),
+    /// No `ATTRIBUTE_POSITION` of three floats.
+    #[error("obstacle mesh: it has no float3 positions")]
+    NoPositions,
+    /// Indices (or vertices, unindexed) not a multiple of three.
+    #[error("obstacle mesh: {count} indices are not whole triangles")]
+    PartialTriangle {
+        /// Indices (vertices where unindexed).
+        count: usize,
+    },
+    /// The contact refused the surface.
+    #[error("obstacle mesh: {0}")]
+    Shape(#[from] soft_tissue_core::contact::ContactError),
 }
 
 /// A static rigid obstacle the bodies rest on or are pushed against (a table, a rib, an

@@ -234,7 +234,7 @@ pub(super) fn cut_stage(
                         blade: Entity::PLACEHOLDER,
                         incision: 0,
                         mark: 0,
-                        due: steps + options.background_steps as u64,
+                        due: steps + options.carve_steps() as u64,
                         job,
                         vaporized: balls,
                     });

@@ -167,3 +167,58 @@ fn contacts_name_the_touched_body_while_another_moves_or_is_rebuilt() {
     assert!(built.is_some());
     assert!(touches > 30, "the probe pressed the body: {touches} steps");
 }
+
+/// A Bevy mesh becomes a mesh obstacle only if it is a whole triangle list with positions;
+/// otherwise the error names what is wrong.
+#[test]
+fn a_bevy_mesh_obstacle_is_refused_by_name() {
+    use bevy::asset::RenderAssetUsages;
+    use bevy::mesh::{Indices, PrimitiveTopology};
+    use bevy_soft_tissue::ObstacleMeshError;
+    let tetrahedron = |topology: PrimitiveTopology, indices: Vec<u32>| {
+        let mut m = Mesh::new(topology, RenderAssetUsages::default());
+        m.insert_attribute(
+            Mesh::ATTRIBUTE_POSITION,
+            vec![
+                [0.0f32, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.0, 0.0, 1.0],
+            ],
+        );
+        m.insert_indices(Indices::U32(indices));
+        m
+    };
+    let faces = vec![0, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3];
+    let ok = ObstacleCollider::from_mesh(&tetrahedron(PrimitiveTopology::TriangleList, faces));
+    assert!(matches!(ok, Ok(ObstacleCollider::Mesh(_))), "{ok:?}");
+    let lines = ObstacleCollider::from_mesh(&tetrahedron(PrimitiveTopology::LineList, vec![0, 1]));
+    assert!(
+        matches!(lines, Err(ObstacleMeshError::NotTriangles(_))),
+        "{lines:?}"
+    );
+    let partial = ObstacleCollider::from_mesh(&tetrahedron(
+        PrimitiveTopology::TriangleList,
+        vec![0, 2, 1, 0],
+    ));
+    assert!(
+        matches!(
+            partial,
+            Err(ObstacleMeshError::PartialTriangle { count: 4 })
+        ),
+        "{partial:?}"
+    );
+    let bad =
+        ObstacleCollider::from_mesh(&tetrahedron(PrimitiveTopology::TriangleList, vec![0, 2, 9]));
+    let e = bad.unwrap_err();
+    assert!(matches!(e, ObstacleMeshError::Shape(_)), "{e:?}");
+    assert!(e.to_string().starts_with("obstacle mesh: "), "{e}");
+    let empty = Mesh::new(
+        PrimitiveTopology::TriangleList,
+        RenderAssetUsages::default(),
+    );
+    assert!(matches!(
+        ObstacleCollider::from_mesh(&empty),
+        Err(ObstacleMeshError::NoPositions)
+    ));
+}

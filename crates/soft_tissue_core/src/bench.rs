@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::Vec3;
 use crate::boundary::Boundary;
-use crate::cage::{CageBodyConfig, CageError, CageModel, FitOptions, box_cage, fitted_cage};
+use crate::cage::{CageError, CageModel, CageModelConfig, FitOptions, box_cage, fitted_cage};
 use crate::fem::{FemBody, FemConfig, FemError, FemIntegrator, FemModel};
 use crate::material::{FemParams, MsdParams};
 use crate::mesh::TetMesh;
@@ -228,7 +228,7 @@ impl BenchBody {
                     .iter()
                     .map(|&i| nodes[i as usize])
                     .collect();
-                let mut config = CageBodyConfig::paper(0.02);
+                let mut config = CageModelConfig::paper(0.02);
                 config.msd.gravity = gravity;
                 let cage_boundary = Boundary::fixed_below(cage.vertices(), 1, 0.1);
                 let body = CageModel::with_boundary(cage, &surface, &config, &cage_boundary)?;

@@ -8,7 +8,8 @@ use nalgebra::{Rotation3, Unit};
 use soft_tissue_core::Vec3;
 use soft_tissue_core::cage::green::coordinates_at;
 use soft_tissue_core::cage::{
-    Cage, CageBodyConfig, CageError, CageModel, FitOptions, GreenCoordinates, box_cage, fitted_cage,
+    Cage, CageError, CageModel, CageModelConfig, FitOptions, GreenCoordinates, box_cage,
+    fitted_cage,
 };
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::io::read_tet_mesh;
@@ -489,7 +490,7 @@ fn cage_body_rests_follows_forces_and_displacements() {
         )
         .unwrap(),
     ] {
-        let mut body = CageModel::new(cage, &pts, &CageBodyConfig::paper(0.02)).unwrap();
+        let mut body = CageModel::new(cage, &pts, &CageModelConfig::paper(0.02)).unwrap();
         // At rest: stays at rest (fast path reproduces the rest points to f32 rounding of zero).
         for _ in 0..50 {
             body.step().unwrap();
@@ -560,7 +561,7 @@ fn similarity_of_the_cage_body_carries_the_surface_rigidly() {
         &FitOptions::for_points(&pts, 40),
     )
     .unwrap();
-    let mut body = CageModel::new(cage, &pts, &CageBodyConfig::paper(0.02)).unwrap();
+    let mut body = CageModel::new(cage, &pts, &CageModelConfig::paper(0.02)).unwrap();
     let rot = Rotation3::from_axis_angle(&Vec3::x_axis(), 1.0);
     let shift = Vec3::new(0.3, 0.0, -0.2);
     let rest = body.cage().vertices().to_vec();

@@ -9,7 +9,7 @@ use std::path::Path;
 use nalgebra::{Matrix3, Rotation3};
 use soft_tissue_core::Vec3;
 use soft_tissue_core::boundary::Boundary;
-use soft_tissue_core::contact::cases;
+use soft_tissue_core::contact::{BodyPoint, ContactRow, ContactSolver, Counterpart, cases};
 use soft_tissue_core::material::{FemParams, MsdParams};
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::generate::block;
@@ -239,5 +239,100 @@ fn a_stack_of_organs_comes_to_rest_on_a_table() {
             *p <= 1e-3,
             "{name}: penetration {p:.3e} of its smallest dimension"
         );
+    }
+}
+
+/// A contact row with both friction coefficients `mu`.
+fn contact_row(a: BodyPoint, other: Counterpart, n: Vec3, gap: f64, mu: f64) -> ContactRow {
+    ContactRow::contact([0; 9], a, other, n, gap, Vec3::zeros(), mu, mu)
+}
+
+/// The Delassus operator of rows on vertices and weighted triangle points of two bodies
+/// is `H C H^T` computed densely, block by block, and exactly symmetric (its lower
+/// blocks are the transposes of the upper ones).
+#[test]
+fn the_delassus_operator_is_h_c_ht_and_symmetric() {
+    // Each body's compliance between its 4 vertices: a fixed SPD matrix A A^T + I.
+    let dense = |b: u32| {
+        let a = nalgebra::DMatrix::<f64>::from_fn(12, 12, |i, j| {
+            (((i * 7 + j * 13 + 5 * b as usize) % 11) as f64 - 5.0) / 7.0
+        });
+        &a * a.transpose() + nalgebra::DMatrix::identity(12, 12)
+    };
+    let block_of = |b: u32, u: u32, v: u32| -> Matrix3<f64> {
+        let c = dense(b);
+        Matrix3::from_fn(|i, j| c[(3 * u as usize + i, 3 * v as usize + j)])
+    };
+    let mut compliance = |b: u32, v: &[u32], out: &mut [Matrix3<f64>]| {
+        let n = v.len();
+        for i in 0..n {
+            for j in 0..n {
+                out[i * n + j] = block_of(b, v[i], v[j]);
+            }
+        }
+    };
+    let normal = |x: f64, y: f64, z: f64| Vec3::new(x, y, z).normalize();
+    let rows = vec![
+        contact_row(
+            BodyPoint::vertex(0, 0),
+            Counterpart::Obstacle(0),
+            normal(0.0, 1.0, 0.2),
+            -0.1,
+            0.3,
+        ),
+        contact_row(
+            BodyPoint::triangle(0, [1, 2, 3], [0.2, 0.3, 0.5]),
+            Counterpart::Body(BodyPoint::vertex(1, 0)),
+            normal(1.0, -0.5, 0.3),
+            -0.05,
+            0.3,
+        ),
+        contact_row(
+            BodyPoint::vertex(1, 2),
+            Counterpart::Obstacle(1),
+            normal(-0.2, 0.1, 1.0),
+            -0.02,
+            0.3,
+        ),
+        contact_row(
+            BodyPoint::triangle(1, [0, 1, 3], [0.6, 0.3, 0.1]),
+            Counterpart::Body(BodyPoint::vertex(0, 2)),
+            normal(0.4, 0.4, -1.0),
+            -0.03,
+            0.3,
+        ),
+    ];
+    let mut s = ContactSolver::default();
+    s.assemble(&rows, &mut compliance);
+    // (body, vertex, weight) of each row's relative displacement.
+    let terms = |r: &ContactRow| {
+        let mut t: Vec<(u32, u32, f64)> = r.a.terms().map(|(v, w)| (r.a.body, v, w)).collect();
+        if let Counterpart::Body(p) = &r.other {
+            t.extend(p.terms().map(|(v, w)| (p.body, v, -w)));
+        }
+        t
+    };
+    for (c, rc) in rows.iter().enumerate() {
+        for (d, rd) in rows.iter().enumerate() {
+            let mut g = Matrix3::zeros();
+            for &(ba, va, wa) in &terms(rc) {
+                for &(bb, vb, wb) in &terms(rd) {
+                    if ba == bb {
+                        g += block_of(ba, va, vb) * (wa * wb);
+                    }
+                }
+            }
+            let expected = rc.frame.transpose() * g * rd.frame;
+            match s.block(c, d) {
+                Some(w) => {
+                    assert!(
+                        (w - expected).amax() <= 1e-12 * expected.amax().max(1.0),
+                        "({c}, {d}): {w} against {expected}"
+                    );
+                    assert_eq!(Some(w.transpose()), s.block(d, c));
+                }
+                None => assert_eq!(expected, Matrix3::zeros(), "({c}, {d})"),
+            }
+        }
     }
 }

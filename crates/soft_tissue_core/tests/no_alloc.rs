@@ -204,7 +204,7 @@ fn body_steps_do_not_allocate() {
 /// A cage body, and a leveled model at either level with each FEM model (the rest checks'
 /// cage fit included at the precise level).
 fn cage_and_leveled_body_steps_do_not_allocate() {
-    use soft_tissue_core::cage::{CageBodyConfig, CageModel, FitOptions, fitted_cage};
+    use soft_tissue_core::cage::{CageModel, CageModelConfig, FitOptions, fitted_cage};
     use soft_tissue_core::precision::{BodySettings, LeveledModel};
     let mesh = block(Vec3::zeros(), Vec3::new(1.0, 2.0, 1.0), [3, 6, 3]).unwrap();
     let cage = fitted_cage(
@@ -213,7 +213,7 @@ fn cage_and_leveled_body_steps_do_not_allocate() {
         &FitOptions::for_points(mesh.positions(), 40),
     )
     .unwrap();
-    let mut body = CageModel::new(cage, mesh.positions(), &CageBodyConfig::paper(0.02)).unwrap();
+    let mut body = CageModel::new(cage, mesh.positions(), &CageModelConfig::paper(0.02)).unwrap();
     let n = allocations(|| {
         for s in 0..50 {
             body.apply_point_force(3, Vec3::new((s as f64).sin(), 0.0, 0.0))

@@ -32,23 +32,23 @@ pub enum CageSprings {
 
 /// Settings of a [`CageModel`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct CageBodyConfig {
+pub struct CageModelConfig {
     /// The cage MSD (`stiffness` per spring, `mass` split evenly over the cage vertices).
     pub msd: MsdConfig,
     /// Spring layout.
     pub springs: CageSprings,
 }
 
-impl CageBodyConfig {
+impl CageModelConfig {
     /// The paper's cage MSD parameters (stiffness 50 per spring, total mass 20, damping 0.3)
     /// at step `dt`, integrated with symplectic Euler: one force evaluation per step instead
     /// of RK4's four, stable at the paper's step with room to spare (the cage springs are
     /// soft), and substepped automatically if a stiffer cage needs it.
-    /// [`CageBodyConfig::paper_rk4`] is the paper's integrator.
+    /// [`CageModelConfig::paper_rk4`] is the paper's integrator.
     pub fn paper(dt: f64) -> Self {
         let mut msd = MsdConfig::paper(&PAPER_CAGE_MSD, dt);
         msd.integrator = MsdIntegrator::SymplecticEuler;
-        CageBodyConfig {
+        CageModelConfig {
             msd,
             springs: CageSprings::Auto,
         }
@@ -56,7 +56,7 @@ impl CageBodyConfig {
 
     /// The paper's cage MSD exactly: its parameters and RK4.
     pub fn paper_rk4(dt: f64) -> Self {
-        CageBodyConfig {
+        CageModelConfig {
             msd: MsdConfig::paper(&PAPER_CAGE_MSD, dt),
             springs: CageSprings::Auto,
         }
@@ -167,7 +167,7 @@ pub struct CageModel {
 impl CageModel {
     /// A cage body embedding `points` (at rest) in `cage`. A point outside the cage is an
     /// error naming it.
-    pub fn new(cage: Cage, points: &[Vec3], config: &CageBodyConfig) -> Result<Self, CageError> {
+    pub fn new(cage: Cage, points: &[Vec3], config: &CageModelConfig) -> Result<Self, CageError> {
         let coords = Arc::new(GreenCoordinates::new(&cage, points)?);
         CageModel::with_coordinates(cage, coords, config)
     }
@@ -177,7 +177,7 @@ impl CageModel {
     pub fn with_coordinates(
         cage: Cage,
         coords: Arc<GreenCoordinates>,
-        config: &CageBodyConfig,
+        config: &CageModelConfig,
     ) -> Result<Self, CageError> {
         CageModel::build(cage, coords, config, &Boundary::free())
     }
@@ -187,7 +187,7 @@ impl CageModel {
     pub fn with_boundary(
         cage: Cage,
         points: &[Vec3],
-        config: &CageBodyConfig,
+        config: &CageModelConfig,
         boundary: &Boundary,
     ) -> Result<Self, CageError> {
         let coords = Arc::new(GreenCoordinates::new(&cage, points)?);
@@ -197,7 +197,7 @@ impl CageModel {
     fn build(
         cage: Cage,
         coords: Arc<GreenCoordinates>,
-        config: &CageBodyConfig,
+        config: &CageModelConfig,
         boundary: &Boundary,
     ) -> Result<Self, CageError> {
         if coords.vertex_count() != cage.vertices().len()

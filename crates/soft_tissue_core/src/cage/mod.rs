@@ -22,7 +22,7 @@ mod body;
 mod contact;
 use crate::geometry;
 
-pub use body::{CageBodyConfig, CageModel, CageSprings, CageStepStats};
+pub use body::{CageModel, CageModelConfig, CageSprings, CageStepStats};
 pub use build::{FitOptions, box_cage, fitted_cage};
 pub use fit::{FitReport, SurfaceFit};
 pub use green::GreenCoordinates;

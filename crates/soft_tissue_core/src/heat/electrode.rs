@@ -207,9 +207,9 @@ impl HeatField {
             .collect()
     }
 
-    /// The nodes' temperatures with every spot's excess heat given to the free nodes within
-    /// its reach, by its excess at each times its capacity (to the spot's own nodes where
-    /// none is within reach; a share on a fixed-temperature node leaves): what a cut hands
+    /// The nodes' temperatures with every spot's heat given to the free nodes within its
+    /// reach (see `HeatField::spread`: each takes at most the spot's excess at it, the rest
+    /// evenly; the spot's own nodes where none is within reach): what a cut or a carve hands
     /// to the pieces, C.
     pub fn temperatures_with_spots(&self) -> Vec<f64> {
         let mut t = self.temperature.clone();
@@ -281,8 +281,14 @@ impl HeatField {
     /// start from it).
     pub fn carry_burns_from(&mut self, other: &HeatField) {
         self.retired = other.burn_volumes();
-        self.retired_boiled =
-            other.retired_boiled + other.spots.iter().map(Spot::boiled_energy).sum::<f64>();
+        // The heat the spots' water took and their vaporized tissue's (both left as steam),
+        // as when a spot ends.
+        self.retired_boiled = other.retired_boiled
+            + other
+                .spots
+                .iter()
+                .map(|p| p.boiled_energy() + p.vaporized_sensible_energy())
+                .sum::<f64>();
         self.marks = other.marks.clone();
         self.departed = other.departed;
         for spot in &other.spots {

@@ -62,8 +62,7 @@ impl ColumnCache {
     /// different key forgets every column.
     pub fn prepare(&mut self, nodes: usize, key: u64) {
         if self.nodes != nodes {
-            let per_slot = 9 * nodes * std::mem::size_of::<f64>();
-            let slots = (POOL_BYTES / per_slot.max(1)).clamp(MIN_SLOTS, MAX_SLOTS);
+            let slots = Self::capacity_for(nodes);
             *self = ColumnCache {
                 nodes,
                 slot_of: vec![u32::MAX; nodes],
@@ -141,6 +140,12 @@ impl ColumnCache {
         self.slot_of[node] = s as u32;
         self.used[s] = self.clock;
         s as u32
+    }
+
+    /// The slots a pool for a system of `nodes` nodes has.
+    pub fn capacity_for(nodes: usize) -> usize {
+        let per_slot = 9 * nodes * std::mem::size_of::<f64>();
+        (POOL_BYTES / per_slot.max(1)).clamp(MIN_SLOTS, MAX_SLOTS)
     }
 
     /// Most slots (one request may protect all but none beyond).

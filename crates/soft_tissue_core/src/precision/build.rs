@@ -40,7 +40,7 @@ pub(super) fn build_cage(
         CageKind::BoundingBox => box_cage(nodes, options.margin)?,
         CageKind::Fitted { .. } => fitted_cage(nodes, triangles, &options)?,
     };
-    let mut cage_config = CageBodyConfig::paper(settings.dt);
+    let mut cage_config = CageModelConfig::paper(settings.dt);
     if settings.cage_dynamics == CageDynamics::Calibrated {
         let mut body = CageModel::new(cage_shape, nodes, &cage_config)?;
         let model = calibrated_model(mesh, nodes, &body, settings, precise)?;

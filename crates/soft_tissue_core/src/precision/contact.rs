@@ -59,9 +59,11 @@ impl LeveledModel {
     /// Computes and keeps the precise model's compliance columns of mesh nodes `nodes`
     /// (see [`crate::linalg::ColumnCache`]) whatever the level, so the contact of a later
     /// step finds them kept: a body built in the background for a cut or a carve warms the
-    /// nodes the tool will touch when it lands, off the steps' threads. Also builds a
-    /// prefactored model's factors. Nodes beyond the cache's capacity are not kept.
-    pub fn warm_contact_columns(&mut self, nodes: &[u32]) -> Result<(), PrecisionError> {
+    /// nodes a tool will press on when it lands, off the steps' threads. Also builds a
+    /// prefactored model's factors. Only the first nodes the cache has room for are taken;
+    /// returns how many nodes' columns were computed (none for RK4, whose compliance is the
+    /// nodes' own, and none for an empty list).
+    pub fn warm_contact_columns(&mut self, nodes: &[u32]) -> Result<usize, PrecisionError> {
         let n = self.rest.len();
         if let Some(&node) = nodes.iter().find(|&&k| k as usize >= n) {
             return Err(PrecisionError::BadNode {
@@ -69,16 +71,22 @@ impl LeveledModel {
                 nodes: n,
             });
         }
+        let nodes = &nodes[..nodes.len().min(crate::linalg::ColumnCache::capacity_for(n))];
+        if nodes.is_empty() {
+            return Ok(0);
+        }
+        let before = self.contact_columns_computed();
         let mut out = vec![Matrix3::zeros(); nodes.len() * nodes.len()];
         match &mut self.precise {
             Precise::Fem(b) => b.contact_compliance(nodes, &mut out)?,
             Precise::Msd(b) => b.contact_compliance(nodes, &mut out)?,
         }
-        Ok(())
+        Ok((self.contact_columns_computed() - before) as usize)
     }
 
-    /// Compliance columns the precise model has computed since it was built (three a node;
-    /// counted per node): how often contact had to solve for them.
+    /// Compliance columns the precise model has computed since it was built or last turned
+    /// (a turn drops them; three a node, counted per node): how often contact had to solve
+    /// for them.
     pub fn contact_columns_computed(&self) -> u64 {
         match &self.precise {
             Precise::Fem(b) => b.contact_columns_computed(),

@@ -42,7 +42,7 @@ use crate::Vec3;
 use crate::boundary::{Boundary, BoundaryError};
 use crate::cage::reduced::{ModelKey, PreciseOperators, cached_model};
 use crate::cage::{
-    CageBodyConfig, CageDynamics, CageError, CageModel, FitOptions, FitReport, ReducedModel,
+    CageDynamics, CageError, CageModel, CageModelConfig, FitOptions, FitReport, ReducedModel,
     SurfaceFit, box_cage, fitted_cage,
 };
 use crate::fem::{FemBody, FemConfig, FemError, FemIntegrator, FemModel};

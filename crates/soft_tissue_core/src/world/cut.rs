@@ -47,8 +47,10 @@ pub struct CutRecord {
     /// [`CutRecord::warmed_nodes`].
     pub build_us: f64,
     /// Nodes of this body whose contact compliance columns were computed with it, before it
-    /// landed: its surface nodes nearest to where the body was pressed on when the cut
-    /// began (at most 128), so the contact of the step it lands in finds them kept.
+    /// landed: its surface nodes nearest to where the body was pressed on (by any contact:
+    /// tools, obstacles, bodies) when a cut prepared beside the steps began, at most 128 and
+    /// what its column cache holds, so the contact of the step it lands in finds them kept.
+    /// 0 for a cut made within the step, and for RK4.
     pub warmed_nodes: usize,
     /// What the step the cut landed in spent on it, microseconds: waiting for the thread
     /// that prepared it (0 when it was ready, or when it was prepared in the step) and

@@ -137,8 +137,12 @@ struct Input {
     change: Change,
     options: CutOptions,
     /// Nodes the last contact solve pressed on (their neighbourhoods' compliance columns
-    /// are computed with the new bodies, see [`warm_touched`]).
+    /// are computed with the new bodies, see [`warm_touched`]; empty for a change made in
+    /// the step, whose contact computes what it needs).
     touched: Vec<u32>,
+    /// The body's frame (where it was moved to): the new bodies take it before their
+    /// columns are computed.
+    frame: nalgebra::Isometry3<f64>,
 }
 
 /// What a prepared change of the mesh does.
@@ -292,15 +296,19 @@ impl WorldBody {
     ) -> Result<CutJob, WorldError> {
         let (x, _) = self.model.node_state().map_err(|e| self.precision_err(e))?;
         let surface = self.collider.nodes();
-        let mut touched: Vec<u32> = self
-            .contact_load
-            .iter()
-            .filter_map(|&(v, _)| surface.get(v as usize).copied())
-            .collect();
+        let mut touched: Vec<u32> = if matches!(place, CutPlace::Here) {
+            Vec::new()
+        } else {
+            self.contact_load
+                .iter()
+                .filter_map(|&(v, _)| surface.get(v as usize).copied())
+                .collect()
+        };
         touched.sort_unstable();
         touched.dedup();
         let input = Input {
             touched,
+            frame: self.frame,
             name: self.name.clone(),
             mesh: self.mesh.clone(),
             x,
@@ -532,6 +540,11 @@ impl WorldBody {
                 r.land_us = land_us;
             }
         }
+        // The parts take the frame the body was moved to before anything is swapped (a no-op
+        // where the preparation gave it already), so a failure leaves the body as it was.
+        for b in &mut built {
+            b.adopt_frame(self.frame)?;
+        }
         let count = built.len();
         let mut built = built.into_iter();
         let kept = built.next().expect("a cut leaves at least one piece");
@@ -732,8 +745,15 @@ fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
         let building = std::time::Instant::now();
         let mut body = WorldBody::build(piece_name, Arc::new(mesh), piece_settings, heat, false)
             .map_err(|e| fail(format!("building a piece: {e}")))?;
-        let warmed =
-            warm_touched(&mut body, &reach).map_err(|e| fail(format!("a piece's contact: {e}")))?;
+        // In the frame the body was moved to (as landing would put it), so the columns
+        // are those of the body that lands.
+        body.adopt_frame(input.frame)
+            .map_err(|e| fail(format!("moving a piece to the body's frame: {e}")))?;
+        // Only an optimisation: a failure leaves the columns to the landing step.
+        let warmed = warm_touched(&mut body, &reach).unwrap_or_else(|e| {
+            log::warn!("body `{name}`: no contact columns computed for a piece: {e}");
+            0
+        });
         build_us += building.elapsed().as_secs_f64() * 1e6;
         let history = CutHistory {
             sides: part
@@ -806,8 +826,9 @@ fn touched_reach(mesh: &TetMesh, touched: &[u32]) -> Vec<(Vec3, f64)> {
 }
 
 /// Computes a new body's compliance columns for its surface nodes (rest shape) within the
-/// reach of where the old body was touched, nearest first, at most [`WARM_NODES`]: the
-/// contact of the step it lands in then finds them kept instead of solving for them.
+/// reach of where the old body was touched, nearest first, at most [`WARM_NODES`] (and what
+/// its column cache holds): the contact of the step it lands in then finds them kept
+/// instead of solving for them. Returns the nodes whose columns were computed.
 fn warm_touched(body: &mut WorldBody, reach: &[(Vec3, f64)]) -> Result<usize, PrecisionError> {
     if reach.is_empty() {
         return Ok(0);
@@ -832,6 +853,5 @@ fn warm_touched(body: &mut WorldBody, reach: &[(Vec3, f64)]) -> Result<usize, Pr
     near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     near.truncate(WARM_NODES);
     let nodes: Vec<u32> = near.into_iter().map(|(_, k)| k).collect();
-    body.model.warm_contact_columns(&nodes)?;
-    Ok(nodes.len())
+    body.model.warm_contact_columns(&nodes)
 }

@@ -101,12 +101,13 @@ pub enum ScriptError {
     )]
     Unknown(String),
     /// The scene lacks a body the built-in script needs.
-    #[error("script `{script}` needs a body named `{body}` in the scene")]
+    #[error("script `{script}` needs {needed} in the scene")]
     MissingBody {
         /// Script.
         script: String,
-        /// Body name.
-        body: String,
+        /// What it needs, in words (`a body named `Liver``, `another organ`): no body of the
+        /// scene has it, so there is no body to name.
+        needed: String,
     },
 }
 
@@ -315,7 +316,7 @@ impl Script {
                     .body_index("Liver")
                     .map_err(|_| ScriptError::MissingBody {
                         script: name.into(),
-                        body: "Liver".into(),
+                        needed: "a body named `Liver`".into(),
                     })?;
                 // The liver surface point closest to another organ.
                 let lp = world.bodies()[liver].collider().positions();
@@ -336,7 +337,7 @@ impl Script {
                 let Some((_, p)) = best else {
                     return Err(ScriptError::MissingBody {
                         script: name.into(),
-                        body: "another organ".into(),
+                        needed: "another organ".into(),
                     });
                 };
                 // Press down (-y) on the top of the liver above that point, so the liver is
@@ -344,7 +345,7 @@ impl Script {
                 let bb = crate::mesh::Aabb::from_points(lp.iter()).ok_or_else(|| {
                     ScriptError::MissingBody {
                         script: name.into(),
-                        body: "Liver (with a surface)".into(),
+                        needed: "a body named `Liver` with a surface".into(),
                     }
                 })?;
                 let small = bb.smallest_dimension();
@@ -422,7 +423,7 @@ impl Script {
                                 .first()
                                 .ok_or_else(|| ScriptError::MissingBody {
                                     script: name.into(),
-                                    body: "any body".into(),
+                                    needed: "a body".into(),
                                 })?;
                         body_box(world, name, first.name())?
                     }
@@ -472,7 +473,7 @@ fn body_box(world: &SoftTissueWorld, script: &str, body: &str) -> Result<BodyBox
         .body_index(body)
         .map_err(|_| ScriptError::MissingBody {
             script: script.into(),
-            body: body.into(),
+            needed: format!("a body named `{body}`"),
         })?;
     let (lo, hi) = world.bodies()[i].collider().bounds();
     Ok(BodyBox {

@@ -261,7 +261,7 @@ impl SoftTissueWorld {
     /// Tissue electrodes vaporized leaves the bodies (see [`WorldBody::vaporized`]), as a
     /// cut changes them: in the step or in the background like a blade's cuts.
     fn vaporize_stage(&mut self, count: usize) -> Result<(), WorldError> {
-        let background = self.cut_options.background_steps * crate::mesh::cut::CARVE_STEPS_FACTOR;
+        let background = self.cut_options.carve_steps();
         for i in 0..count {
             if self.in_flight.iter().any(|f| f.body == i) {
                 continue;

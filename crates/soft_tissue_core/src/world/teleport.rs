@@ -112,7 +112,7 @@ impl WorldBody {
 
     /// Moves the rests of a body built in the mesh's coordinates, whose state is already in
     /// `frame`, to `frame`.
-    fn adopt_frame(&mut self, frame: Isometry3<f64>) -> Result<(), WorldError> {
+    pub(super) fn adopt_frame(&mut self, frame: Isometry3<f64>) -> Result<(), WorldError> {
         let m = frame * self.frame.inverse();
         if is_identity(&m) {
             return Ok(());

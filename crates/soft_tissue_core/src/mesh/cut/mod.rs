@@ -91,6 +91,14 @@ pub const CRUMB_TETS: usize = 16;
 /// Smallest [`CutOptions::snap`]: below it children would be flatter than a mesh accepts.
 pub const MIN_SNAP: f64 = 0.01;
 
+impl CutOptions {
+    /// Steps a carve of vaporized tissue is prepared for in the background:
+    /// [`CARVE_STEPS_FACTOR`] times [`CutOptions::background_steps`].
+    pub fn carve_steps(&self) -> u32 {
+        self.background_steps.saturating_mul(CARVE_STEPS_FACTOR)
+    }
+}
+
 impl Default for CutOptions {
     fn default() -> Self {
         CutOptions {
