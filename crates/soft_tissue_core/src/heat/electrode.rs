@@ -197,14 +197,15 @@ impl HeatField {
     /// place, where the rest shape still has tissue, is tissue it pushed aside, not burnt),
     /// and the electrode's radius, m.
     pub fn vaporized_balls(&self) -> Vec<(Vec3, f64, f64)> {
-        self.spots
-            .iter()
-            .filter(|p| p.has_crater())
-            .map(|p| {
-                let (rc, re) = (p.crater_radius(), p.grid.radius);
-                (p.center, (rc.powi(3) - re.powi(3)).max(0.0).cbrt(), re)
-            })
-            .collect()
+        self.vaporized_balls_iter().collect()
+    }
+
+    /// [`HeatField::vaporized_balls`] without allocating.
+    pub fn vaporized_balls_iter(&self) -> impl Iterator<Item = (Vec3, f64, f64)> + '_ {
+        self.spots.iter().filter(|p| p.has_crater()).map(|p| {
+            let (rc, re) = (p.crater_radius(), p.grid.radius);
+            (p.center, (rc.powi(3) - re.powi(3)).max(0.0).cbrt(), re)
+        })
     }
 
     /// The nodes' temperatures with every spot's heat given to the free nodes within its

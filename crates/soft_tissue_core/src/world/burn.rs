@@ -15,16 +15,22 @@ impl WorldBody {
     /// electrode, and [`CARVE_GROWTH`] times one tried before at the same place. Empty
     /// without heat or craters (cheap then: no allocation).
     pub fn vaporized(&self) -> Vec<Ball> {
-        let Some(h) = self.heat.as_ref() else {
-            return Vec::new();
-        };
-        if !h.has_craters() {
-            return Vec::new();
-        }
-        let s = h.params().meters_per_unit;
-        h.vaporized_balls()
-            .into_iter()
-            .map(|(centre, r, electrode)| {
+        self.to_carve().collect()
+    }
+
+    /// Whether [`WorldBody::vaporized`] has a ball (without allocating: the cut stage asks
+    /// every step while a crater exists).
+    pub fn has_vaporized(&self) -> bool {
+        self.to_carve().next().is_some()
+    }
+
+    /// The balls of [`WorldBody::vaporized`], one by one.
+    fn to_carve(&self) -> impl Iterator<Item = Ball> + '_ {
+        let heat = self.heat.as_ref().filter(|h| h.has_craters());
+        let s = heat.map_or(1.0, |h| h.params().meters_per_unit);
+        heat.into_iter()
+            .flat_map(|h| h.vaporized_balls_iter())
+            .map(move |(centre, r, electrode)| {
                 (
                     Ball {
                         centre,
@@ -43,7 +49,6 @@ impl WorldBody {
                 b.radius >= electrode.max(CARVE_GROWTH * tried)
             })
             .map(|(b, _)| b)
-            .collect()
     }
 
     /// Notes that carving `balls` was tried and did not land (each is tried again once it

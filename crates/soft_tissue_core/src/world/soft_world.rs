@@ -172,11 +172,9 @@ impl SoftTissueWorld {
     fn cut_stage(&mut self) -> Result<(), WorldError> {
         self.incisions.resize(self.tools.len(), None);
         let cutting = |t: &Tool| t.cutting() && t.blade_sweep().is_some();
-        // An electrode's crater (tissue to remove) is checked without allocating.
-        let craters = self
-            .bodies
-            .iter()
-            .any(|b| b.heat.as_ref().is_some_and(|h| h.has_craters()));
+        // Tissue an electrode vaporized and not yet carved (or refused until it grows) is
+        // checked without allocating.
+        let craters = self.bodies.iter().any(WorldBody::has_vaporized);
         if self.in_flight.is_empty() && !self.tools.iter().any(cutting) && !craters {
             // Nothing to cut (and nothing allocated for it).
             self.incisions.iter_mut().for_each(|i| *i = None);
