@@ -4,6 +4,7 @@
 mod bench;
 mod cage;
 mod haptics_bench;
+mod logger;
 mod mesh;
 mod realtime;
 mod report;
@@ -52,6 +53,7 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    logger::install();
     let result = match cli.command {
         Command::Mesh(command) => mesh::run(command),
         Command::Scene(command) => scene::run(command),

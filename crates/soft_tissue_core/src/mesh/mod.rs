@@ -369,8 +369,10 @@ impl TetMesh {
                 count: component_count,
             });
         }
+        // Returned to the caller (`TetMesh::warnings`), who shows them: logged at debug
+        // level only, so a logger does not show each twice.
         for w in &warnings {
-            log::warn!("{w}");
+            log::debug!("{w}");
         }
         let referenced = oriented.iter().flatten().map(|&n| &positions[n as usize]);
         let bbox = Aabb::from_points(referenced).expect("at least one tetrahedron");
