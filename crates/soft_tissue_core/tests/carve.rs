@@ -210,6 +210,66 @@ fn a_crater_on_the_liver() {
     assert!(removed > 0.0 && removed < whole);
 }
 
+/// How many of the crater wall's nodes (those of the cut faces) lie on the ball's sphere
+/// (to rounding), of how many.
+fn wall_on_sphere(cut: &CutMesh, ball: &Ball) -> (usize, usize) {
+    let p = cut.mesh.positions();
+    let mut nodes: Vec<u32> = cut.cut_faces.iter().flatten().copied().collect();
+    nodes.sort_unstable();
+    nodes.dedup();
+    let on = nodes
+        .iter()
+        .filter(|&&v| {
+            ((p[v as usize] - ball.centre).norm() - ball.radius).abs() <= 1e-9 * ball.radius
+        })
+        .count();
+    (on, nodes.len())
+}
+
+/// Nodes inside the mesh whose edge the sphere crosses near them are moved onto it (not
+/// merely counted as on it), so the crater's wall is the sphere's polyhedron: a cavity's
+/// wall nodes all lie on the sphere but where moving one would spoil an element, and a
+/// crater on the liver's top has its wall on the sphere but for nodes of the liver's own
+/// surface (its rim), which stay where they are, are few. (Counted as on the sphere within snapping
+/// reach instead, 62 % of the cavity's and 82 % of the liver crater's wall nodes lay on
+/// it.)
+#[test]
+fn crater_walls_lie_on_the_sphere() {
+    let mesh = block(Vec3::zeros(), Vec3::repeat(0.04), [2, 2, 2]).unwrap();
+    let ball = Ball {
+        centre: Vec3::new(0.013, 0.011, 0.0087),
+        radius: 0.002,
+    };
+    let cut = carve(&mesh, None, &[ball], SNAP).unwrap();
+    let (on, all) = wall_on_sphere(&cut, &ball);
+    println!("cavity: {on} of {all} wall nodes on the sphere");
+    assert!(on as f64 >= 0.95 * all as f64, "{on} of {all}");
+
+    let assets = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets"));
+    let w = SoftTissueWorld::from_scene(&Scene::paper_organs(), assets).unwrap();
+    let i = w.body_index("Liver").unwrap();
+    let liver = (**w.bodies()[i].mesh()).clone();
+    let s = w.bodies()[i]
+        .heat()
+        .map_or(0.01, |h| h.params().meters_per_unit);
+    let top = liver
+        .positions()
+        .iter()
+        .copied()
+        .max_by(|a, b| a.y.total_cmp(&b.y))
+        .unwrap();
+    let ball = Ball {
+        centre: top - Vec3::new(0.0, 0.0005 / s, 0.0),
+        radius: 0.002 / s,
+    };
+    let cut = carve(&liver, None, &[ball], SNAP).unwrap();
+    assert_valid(&liver, &cut);
+    assert_origins(&liver, &cut);
+    let (on, all) = wall_on_sphere(&cut, &ball);
+    println!("liver crater: {on} of {all} wall nodes on the sphere");
+    assert!(on as f64 >= 0.9 * all as f64, "{on} of {all}");
+}
+
 /// A ball that misses the mesh changes nothing; bad balls are refused by name.
 #[test]
 fn misses_and_bad_balls() {

@@ -327,11 +327,8 @@ impl Work {
         let node = self.positions.len() as u32;
         self.positions.push(p);
         self.marked.push(self.incision);
-        let (oa, ob) = (
-            self.node_origin[e.0 as usize],
-            self.node_origin[e.1 as usize],
-        );
-        self.node_origin.push(NodeOrigin::blend(oa, ob, s));
+        let origin = self.origin_on_edge(e.0, e.1, s);
+        self.node_origin.push(origin);
         self.bisected += 1;
         let holders: Vec<u32> = candidates
             .iter()

@@ -13,7 +13,11 @@
 //!    is its own longest, so shapes next to the crater can degrade; the tests report the
 //!    smallest dihedral angle). The mesh stays conforming, and every child lies in its
 //!    parent, so volume and mass are unchanged.
-//! 2. **The sphere as a cut.** Each edge whose ends lie on opposite sides of the sphere is
+//! 2. **The sphere as a cut.** First a node inside the mesh whose edge the sphere crosses
+//!    within [`WARP`] of it is moved onto the sphere along that edge, nearest first, where no
+//!    element around it comes out much worse (isosurface stuffing's warping, Labelle and
+//!    Shewchuk 2007; its origin moves with it, so the fields follow, and the domain is
+//!    unchanged). Then each edge whose ends still lie on opposite sides of the sphere is
 //!    bisected where it crosses it (the exact crossing on the straight edge), a crossing
 //!    within `snap` of an end putting that end on the sphere instead (as a blade's cut
 //!    does; [`OUTWARD_SNAP`] of it for an end outside, which bounds how far beyond the
@@ -32,6 +36,7 @@ use super::{CutHistory, CutMesh, RemoveError, Work, face_key, remove_tets};
 use crate::Vec3;
 use crate::geometry::point_triangle_distance;
 use crate::mesh::TetMesh;
+use crate::mesh::quality::tet_quality_deg;
 
 /// A ball to carve out (scene units).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -52,6 +57,17 @@ pub const CARVE_SPACING: f64 = 0.75;
 /// `radius * (1 + max(OUTWARD_SNAP * snap, MIN_SNAP) * CARVE_SPACING)`, at the price of
 /// children as thin as that fraction of an edge just outside the crater.
 pub const OUTWARD_SNAP: f64 = 0.5;
+
+/// A node inside the mesh whose edge crosses the sphere within this fraction of it moves
+/// onto the sphere (move 2a) rather than the edge being split there.
+pub const WARP: f64 = 0.35;
+
+/// A warp may leave a tetrahedron around the node no worse than this fraction of the worse
+/// of its quality before and [`WARP_FLOOR`].
+const WARP_QUALITY: f64 = 0.8;
+
+/// Degrees: see [`WARP_QUALITY`].
+const WARP_FLOOR: f64 = 20.0;
 
 /// Most tetrahedra one carve may add by refinement (a ball far finer than the mesh is
 /// refused rather than refined without end).
@@ -364,6 +380,7 @@ impl Work {
         }
         edges.sort_unstable();
         edges.dedup();
+        self.warp_to_sphere(ball, &edges, &mut phi, state);
         // Outside the sphere a node snaps onto it only within `OUTWARD_SNAP` of `snap` (not
         // below the smallest snap): tissue beyond the radius leaves by no more than that.
         let outward = (OUTWARD_SNAP * snap).max(super::MIN_SNAP);
@@ -422,6 +439,129 @@ impl Work {
             on[node as usize] = true;
         }
         on
+    }
+}
+
+impl Work {
+    /// Move 2a: moves nodes onto the sphere where it crosses one of their edges within
+    /// [`WARP`] of them (after isosurface stuffing's warping, Labelle and Shewchuk 2007),
+    /// nearest first, so the sphere's cut then splits edges only away from their ends. A node
+    /// moves only inside the mesh (every face around it shared by two tetrahedra, none gone),
+    /// along its edge to the crossing, and only where no tetrahedron around it comes out worse
+    /// than [`WARP_QUALITY`] of the worse of its old shape and [`WARP_FLOOR`] degrees. Its
+    /// origin moves with it (the blend of its edge's ends), so the fields follow, and the
+    /// mesh's domain is what it was (volume and mass unchanged); an element around a moved
+    /// node may then reach into a neighbour of the element its origin names. Warped nodes
+    /// get `phi` 0. Returns how many moved.
+    fn warp_to_sphere(
+        &mut self,
+        ball: &Ball,
+        edges: &[(u32, u32)],
+        phi: &mut HashMap<u32, f64>,
+        state: &Carving,
+    ) -> usize {
+        let crosses = |phi: &HashMap<u32, f64>, a: u32, b: u32| {
+            let (pa, pb) = (phi[&a], phi[&b]);
+            pa != 0.0 && pb != 0.0 && (pa > 0.0) != (pb > 0.0)
+        };
+        let mut links: HashMap<u32, Vec<u32>> = HashMap::new();
+        let mut order: Vec<(f64, u32)> = Vec::new();
+        for &(a, b) in edges {
+            if !crosses(phi, a, b) {
+                continue;
+            }
+            let s = self.sphere_crossing(a, b, ball);
+            order.push((s, a));
+            order.push((1.0 - s, b));
+            links.entry(a).or_default().push(b);
+            links.entry(b).or_default().push(a);
+        }
+        order.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+        let mut moved = 0;
+        for (frac, v) in order {
+            if frac >= WARP {
+                break;
+            }
+            if phi[&v] == 0.0 {
+                continue;
+            }
+            // Its nearest crossing now (an edge to a node warped since no longer crosses).
+            let Some((f, u)) = links[&v]
+                .iter()
+                .filter(|&&u| crosses(phi, v, u))
+                .map(|&u| (self.sphere_crossing(v, u, ball), u))
+                .min_by(|x, y| x.0.total_cmp(&y.0))
+            else {
+                continue;
+            };
+            if f >= WARP || !self.interior(state, v) {
+                continue;
+            }
+            let target = self.positions[v as usize] * (1.0 - f) + self.positions[u as usize] * f;
+            if !self.warp_keeps_shapes(state, v, target) {
+                continue;
+            }
+            let origin = self.origin_on_edge(v, u, f);
+            self.positions[v as usize] = target;
+            self.node_origin[v as usize] = origin;
+            phi.insert(v, 0.0);
+            moved += 1;
+        }
+        moved
+    }
+
+    /// Where edge `(a, b)` (ends on opposite sides of the sphere) crosses it, as a fraction
+    /// from `a`.
+    fn sphere_crossing(&self, a: u32, b: u32, ball: &Ball) -> f64 {
+        let f = self.positions[a as usize] - ball.centre;
+        let d = self.positions[b as usize] - self.positions[a as usize];
+        let r = ball.radius;
+        let (qa, qb, qc) = (d.dot(&d), 2.0 * f.dot(&d), f.dot(&f) - r * r);
+        let root = (qb * qb - 4.0 * qa * qc).max(0.0).sqrt();
+        // From inside (qc < 0) the far root; from outside the near one.
+        let s = if qc < 0.0 {
+            (-qb + root) / (2.0 * qa)
+        } else {
+            (-qb - root) / (2.0 * qa)
+        };
+        s.clamp(0.0, 1.0)
+    }
+
+    /// Whether node `v` lies inside the mesh: every face at it shared by two of its
+    /// tetrahedra, none of them removed.
+    fn interior(&self, state: &Carving, v: u32) -> bool {
+        let mut faces: HashMap<[u32; 3], u8> = HashMap::new();
+        for &t in &state.around[v as usize] {
+            if state.gone[t as usize] {
+                return false;
+            }
+            let tet = self.tets[t as usize];
+            for (o, &w) in tet.iter().enumerate() {
+                if w != v {
+                    *faces.entry(face_key(&tet, o)).or_insert(0) += 1;
+                }
+            }
+        }
+        faces.values().all(|&n| n == 2)
+    }
+
+    /// Whether moving node `v` to `target` leaves every tetrahedron around it at least
+    /// [`WARP_QUALITY`] of the worse of its quality before and [`WARP_FLOOR`] (the smallest
+    /// of `min(b, 180 - b)` over its dihedral angles `b`).
+    fn warp_keeps_shapes(&self, state: &Carving, v: u32, target: Vec3) -> bool {
+        state.around[v as usize].iter().all(|&t| {
+            let tet = self.tets[t as usize];
+            let before = tet.map(|w| self.positions[w as usize]);
+            let after = tet.map(|w| {
+                if w == v {
+                    target
+                } else {
+                    self.positions[w as usize]
+                }
+            });
+            let (q0, q1) = (tet_quality_deg(&before), tet_quality_deg(&after));
+            q1 > 0.0 && q1 >= WARP_QUALITY * q0.min(WARP_FLOOR)
+        })
     }
 }
 

@@ -42,7 +42,7 @@ mod check;
 mod remove;
 mod separate;
 
-pub use carve::{Ball, CARVE_SPACING, MAX_CARVE_TETS, OUTWARD_SNAP, carve};
+pub use carve::{Ball, CARVE_SPACING, MAX_CARVE_TETS, OUTWARD_SNAP, WARP, carve};
 pub use check::{CutCheck, check};
 pub(crate) use remove::manifold;
 pub use remove::{RemoveError, remove_tets};
@@ -169,8 +169,9 @@ impl NodeOrigin {
         v
     }
 
-    /// The origin of the point `(1 - s) a + s b`.
-    fn blend(a: NodeOrigin, b: NodeOrigin, s: f64) -> NodeOrigin {
+    /// The origin of the point `(1 - s) a + s b`, when both lie in one tetrahedron of the
+    /// mesh before (`None` where the blend names more than four of its nodes).
+    fn blend(a: NodeOrigin, b: NodeOrigin, s: f64) -> Option<NodeOrigin> {
         let mut terms: [(u32, f64); 8] = [(u32::MAX, 0.0); 8];
         let mut n = 0;
         for (o, f) in [(a, 1.0 - s), (b, s)] {
@@ -188,11 +189,10 @@ impl NodeOrigin {
                 }
             }
         }
-        // Both ends lie in one tetrahedron of the mesh before: at most four nodes. (Keep the
-        // four heaviest should rounding ever say otherwise.)
-        let terms = &mut terms[..n];
-        terms.sort_by(|x, y| y.1.total_cmp(&x.1));
-        let kept = &terms[..n.min(4)];
+        if n > 4 {
+            return None;
+        }
+        let kept = &terms[..n];
         let total: f64 = kept.iter().map(|t| t.1).sum();
         let mut out = NodeOrigin {
             nodes: [kept[0].0; 4],
@@ -202,7 +202,7 @@ impl NodeOrigin {
             out.nodes[k] = *v;
             out.weights[k] = w / total;
         }
-        out
+        Some(out)
     }
 }
 
@@ -399,6 +399,11 @@ struct Work {
     marked: Vec<u64>,
     /// The incision cutting now (0: a cut of its own, which marks nothing).
     incision: u64,
+    /// The tetrahedra of the mesh before, where an origin is looked for when a blend cannot
+    /// give it ([`Work::origin_on_edge`]).
+    before_tets: Vec<[u32; 4]>,
+    /// Its positions.
+    before_positions: Vec<Vec3>,
     bisected: usize,
     separated: usize,
     taken_back: usize,
@@ -423,6 +428,47 @@ impl Work {
         Ok(smallest)
     }
 
+    /// The origin of the point `(1 - s) a + s b` of edge `(a, b)`: the blend of its ends'
+    /// origins where they lie in one tetrahedron of the mesh before (an edge of a
+    /// subdivision always does); else (an end a carve moved onto its sphere, into another
+    /// tetrahedron) the tetrahedron around either end's origin nodes that holds the point,
+    /// with its barycentric coordinates.
+    fn origin_on_edge(&self, a: u32, b: u32, s: f64) -> NodeOrigin {
+        let (oa, ob) = (self.node_origin[a as usize], self.node_origin[b as usize]);
+        if let Some(o) = NodeOrigin::blend(oa, ob, s) {
+            return o;
+        }
+        let p = self.positions[a as usize] * (1.0 - s) + self.positions[b as usize] * s;
+        let named = |v: &u32| {
+            [oa, ob]
+                .iter()
+                .any(|o| (0..4).any(|k| o.weights[k] != 0.0 && o.nodes[k] == *v))
+        };
+        let mut best: Option<(f64, NodeOrigin)> = None;
+        for tet in self.before_tets.iter().filter(|t| t.iter().any(named)) {
+            let [x0, x1, x2, x3] = tet.map(|v| self.before_positions[v as usize]);
+            let m = nalgebra::Matrix3::from_columns(&[x1 - x0, x2 - x0, x3 - x0]);
+            let Some(inv) = m.try_inverse() else {
+                continue;
+            };
+            let l = inv * (p - x0);
+            let weights = [1.0 - l.x - l.y - l.z, l.x, l.y, l.z];
+            let inside = weights.iter().copied().fold(f64::INFINITY, f64::min);
+            if best.as_ref().is_none_or(|(b, _)| inside > *b) {
+                best = Some((
+                    inside,
+                    NodeOrigin {
+                        nodes: *tet,
+                        weights,
+                    },
+                ));
+            }
+        }
+        // The ends' own tetrahedra hold the point (it lies between them); the blend
+        // truncated would be a last resort only for a mesh with none.
+        best.map_or(oa, |(_, o)| o)
+    }
+
     /// `mesh` as it is, with what `history` remembers of its cuts (ignored where its sizes
     /// do not fit), to be cut by incision `incision` (0: none).
     fn new(mesh: &TetMesh, history: Option<&CutHistory>, incision: u64) -> Work {
@@ -442,6 +488,8 @@ impl Work {
                 _ => vec![0; mesh.node_count()],
             },
             incision,
+            before_tets: mesh.tets().to_vec(),
+            before_positions: mesh.positions().to_vec(),
             bisected: 0,
             separated: 0,
             taken_back: 0,
