@@ -11,7 +11,7 @@ use std::path::Path;
 use soft_tissue_core::Vec3;
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::cut::{
-    Ball, CARVE_SPACING, CutMesh, OUTWARD_SNAP, RemoveError, carve, check,
+    Ball, CARVE_SPACING, CutMesh, OUTWARD_SNAP, RemoveError, carve, carve_keeping, check,
 };
 use soft_tissue_core::mesh::generate::block;
 use soft_tissue_core::scenario::Scene;
@@ -46,6 +46,39 @@ fn assert_valid(before: &TetMesh, cut: &CutMesh) {
         "the boundary is not closed and 2-manifold: {c:?}"
     );
     assert_eq!(c.orphan_nodes, 0, "{c:?}");
+}
+
+/// A field of the mesh before that is not linear (a value per node from its index):
+/// interpolated by each node's origin it must equal the mesh before's own piecewise-linear
+/// interpolation at the node's rest position (found by searching every element), which holds
+/// only when the origin names the element the node lies in.
+fn assert_origins_follow_elements(before: &TetMesh, cut: &CutMesh) {
+    let field: Vec<f64> = (0..before.node_count())
+        .map(|i| ((i as f64) * 0.618_033_988_75).fract())
+        .collect();
+    let x = before.positions();
+    for (k, (o, p)) in cut.node_origin.iter().zip(cut.mesh.positions()).enumerate() {
+        // The element the point is least outside of.
+        let mut best = (f64::NEG_INFINITY, 0.0);
+        for tet in before.tets() {
+            let [x0, x1, x2, x3] = tet.map(|v| x[v as usize]);
+            let m = nalgebra::Matrix3::from_columns(&[x1 - x0, x2 - x0, x3 - x0]);
+            let Some(inv) = m.try_inverse() else { continue };
+            let l = inv * (p - x0);
+            let w = [1.0 - l.x - l.y - l.z, l.x, l.y, l.z];
+            let inside = w.iter().copied().fold(f64::INFINITY, f64::min);
+            if inside > best.0 {
+                let value = (0..4).map(|j| w[j] * field[tet[j] as usize]).sum();
+                best = (inside, value);
+            }
+        }
+        let got = o.interpolate(&field);
+        assert!(
+            (got - best.1).abs() <= 1e-9,
+            "node {k}: its origin gives {got}, the element it lies in {}",
+            best.1
+        );
+    }
 }
 
 /// Every node's origin, interpolated on the mesh before, gives its position.
@@ -227,12 +260,12 @@ fn wall_on_sphere(cut: &CutMesh, ball: &Ball) -> (usize, usize) {
 }
 
 /// Nodes inside the mesh whose edge the sphere crosses near them are moved onto it (not
-/// merely counted as on it), so the crater's wall is the sphere's polyhedron: a cavity's
-/// wall nodes all lie on the sphere but where moving one would spoil an element, and a
-/// crater on the liver's top has its wall on the sphere but for nodes of the liver's own
-/// surface (its rim), which stay where they are, are few. (Counted as on the sphere within snapping
-/// reach instead, 62 % of the cavity's and 82 % of the liver crater's wall nodes lay on
-/// it.)
+/// merely counted as on it), so the crater's wall is nearly the sphere's polyhedron. Off it
+/// stay the nodes a move would spoil an element around, those counted as on it whose
+/// crossings are farther than the warp reaches, and nodes of the mesh's own surface (a
+/// crater's rim). Counted as on the sphere within snapping reach instead (the carve before
+/// warping), 62 % of the cavity's and 82 % of the liver crater's wall nodes lay on it. The
+/// nodes' origins still name the elements they lie in.
 #[test]
 fn crater_walls_lie_on_the_sphere() {
     let mesh = block(Vec3::zeros(), Vec3::repeat(0.04), [2, 2, 2]).unwrap();
@@ -241,6 +274,9 @@ fn crater_walls_lie_on_the_sphere() {
         radius: 0.002,
     };
     let cut = carve(&mesh, None, &[ball], SNAP).unwrap();
+    assert_valid(&mesh, &cut);
+    assert_origins(&mesh, &cut);
+    assert_origins_follow_elements(&mesh, &cut);
     let (on, all) = wall_on_sphere(&cut, &ball);
     println!("cavity: {on} of {all} wall nodes on the sphere");
     assert!(on as f64 >= 0.95 * all as f64, "{on} of {all}");
@@ -265,9 +301,69 @@ fn crater_walls_lie_on_the_sphere() {
     let cut = carve(&liver, None, &[ball], SNAP).unwrap();
     assert_valid(&liver, &cut);
     assert_origins(&liver, &cut);
+    assert_origins_follow_elements(&liver, &cut);
     let (on, all) = wall_on_sphere(&cut, &ball);
     println!("liver crater: {on} of {all} wall nodes on the sphere");
     assert!(on as f64 >= 0.9 * all as f64, "{on} of {all}");
+}
+
+/// Supports stay where they are: with every node of the mesh before pinned, no node of it
+/// moves (without pins the same carve moves some onto the sphere), and the carve is still
+/// valid.
+#[test]
+fn pinned_nodes_are_not_moved() {
+    let mesh = block(Vec3::zeros(), Vec3::repeat(0.04), [4, 4, 4]).unwrap();
+    let ball = Ball {
+        centre: Vec3::new(0.0172, 0.021, 0.0231),
+        radius: 0.0075,
+    };
+    let moved = |cut: &CutMesh| {
+        cut.node_origin
+            .iter()
+            .zip(cut.mesh.positions())
+            .filter(|(o, p)| {
+                o.weights[0] == 1.0 && (mesh.positions()[o.nodes[0] as usize] - *p).norm() > 0.0
+            })
+            .count()
+    };
+    // Nodes of the mesh before that go on as themselves (a single-node origin).
+    let survivors = |cut: &CutMesh| {
+        let mut v: Vec<u32> = cut
+            .node_origin
+            .iter()
+            .filter(|o| o.weights[0] == 1.0)
+            .map(|o| o.nodes[0])
+            .collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    };
+    let free = carve(&mesh, None, &[ball], SNAP).unwrap();
+    let all = vec![true; mesh.node_count()];
+    let kept = carve_keeping(&mesh, None, &[ball], SNAP, &all).unwrap();
+    assert_valid(&mesh, &kept);
+    assert_origins(&mesh, &kept);
+    let (f, k) = (survivors(&free), survivors(&kept));
+    println!(
+        "nodes of the mesh before going on as themselves: {} free, {} pinned, of {}",
+        f.len(),
+        k.len(),
+        mesh.node_count()
+    );
+    assert!(f.len() < k.len(), "the free carve moved no node");
+    // Pinned: each node of the mesh before goes on where it was, or was inside the ball
+    // (removed with it, within what snapping reaches).
+    assert_eq!(moved(&kept), 0);
+    let reach = ball.radius * (1.0 + OUTWARD_SNAP * SNAP * CARVE_SPACING);
+    for (v, x) in mesh.positions().iter().enumerate() {
+        if k.binary_search(&(v as u32)).is_err() {
+            assert!(
+                (x - ball.centre).norm() <= reach,
+                "pinned node {v} at {:e} from the centre is gone",
+                (x - ball.centre).norm()
+            );
+        }
+    }
 }
 
 /// A ball that misses the mesh changes nothing; bad balls are refused by name.
@@ -324,6 +420,7 @@ fn overlapping_balls_leave_their_union() {
     let cut = carve(&mesh, None, &[a, b], SNAP).unwrap();
     assert_valid(&mesh, &cut);
     assert_origins(&mesh, &cut);
+    assert_origins_follow_elements(&mesh, &cut);
     let reach = 1.0 + OUTWARD_SNAP * SNAP * CARVE_SPACING;
     let (mut stayed, mut gone) = (0, 0);
     for p in grid(&mesh, r / 8.0) {

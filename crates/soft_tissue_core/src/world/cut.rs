@@ -335,6 +335,24 @@ pub(super) fn held_axes(b: &Boundary, n: usize) -> Vec<[bool; 3]> {
     out
 }
 
+/// The nodes of `n` a carve must not move: fixed (on any axis), anchored, or held at a
+/// temperature.
+pub(super) fn supports(n: usize, b: &Boundary, heat: Option<&HeatBoundary>) -> Vec<bool> {
+    let mut pinned = vec![false; n];
+    let nodes = b
+        .fixed
+        .iter()
+        .map(|f| f.0)
+        .chain(b.anchors.iter().map(|a| a.0));
+    let held = heat.into_iter().flat_map(|h| h.fixed.iter().map(|f| f.0));
+    for v in nodes.chain(held) {
+        if v < n {
+            pinned[v] = true;
+        }
+    }
+    pinned
+}
+
 /// The axes held at a new node: those held at every node it was made from.
 pub(super) fn fixed_axes(held: &[[bool; 3]], o: &NodeOrigin) -> Option<[bool; 3]> {
     let mut axes = [true; 3];

@@ -6,7 +6,7 @@
 
 use super::cut::{
     CutRecord, carried_boundary, carried_heat_boundary, fixed_axes, held_axes, lumped_volumes,
-    single_node, surface_closed,
+    single_node, supports, surface_closed,
 };
 use super::*;
 use crate::mesh::cut::{Ball, CutHistory, CutOptions, CutTriangle, NodeOrigin, recut_within};
@@ -663,11 +663,16 @@ fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
         .map_err(|e| fail(e.to_string()))?,
         // Craters are balls of the rest shape: carved there (the state follows by the
         // nodes' origins, as after a blade's cut).
-        Change::Carve(balls) => crate::mesh::cut::carve(
+        Change::Carve(balls) => crate::mesh::cut::carve_keeping(
             &input.mesh,
             input.history.as_ref(),
             balls,
             input.options.snap,
+            &supports(
+                input.mesh.node_count(),
+                &input.settings.boundary,
+                input.heat.as_ref().map(|h| &h.1),
+            ),
         )
         .map_err(|e| fail(format!("carving vaporized tissue: {e}")))?,
     };

@@ -5,7 +5,7 @@ use std::collections::HashMap;
 
 use super::*;
 
-impl Work {
+impl Work<'_> {
     /// Whether the incision cutting now passed through node `v` before.
     pub(super) fn on_incision(&self, v: u32) -> bool {
         self.incision != 0 && self.marked[v as usize] == self.incision

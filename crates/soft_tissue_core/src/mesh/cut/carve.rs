@@ -12,10 +12,11 @@
 //!    1984, without its propagation: a neighbour is split along that edge whether or not it
 //!    is its own longest, so shapes next to the crater can degrade; the tests report the
 //!    smallest dihedral angle). The mesh stays conforming, and every child lies in its
-//!    parent, so volume and mass are unchanged.
+//!    parent (until move 2's warps), so volume and mass are unchanged.
 //! 2. **The sphere as a cut.** First a node inside the mesh whose edge the sphere crosses
 //!    within [`WARP`] of it is moved onto the sphere along that edge, nearest first, where no
-//!    element around it comes out much worse (isosurface stuffing's warping, Labelle and
+//!    element around it comes out much worse than it was and it is not a support
+//!    ([`carve_keeping`]) (isosurface stuffing's warping, Labelle and
 //!    Shewchuk 2007; its origin moves with it, so the fields follow, and the domain is
 //!    unchanged). Then each edge whose ends still lie on opposite sides of the sphere is
 //!    bisected where it crosses it (the exact crossing on the straight edge), a crossing
@@ -59,7 +60,8 @@ pub const CARVE_SPACING: f64 = 0.75;
 pub const OUTWARD_SNAP: f64 = 0.5;
 
 /// A node inside the mesh whose edge crosses the sphere within this fraction of it moves
-/// onto the sphere (move 2a) rather than the edge being split there.
+/// onto the sphere (move 2a) rather than being counted as on it where it is (within the
+/// snap) or the edge being split there.
 pub const WARP: f64 = 0.35;
 
 /// A warp may leave a tetrahedron around the node no worse than this fraction of the worse
@@ -82,6 +84,19 @@ pub fn carve(
     history: Option<&CutHistory>,
     balls: &[Ball],
     snap: f64,
+) -> Result<CutMesh, RemoveError> {
+    carve_keeping(mesh, history, balls, snap, &[])
+}
+
+/// [`carve`] with the nodes of `mesh` marked in `pinned` (supports: fixed nodes, anchors,
+/// fixed temperatures) kept where they are, and new nodes made from them only: no warp
+/// moves them (a node past the end of `pinned` is free).
+pub fn carve_keeping(
+    mesh: &TetMesh,
+    history: Option<&CutHistory>,
+    balls: &[Ball],
+    snap: f64,
+    pinned: &[bool],
 ) -> Result<CutMesh, RemoveError> {
     if !(super::MIN_SNAP..0.5).contains(&snap) {
         return Err(super::CutError::BadSnap(snap).into());
@@ -116,6 +131,7 @@ pub fn carve(
     let mut state = Carving {
         around: vec![Vec::new(); work.positions.len()],
         gone: vec![false; work.tets.len()],
+        pinned,
     };
     for (t, tet) in work.tets.iter().enumerate() {
         for &v in tet {
@@ -205,12 +221,14 @@ fn unchanged(mesh: &TetMesh, history: Option<&CutHistory>) -> CutMesh {
 
 /// A carve's bookkeeping kept through every split: the tetrahedra at each node, and which
 /// leave.
-struct Carving {
+struct Carving<'p> {
     around: Vec<Vec<u32>>,
     gone: Vec<bool>,
+    /// Nodes of the mesh before that no warp moves.
+    pinned: &'p [bool],
 }
 
-impl Work {
+impl Work<'_> {
     /// Corners of tetrahedron `t`.
     fn corners(&self, t: u32) -> [Vec3; 4] {
         self.tets[t as usize].map(|v| self.positions[v as usize])
@@ -273,7 +291,7 @@ impl Work {
         s: f64,
         ball: &Ball,
         candidates: &mut Vec<u32>,
-        state: &mut Carving,
+        state: &mut Carving<'_>,
     ) -> (u32, Vec<u32>) {
         let around = &mut state.around;
         let mut holders: Vec<u32> = around[e.0 as usize]
@@ -313,7 +331,7 @@ impl Work {
         &mut self,
         ball: &Ball,
         candidates: &mut Vec<u32>,
-        state: &mut Carving,
+        state: &mut Carving<'_>,
         limit: usize,
     ) -> Result<(), RemoveError> {
         let h = CARVE_SPACING * ball.radius;
@@ -355,7 +373,7 @@ impl Work {
         ball: &Ball,
         snap: f64,
         candidates: &mut Vec<u32>,
-        state: &mut Carving,
+        state: &mut Carving<'_>,
     ) -> Vec<bool> {
         let c = ball.centre;
         let r = ball.radius;
@@ -368,19 +386,21 @@ impl Work {
                 phi.entry(tet[i])
                     .or_insert_with(|| (self.positions[tet[i] as usize] - c).norm() - r);
                 for j in i + 1..4 {
-                    let (a, b) = (tet[i].min(tet[j]), tet[i].max(tet[j]));
-                    edges.push((a, b));
-                    let l = (self.positions[a as usize] - self.positions[b as usize]).norm();
-                    for v in [a, b] {
-                        let e = shortest.entry(v).or_insert(f64::INFINITY);
-                        *e = e.min(l);
-                    }
+                    edges.push((tet[i].min(tet[j]), tet[i].max(tet[j])));
                 }
             }
         }
         edges.sort_unstable();
         edges.dedup();
         self.warp_to_sphere(ball, &edges, &mut phi, state);
+        // Shortest edges at each node, as the warps left them.
+        for &(a, b) in &edges {
+            let l = (self.positions[a as usize] - self.positions[b as usize]).norm();
+            for v in [a, b] {
+                let e = shortest.entry(v).or_insert(f64::INFINITY);
+                *e = e.min(l);
+            }
+        }
         // Outside the sphere a node snaps onto it only within `OUTWARD_SNAP` of `snap` (not
         // below the smallest snap): tissue beyond the radius leaves by no more than that.
         let outward = (OUTWARD_SNAP * snap).max(super::MIN_SNAP);
@@ -442,11 +462,12 @@ impl Work {
     }
 }
 
-impl Work {
+impl Work<'_> {
     /// Move 2a: moves nodes onto the sphere where it crosses one of their edges within
     /// [`WARP`] of them (after isosurface stuffing's warping, Labelle and Shewchuk 2007),
     /// nearest first, so the sphere's cut then splits edges only away from their ends. A node
-    /// moves only inside the mesh (every face around it shared by two tetrahedra, none gone),
+    /// moves only when it is not pinned ([`carve_keeping`]) and lies inside the mesh (every
+    /// face around it shared by two tetrahedra, none gone),
     /// along its edge to the crossing, and only where no tetrahedron around it comes out worse
     /// than [`WARP_QUALITY`] of the worse of its old shape and [`WARP_FLOOR`] degrees. Its
     /// origin moves with it (the blend of its edge's ends), so the fields follow, and the
@@ -458,7 +479,7 @@ impl Work {
         ball: &Ball,
         edges: &[(u32, u32)],
         phi: &mut HashMap<u32, f64>,
-        state: &Carving,
+        state: &Carving<'_>,
     ) -> usize {
         let crosses = |phi: &HashMap<u32, f64>, a: u32, b: u32| {
             let (pa, pb) = (phi[&a], phi[&b]);
@@ -477,6 +498,9 @@ impl Work {
             links.entry(b).or_default().push(a);
         }
         order.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+        // Each element's quality before any warp: warps of its corners one after the other
+        // are held to it, not to what the last one left.
+        let mut first: HashMap<u32, f64> = HashMap::new();
         let mut moved = 0;
         for (frac, v) in order {
             if frac >= WARP {
@@ -494,11 +518,11 @@ impl Work {
             else {
                 continue;
             };
-            if f >= WARP || !self.interior(state, v) {
+            if f >= WARP || self.pinned(state, v) || !self.interior(state, v) {
                 continue;
             }
             let target = self.positions[v as usize] * (1.0 - f) + self.positions[u as usize] * f;
-            if !self.warp_keeps_shapes(state, v, target) {
+            if !self.warp_keeps_shapes(state, v, target, &mut first) {
                 continue;
             }
             let origin = self.origin_on_edge(v, u, f);
@@ -529,7 +553,7 @@ impl Work {
 
     /// Whether node `v` lies inside the mesh: every face at it shared by two of its
     /// tetrahedra, none of them removed.
-    fn interior(&self, state: &Carving, v: u32) -> bool {
+    fn interior(&self, state: &Carving<'_>, v: u32) -> bool {
         let mut faces: HashMap<[u32; 3], u8> = HashMap::new();
         for &t in &state.around[v as usize] {
             if state.gone[t as usize] {
@@ -545,13 +569,29 @@ impl Work {
         faces.values().all(|&n| n == 2)
     }
 
+    /// Whether node `v` must stay where it is: a node of the mesh before that `state` pins
+    /// (a support), or a new node made from pinned nodes only (the supports carry to it).
+    fn pinned(&self, state: &Carving<'_>, v: u32) -> bool {
+        let o = &self.node_origin[v as usize];
+        let mut named = (0..4).filter(|&k| o.weights[k] != 0.0).map(|k| o.nodes[k]);
+        named.all(|n| state.pinned.get(n as usize).copied().unwrap_or(false))
+    }
+
     /// Whether moving node `v` to `target` leaves every tetrahedron around it at least
-    /// [`WARP_QUALITY`] of the worse of its quality before and [`WARP_FLOOR`] (the smallest
-    /// of `min(b, 180 - b)` over its dihedral angles `b`).
-    fn warp_keeps_shapes(&self, state: &Carving, v: u32, target: Vec3) -> bool {
+    /// [`WARP_QUALITY`] of the worse of its quality before any warp (kept in `first`) and
+    /// [`WARP_FLOOR`] (the smallest of `min(b, 180 - b)` over its dihedral angles `b`).
+    fn warp_keeps_shapes(
+        &self,
+        state: &Carving<'_>,
+        v: u32,
+        target: Vec3,
+        first: &mut HashMap<u32, f64>,
+    ) -> bool {
         state.around[v as usize].iter().all(|&t| {
             let tet = self.tets[t as usize];
-            let before = tet.map(|w| self.positions[w as usize]);
+            let q0 = *first
+                .entry(t)
+                .or_insert_with(|| tet_quality_deg(&tet.map(|w| self.positions[w as usize])));
             let after = tet.map(|w| {
                 if w == v {
                     target
@@ -559,7 +599,7 @@ impl Work {
                     self.positions[w as usize]
                 }
             });
-            let (q0, q1) = (tet_quality_deg(&before), tet_quality_deg(&after));
+            let q1 = tet_quality_deg(&after);
             q1 > 0.0 && q1 >= WARP_QUALITY * q0.min(WARP_FLOOR)
         })
     }

@@ -42,7 +42,7 @@ mod check;
 mod remove;
 mod separate;
 
-pub use carve::{Ball, CARVE_SPACING, MAX_CARVE_TETS, OUTWARD_SNAP, WARP, carve};
+pub use carve::{Ball, CARVE_SPACING, MAX_CARVE_TETS, OUTWARD_SNAP, WARP, carve, carve_keeping};
 pub use check::{CutCheck, check};
 pub(crate) use remove::manifold;
 pub use remove::{RemoveError, remove_tets};
@@ -387,7 +387,10 @@ pub fn check_blade(blade: &[CutTriangle]) -> Result<(), CutError> {
 }
 
 /// The mesh while it is cut.
-struct Work {
+struct Work<'m> {
+    /// The mesh before (where origins are looked for when a blend cannot give them, see
+    /// [`Work::origin_on_edge`]).
+    before: &'m TetMesh,
     positions: Vec<Vec3>,
     tets: Vec<[u32; 4]>,
     node_origin: Vec<NodeOrigin>,
@@ -399,17 +402,12 @@ struct Work {
     marked: Vec<u64>,
     /// The incision cutting now (0: a cut of its own, which marks nothing).
     incision: u64,
-    /// The tetrahedra of the mesh before, where an origin is looked for when a blend cannot
-    /// give it ([`Work::origin_on_edge`]).
-    before_tets: Vec<[u32; 4]>,
-    /// Its positions.
-    before_positions: Vec<Vec3>,
     bisected: usize,
     separated: usize,
     taken_back: usize,
 }
 
-impl Work {
+impl Work<'_> {
     /// The smallest signed volume of a tetrahedron over its parent's in `before` (the mesh
     /// the work started from), checked before the mesh's own checks (which would turn an
     /// inverted tetrahedron over): one at or below zero is refused.
@@ -429,49 +427,100 @@ impl Work {
     }
 
     /// The origin of the point `(1 - s) a + s b` of edge `(a, b)`: the blend of its ends'
-    /// origins where they lie in one tetrahedron of the mesh before (an edge of a
-    /// subdivision always does); else (an end a carve moved onto its sphere, into another
-    /// tetrahedron) the tetrahedron around either end's origin nodes that holds the point,
-    /// with its barycentric coordinates.
+    /// origins where it names nodes of one tetrahedron of the mesh before (an edge of a
+    /// subdivision always does: its children lie in their parents); else (an end a carve
+    /// moved onto its sphere, into a neighbour of its element) the point located in the
+    /// mesh before ([`Work::locate`]).
     fn origin_on_edge(&self, a: u32, b: u32, s: f64) -> NodeOrigin {
         let (oa, ob) = (self.node_origin[a as usize], self.node_origin[b as usize]);
-        if let Some(o) = NodeOrigin::blend(oa, ob, s) {
+        if let Some(o) = NodeOrigin::blend(oa, ob, s)
+            && self.in_one_tet(&o)
+        {
             return o;
         }
         let p = self.positions[a as usize] * (1.0 - s) + self.positions[b as usize] * s;
-        let named = |v: &u32| {
-            [oa, ob]
-                .iter()
-                .any(|o| (0..4).any(|k| o.weights[k] != 0.0 && o.nodes[k] == *v))
+        let mut seeds: Vec<u32> = [oa, ob]
+            .iter()
+            .flat_map(|o| (0..4).filter(|&k| o.weights[k] != 0.0).map(|k| o.nodes[k]))
+            .collect();
+        seeds.sort_unstable();
+        seeds.dedup();
+        self.locate(&p, &seeds)
+    }
+
+    /// Whether the nodes `o` weighs are all corners of one tetrahedron of the mesh before.
+    fn in_one_tet(&self, o: &NodeOrigin) -> bool {
+        let named = || (0..4).filter(|&k| o.weights[k] != 0.0).map(|k| o.nodes[k]);
+        let Some(first) = named().next() else {
+            return true;
         };
-        let mut best: Option<(f64, NodeOrigin)> = None;
-        for tet in self.before_tets.iter().filter(|t| t.iter().any(named)) {
-            let [x0, x1, x2, x3] = tet.map(|v| self.before_positions[v as usize]);
-            let m = nalgebra::Matrix3::from_columns(&[x1 - x0, x2 - x0, x3 - x0]);
-            let Some(inv) = m.try_inverse() else {
-                continue;
-            };
-            let l = inv * (p - x0);
-            let weights = [1.0 - l.x - l.y - l.z, l.x, l.y, l.z];
-            let inside = weights.iter().copied().fold(f64::INFINITY, f64::min);
-            if best.as_ref().is_none_or(|(b, _)| inside > *b) {
-                best = Some((
-                    inside,
-                    NodeOrigin {
-                        nodes: *tet,
-                        weights,
-                    },
-                ));
+        let tets = self.before.tets();
+        self.before
+            .node_tets(first as usize)
+            .iter()
+            .any(|&t| named().all(|v| tets[t as usize].contains(&v)))
+    }
+
+    /// The origin of point `p` (in the mesh before): its barycentric coordinates in the
+    /// tetrahedron around the nodes `seeds` that holds it (the one it is least outside of;
+    /// the ring around those tetrahedra too when none holds it). Coordinates within 1e-12
+    /// of 0 are 0 (so a point on a face names that face's nodes only).
+    fn locate(&self, p: &Vec3, seeds: &[u32]) -> NodeOrigin {
+        let tets = self.before.tets();
+        let x = self.before.positions();
+        let mut ring: Vec<u32> = seeds
+            .iter()
+            .flat_map(|&v| self.before.node_tets(v as usize).iter().copied())
+            .collect();
+        ring.sort_unstable();
+        ring.dedup();
+        let best_of = |ring: &[u32]| {
+            let mut best: Option<(f64, u32, [f64; 4])> = None;
+            for &t in ring {
+                let [x0, x1, x2, x3] = tets[t as usize].map(|v| x[v as usize]);
+                let m = nalgebra::Matrix3::from_columns(&[x1 - x0, x2 - x0, x3 - x0]);
+                let Some(inv) = m.try_inverse() else {
+                    continue;
+                };
+                let l = inv * (p - x0);
+                let w = [1.0 - l.x - l.y - l.z, l.x, l.y, l.z];
+                let inside = w.iter().copied().fold(f64::INFINITY, f64::min);
+                if best.is_none_or(|(b, _, _)| inside > b) {
+                    best = Some((inside, t, w));
+                }
+            }
+            best
+        };
+        let mut best = best_of(&ring);
+        if best.is_none_or(|(inside, _, _)| inside < -1e-9) {
+            let mut wider: Vec<u32> = ring
+                .iter()
+                .flat_map(|&t| tets[t as usize])
+                .flat_map(|v| self.before.node_tets(v as usize).iter().copied())
+                .collect();
+            wider.sort_unstable();
+            wider.dedup();
+            best = best_of(&wider).or(best);
+        }
+        let Some((_, t, mut w)) = best else {
+            // A mesh without a proper tetrahedron there: the first seed.
+            return NodeOrigin::node(seeds.first().copied().unwrap_or(0));
+        };
+        for wk in &mut w {
+            if wk.abs() < 1e-12 {
+                *wk = 0.0;
             }
         }
-        // The ends' own tetrahedra hold the point (it lies between them); the blend
-        // truncated would be a last resort only for a mesh with none.
-        best.map_or(oa, |(_, o)| o)
+        let total: f64 = w.iter().sum();
+        NodeOrigin {
+            nodes: tets[t as usize],
+            weights: w.map(|wk| wk / total),
+        }
     }
 
     /// `mesh` as it is, with what `history` remembers of its cuts (ignored where its sizes
     /// do not fit), to be cut by incision `incision` (0: none).
-    fn new(mesh: &TetMesh, history: Option<&CutHistory>, incision: u64) -> Work {
+    fn new<'m>(mesh: &'m TetMesh, history: Option<&CutHistory>, incision: u64) -> Work<'m> {
         Work {
             positions: mesh.positions().to_vec(),
             tets: mesh.tets().to_vec(),
@@ -488,8 +537,7 @@ impl Work {
                 _ => vec![0; mesh.node_count()],
             },
             incision,
-            before_tets: mesh.tets().to_vec(),
-            before_positions: mesh.positions().to_vec(),
+            before: mesh,
             bisected: 0,
             separated: 0,
             taken_back: 0,

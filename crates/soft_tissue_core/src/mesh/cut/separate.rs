@@ -5,7 +5,7 @@ use std::collections::HashMap;
 
 use super::*;
 
-impl Work {
+impl Work<'_> {
     /// Separates `faces` (with their two tetrahedra in `holders`), taking back faces until
     /// every edge of the boundary near them is in exactly two boundary triangles.
     pub(super) fn separate(
