@@ -95,15 +95,21 @@ impl HeatField {
                     }
                 };
                 let nodes: Vec<(u32, f64)> = nodes.iter().map(|&(i, w)| (i as u32, w)).collect();
-                let base = self.temperature_at_unchecked(&source.center, &nodes);
+                let centre = interpolate(&self.temperature, &nodes);
+                let near = self.near_nodes(&source.center, grid.outer);
                 self.spots.push(Spot::new(
                     source.center,
                     nodes,
                     source.tissue_fraction,
                     grid,
-                    base,
+                    &near,
+                    centre,
                 ));
-                self.spots.len() - 1
+                let k = self.spots.len() - 1;
+                let mut base = vec![0.0; SPOT_SHELLS];
+                self.shell_bases(k, &mut base);
+                self.spots[k].start_bases(base);
+                k
             }
         };
         self.spots[k].power += source.watts;
@@ -134,19 +140,36 @@ impl HeatField {
         Ok(self.temperature_at_unchecked(position, nodes))
     }
 
-    /// The base temperature of spot `k`: the coarse field and the other spots at its centre
-    /// (as of the last step).
-    pub(super) fn spot_base(&self, k: usize) -> f64 {
+    /// The base temperature of each shell of spot `k` into `out`, C: the coarse field around
+    /// it at that radius and the other spots' excess averaged over the shell's sphere (see
+    /// [`Spot::coarse_bases`], [`Spot::add_sphere_means`]).
+    pub(super) fn shell_bases(&self, k: usize, out: &mut [f64]) {
         let s = self.params.meters_per_unit;
         let spot = &self.spots[k];
-        interpolate(&self.temperature, &spot.nodes)
-            + self
-                .spots
-                .iter()
-                .enumerate()
-                .filter(|&(j, _)| j != k)
-                .map(|(_, p)| p.excess_at(&spot.center, s))
-                .sum::<f64>()
+        let centre = interpolate(&self.temperature, &spot.nodes);
+        let rho_c = self.params.density * self.params.specific_heat;
+        spot.coarse_bases(&self.temperature, &self.capacity, rho_c, centre, out);
+        let r = spot.grid.shell_radii();
+        for (j, other) in self.spots.iter().enumerate() {
+            if j != k {
+                other.add_sphere_means(&spot.center, s, r, out);
+            }
+        }
+    }
+
+    /// The nodes whose lumped volume (taken as a ball about the node) reaches within
+    /// `outer` (m) of `centre` (scene units): node, distance and that ball's radius, m.
+    fn near_nodes(&self, centre: &Vec3, outer: f64) -> Vec<(u32, f64, f64)> {
+        let s = self.params.meters_per_unit;
+        let rho_c = self.params.density * self.params.specific_heat;
+        let ball = 3.0 / (4.0 * std::f64::consts::PI * rho_c);
+        (0..self.positions.len())
+            .filter_map(|i| {
+                let d = (self.positions[i] - centre).norm() * s;
+                let a = (ball * self.capacity[i]).cbrt();
+                (d - a < outer && a > 0.0).then_some((i as u32, d, a))
+            })
+            .collect()
     }
 
     fn temperature_at_unchecked(&self, position: &Vec3, nodes: &[(u32, f64)]) -> f64 {
@@ -166,8 +189,9 @@ impl HeatField {
             .iter()
             .copied()
             .fold(f64::NEG_INFINITY, crate::state::nan_max);
-        (0..self.spots.len())
-            .map(|k| self.spot_base(k) + self.spots[k].max_excess())
+        self.spots
+            .iter()
+            .map(Spot::max_temperature)
             .fold(coarse, crate::state::nan_max)
     }
 
@@ -374,14 +398,9 @@ impl HeatField {
         }
         self.changed = true;
         let dt = self.dt;
-        // The bases first: each spot commits against the others' excess of the last step.
-        let mut bases = std::mem::take(&mut self.spot_bases);
-        bases.clear();
-        bases.extend((0..self.spots.len()).map(|k| self.spot_base(k)));
-        for (k, spot) in self.spots.iter_mut().enumerate() {
-            spot.commit(&self.params, bases[k], dt);
+        for spot in &mut self.spots {
+            spot.commit(&self.params, dt);
         }
-        self.spot_bases = bases;
         // Spots without power whose excess faded end (a NaN excess does not: the next
         // solve reports it).
         let mut k = self.spots.len();

@@ -379,8 +379,6 @@ pub struct HeatField {
     perfusion: Vec<f64>,
     /// The electrodes' sub-grid fields, oldest first.
     spots: Vec<Spot>,
-    /// Each spot's base temperature at its commit (scratch).
-    spot_bases: Vec<f64>,
     grids: Vec<Arc<RadialGrid>>,
     /// Burnt volumes of spots that ended, m^3, and the heat their water took with the
     /// sensible heat of their vaporized tissue (both left as steam), J.
@@ -517,7 +515,6 @@ impl HeatField {
             positions: mesh.positions().to_vec(),
             perfusion,
             spots: Vec::new(),
-            spot_bases: Vec::new(),
             grids: Vec::new(),
             retired: BurnVolumes::default(),
             retired_boiled: 0.0,
@@ -698,11 +695,17 @@ impl HeatField {
             }
         }
         // The spots step first; what crosses their outer radius enters the coarse field in
-        // this step.
+        // this step. Each over its shells' bases now (the coarse field and the other spots'
+        // excess of the last step; each spot's buffer, reused: no allocation), which its
+        // boiling and then its damage take.
         for k in 0..self.spots.len() {
-            let base = self.spot_base(k);
+            let mut base = std::mem::take(&mut self.spots[k].next_base);
+            self.shell_bases(k, &mut base);
+            self.spots[k].next_base = base;
+        }
+        for k in 0..self.spots.len() {
             let spot = &mut self.spots[k];
-            spot.solve(&self.params, base);
+            spot.solve(&self.params);
             for &(node, w) in &spot.nodes {
                 if self.fixed[node as usize].is_none() {
                     self.rhs[node as usize] += w * spot.outflow;

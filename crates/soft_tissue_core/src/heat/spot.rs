@@ -24,8 +24,14 @@
 //! Above the boiling temperature a shell's water boils first (the temperature-recovery
 //! method: the heat above boiling goes into latent heat until the shell's water, its water
 //! fraction times its mass times the latent heat, is spent); a shell whose water is spent is
-//! vaporized. Damage is the Arrhenius integral per shell, with the coarse field's temperature
-//! at the spot's centre as the base.
+//! vaporized. Damage is the Arrhenius integral per shell.
+//!
+//! A shell's temperature is its excess over a base of its own: the coarse field around the
+//! spot at that radius and the other spots' excess averaged over the shell's sphere. Taken at
+//! the centre for every shell instead, the heat beside the centre stood for the spot's whole
+//! 20 mm sphere: a spot started 1 mm from another electrode's (at boiling there), or on a
+//! crater's floor whose small nodes took the heat of the spot carved out, coagulated and
+//! charred all its shells at once, tens of cubic centimetres from joules.
 
 use std::sync::Arc;
 
@@ -144,6 +150,11 @@ impl RadialGrid {
         }
     }
 
+    /// Node radius of each shell, m.
+    pub(crate) fn shell_radii(&self) -> &[f64] {
+        &self.r
+    }
+
     /// The excess at distance `d` (m) from the centre, read from the shells' values `u`
     /// (linear between shell nodes, to zero at the outer radius, flat inside the first node).
     fn excess(&self, u: &[f64], d: f64) -> f64 {
@@ -153,20 +164,50 @@ impl RadialGrid {
         if d <= self.r[0] {
             return u[0];
         }
-        // The shell whose face interval holds d, then its node's neighbours.
-        let j = ((d / self.radius).ln() / self.ratio.ln()).floor();
-        let mut i = (j.max(0.0) as usize).min(CELLS - 1);
-        if d < self.r[i] {
-            i -= 1;
-        }
-        let (r0, u0) = (self.r[i], u[i]);
-        let (r1, u1) = if i + 1 < CELLS {
-            (self.r[i + 1], u[i + 1])
-        } else {
-            (self.outer, 0.0)
-        };
+        let i = self.piece(d);
+        let (r0, u0, r1, u1) = self.ends(u, i);
         u0 + (u1 - u0) * (d - r0) / (r1 - r0)
     }
+
+    /// The linear piece of an excess that holds `d` (past the first shell node, inside the
+    /// outer radius): from shell node `i` to the next (or to the outer radius).
+    fn piece(&self, d: f64) -> usize {
+        // The shell whose face interval holds d, then its node's neighbours.
+        let j = ((d / self.radius).ln() / self.ratio.ln()).floor();
+        let i = (j.max(0.0) as usize).min(CELLS - 1);
+        if d < self.r[i] && i > 0 { i - 1 } else { i }
+    }
+
+    /// Piece `i`'s ends of the excess `u`: radii and values.
+    fn ends(&self, u: &[f64], i: usize) -> (f64, f64, f64, f64) {
+        if i + 1 < CELLS {
+            (self.r[i], u[i], self.r[i + 1], u[i + 1])
+        } else {
+            (self.r[i], u[i], self.outer, 0.0)
+        }
+    }
+
+    /// `int_0^d t u(t) dt` of the excess `u` (as [`RadialGrid::excess`] reads it), with
+    /// `moments` its values at the shell nodes and the outer radius
+    /// ([`Spot::update_moments`]), m^2 K.
+    fn moment(&self, u: &[f64], moments: &[f64], d: f64) -> f64 {
+        if d <= self.r[0] {
+            return 0.5 * u[0] * d * d;
+        }
+        if d >= self.outer {
+            return moments[CELLS];
+        }
+        let i = self.piece(d);
+        let (r0, u0, r1, u1) = self.ends(u, i);
+        moments[i] + piece_moment(r0, u0, r1, u1, d)
+    }
+}
+
+/// `int_r0^d t u(t) dt` where `u` goes linearly from `u0` at `r0` to `u1` at `r1`.
+fn piece_moment(r0: f64, u0: f64, r1: f64, u1: f64, d: f64) -> f64 {
+    let b = (u1 - u0) / (r1 - r0);
+    let a = u0 - b * r0;
+    0.5 * a * (d * d - r0 * r0) + b * (d * d * d - r0 * r0 * r0) / 3.0
 }
 
 /// Where an electrode heats, this step.
@@ -210,8 +251,17 @@ pub(crate) struct Spot {
     pub(crate) nodes: Vec<(u32, f64)>,
     pub(crate) fraction: f64,
     pub(crate) grid: Arc<RadialGrid>,
-    /// Excess over the coarse field per shell, K, and the next step's.
+    /// The coarse nodes around it (see [`Spot::coarse_bases`]).
+    near: Vec<NearNode>,
+    /// Each shell's base temperature (the coarse field there and the other spots' excess),
+    /// C, of the last step, and the next step's (set before its solve).
+    base: Vec<f64>,
+    pub(crate) next_base: Vec<f64>,
+    /// Excess over the base per shell, K, and the next step's.
     pub(crate) u: Vec<f64>,
+    /// `int_0^r t u(t) dt` at the shell nodes and the outer radius (see
+    /// [`RadialGrid::moment`]).
+    moments: Vec<f64>,
     next: Vec<f64>,
     /// Heat that went into boiling per shell (whole sphere), J, and the next step's.
     boiled: Vec<f64>,
@@ -230,19 +280,38 @@ pub(crate) struct Spot {
 }
 
 impl Spot {
+    /// A spot with no excess; `near`, the coarse nodes around it (node, distance from the
+    /// centre and radius of the ball of its lumped volume, m; see [`Spot::coarse_bases`]),
+    /// `base` every shell's base until the field sets them ([`Spot::start_bases`]).
     pub(crate) fn new(
         center: Vec3,
         nodes: Vec<(u32, f64)>,
         fraction: f64,
         grid: Arc<RadialGrid>,
+        near: &[(u32, f64, f64)],
         base: f64,
     ) -> Self {
+        let near = near
+            .iter()
+            .map(|&(node, d, a)| NearNode {
+                node,
+                far: ((grid.outer - d + a) / (2.0 * a)).clamp(0.0, 1.0),
+                first: grid.r.partition_point(|&r| r <= d - a),
+                last: grid.r.partition_point(|&r| r < d + a),
+                inside: d - a,
+                per_metre: 0.5 / a,
+            })
+            .collect();
         Spot {
             center,
             nodes,
             fraction,
             grid,
+            near,
+            base: vec![base; CELLS],
+            next_base: vec![base; CELLS],
             u: vec![0.0; CELLS],
+            moments: vec![0.0; CELLS + 1],
             next: vec![0.0; CELLS],
             boiled: vec![0.0; CELLS],
             boiled_next: vec![0.0; CELLS],
@@ -256,10 +325,16 @@ impl Spot {
         }
     }
 
-    /// Solves the next step's excess (kept apart until [`Spot::commit`]) with `base` the
-    /// coarse temperature at the centre; the heat crossing the outer radius is in
-    /// `self.outflow`.
-    pub(crate) fn solve(&mut self, params: &HeatParams, base: f64) {
+    /// Sets the shells' bases, and their peaks to them (a new spot).
+    pub(crate) fn start_bases(&mut self, base: Vec<f64>) {
+        self.peak.copy_from_slice(&base);
+        self.next_base.copy_from_slice(&base);
+        self.base = base;
+    }
+
+    /// Solves the next step's excess (kept apart until [`Spot::commit`]) over the shells'
+    /// bases `next_base`; the heat crossing the outer radius is in `self.outflow`.
+    pub(crate) fn solve(&mut self, params: &HeatParams) {
         let g = &*self.grid;
         let source = self.power / self.fraction;
         let perfusion = params.perfusion.coefficient();
@@ -295,7 +370,7 @@ impl Spot {
             // Boiling: heat above the boiling point goes into the water while there is any;
             // in a vaporized shell (the crater) it leaves with the vapour.
             for i in 0..CELLS {
-                let over = base + self.next[i] - boil;
+                let over = self.next_base[i] + self.next[i] - boil;
                 if over > 0.0 {
                     let room = if i < inner {
                         f64::INFINITY
@@ -312,7 +387,7 @@ impl Spot {
             let left = self.first_left(&self.boiled_next);
             // A shell whose water ran out in this pass joins the crater at once.
             for i in inner..left {
-                let over = base + self.next[i] - boil;
+                let over = self.next_base[i] + self.next[i] - boil;
                 if over > 0.0 {
                     self.boiled_next[i] += g.capacity[i] * over;
                     self.next[i] -= over;
@@ -345,14 +420,17 @@ impl Spot {
         self.crater_radius() > self.grid.radius * (1.0 + 1e-9)
     }
 
-    /// Takes the solved step: damage and peaks at `base` + excess, the power spent.
-    pub(crate) fn commit(&mut self, params: &HeatParams, base: f64, dt: f64) {
+    /// Takes the solved step: damage and peaks at each shell's base (`next_base`, the solve's,
+    /// kept as `base`) plus its excess, the power spent.
+    pub(crate) fn commit(&mut self, params: &HeatParams, dt: f64) {
         std::mem::swap(&mut self.u, &mut self.next);
         std::mem::swap(&mut self.boiled, &mut self.boiled_next);
+        std::mem::swap(&mut self.base, &mut self.next_base);
+        self.update_moments();
         self.powered = self.power > 0.0;
         self.power = 0.0;
         for i in 0..CELLS {
-            let t = base + self.u[i];
+            let t = self.base[i] + self.u[i];
             if t > self.peak[i] {
                 self.peak[i] = t;
             }
@@ -371,6 +449,104 @@ impl Spot {
     /// Largest excess, K.
     pub(crate) fn max_excess(&self) -> f64 {
         self.u.iter().copied().fold(0.0, crate::state::nan_max)
+    }
+
+    /// Largest temperature of a shell (its base and excess), C.
+    pub(crate) fn max_temperature(&self) -> f64 {
+        self.base
+            .iter()
+            .zip(&self.u)
+            .map(|(b, u)| b + u)
+            .fold(f64::NEG_INFINITY, crate::state::nan_max)
+    }
+
+    /// Recomputes [`Spot::moments`] from the excess.
+    fn update_moments(&mut self) {
+        let g = &*self.grid;
+        self.moments[0] = 0.5 * self.u[0] * g.r[0] * g.r[0];
+        for i in 0..CELLS {
+            let (r1, u1) = if i + 1 < CELLS {
+                (g.r[i + 1], self.u[i + 1])
+            } else {
+                (g.outer, 0.0)
+            };
+            self.moments[i + 1] = self.moments[i] + piece_moment(g.r[i], self.u[i], r1, u1, r1);
+        }
+    }
+
+    /// Adds to each `out[i]` the mean of its excess over the sphere of radius `r[i]` (m)
+    /// about `centre` (scene units), K: for a sphere whose centre is `d` from its own, the
+    /// mean of a radial `u` is `int_{|r-d|}^{r+d} t u(t) dt / (2 r d)`.
+    pub(crate) fn add_sphere_means(
+        &self,
+        centre: &Vec3,
+        meters_per_unit: f64,
+        r: &[f64],
+        out: &mut [f64],
+    ) {
+        let g = &*self.grid;
+        let d = (centre - self.center).norm() * meters_per_unit;
+        for (o, &ri) in out.iter_mut().zip(r) {
+            if d >= g.outer + ri {
+                continue;
+            }
+            *o += if d <= 1e-6 * ri {
+                g.excess(&self.u, ri)
+            } else {
+                let m = |x: f64| g.moment(&self.u, &self.moments, x);
+                (m(ri + d) - m((ri - d).abs())) / (2.0 * ri * d)
+            };
+        }
+    }
+
+    /// The coarse field around it per shell into `out`, C: the mean temperature of the ball
+    /// out to the shell, where each node nearby counts with its lumped volume's share in the
+    /// ball (taken as a ball of that volume about the node, its share rising linearly across
+    /// it) and tissue no node reaches is at the temperature of its surroundings (the nodes
+    /// within its outer radius); `centre`, the field at its centre, where no node is near.
+    /// So a crater's small nodes, heated by the spot carved out, warm its first shells by
+    /// what they hold, not the whole 20 mm.
+    pub(crate) fn coarse_bases(
+        &self,
+        temperature: &[f64],
+        capacity: &[f64],
+        rho_c: f64,
+        centre: f64,
+        out: &mut [f64],
+    ) {
+        let g = &*self.grid;
+        let (mut held, mut cap) = (0.0, 0.0);
+        for p in &self.near {
+            let c = p.far * capacity[p.node as usize];
+            held += c * temperature[p.node as usize];
+            cap += c;
+        }
+        let around = if cap > 0.0 { held / cap } else { centre };
+        // Per shell: the capacity and the heat above `around` of the nodes inside, those
+        // partly inside shell by shell, those wholly inside from their first such shell on.
+        let mut partial = [(0.0, 0.0); CELLS];
+        let mut whole = [(0.0, 0.0); CELLS + 1];
+        for p in &self.near {
+            let c = capacity[p.node as usize];
+            let h = c * (temperature[p.node as usize] - around);
+            let shells = p.first..p.last;
+            for (sum, r) in partial[shells.clone()].iter_mut().zip(&g.r[shells]) {
+                let f = (r - p.inside) * p.per_metre;
+                sum.0 += f * c;
+                sum.1 += f * h;
+            }
+            whole[p.last].0 += c;
+            whole[p.last].1 += h;
+        }
+        let (mut wc, mut wh) = (0.0, 0.0);
+        let sphere = self.fraction * rho_c * 4.0 / 3.0 * std::f64::consts::PI;
+        for i in 0..CELLS {
+            wc += whole[i].0;
+            wh += whole[i].1;
+            let (c, h) = (wc + partial[i].0, wh + partial[i].1);
+            let ball = sphere * g.r[i].powi(3);
+            out[i] = around + if c > 0.0 { h / c.max(ball) } else { 0.0 };
+        }
     }
 
     /// Heat it holds (tissue share): its excess and the heat its water took, J.
@@ -444,6 +620,20 @@ impl Spot {
             .map(|i| g.r[i])
             .fold(0.0, f64::max)
     }
+}
+
+/// A coarse node around a spot, whose lumped volume (taken as a ball about the node) reaches
+/// within the spot's outer radius: its share of that ball inside the spot's sphere (its outer
+/// radius), the shells the ball's surface crosses (`first..last`; from `last` on it is all
+/// inside), and its share in the ball out to radius `r` there, `(r - inside) * per_metre`.
+#[derive(Debug)]
+struct NearNode {
+    node: u32,
+    far: f64,
+    first: usize,
+    last: usize,
+    inside: f64,
+    per_metre: f64,
 }
 
 /// What a spot burnt, by distance from its centre: kept when it ends or when the body's mesh
