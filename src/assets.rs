@@ -576,6 +576,7 @@ fn scene_body(asset: &SceneAsset, i: usize) -> (Name, SoftBody, TissueMaterial, 
                 springs,
             },
             friction: spec.friction.unwrap_or_default(),
+            toughness: spec.toughness.unwrap_or(0.0),
         },
         tuning,
     )

@@ -101,6 +101,10 @@ pub struct TissueMaterial {
     pub msd: MsdMaterial,
     /// Surface friction against tools, obstacles and other bodies (combined with theirs).
     pub friction: Friction,
+    /// Fracture toughness, energy per area of cut (force per length in the scene's units;
+    /// liver about 164 J/m^2 in metres): a cutting blade is held back by it, and
+    /// [`SoftTool`]'s force includes that resistance. 0 (the default): a blade cuts freely.
+    pub toughness: f64,
 }
 
 impl Default for TissueMaterial {
@@ -109,6 +113,7 @@ impl Default for TissueMaterial {
             fem: ORGAN_FEM.params,
             msd: MsdMaterial::FromFem,
             friction: Friction::default(),
+            toughness: 0.0,
         }
     }
 }
@@ -623,9 +628,14 @@ impl SoftTool {
 #[derive(Component, Reflect, Clone, Copy, Debug, Default, PartialEq)]
 #[reflect(Component)]
 pub struct ToolReaction {
-    /// Contact force on the tool, N (scene units): the sum of the forces of its contacts as
-    /// the step's contact solve balanced them.
+    /// Force of the tissue on the tool, N (scene units): the sum of the forces of its
+    /// contacts as the step's contact solve balanced them, and a cutting blade's resistance
+    /// ([`ToolReaction::cutting`]).
     pub force: Vec3,
+    /// The part of [`ToolReaction::force`] that resists a blade's cut: the fracture energy
+    /// of what it cut per distance moved (the bodies' [`TissueMaterial::toughness`]), against
+    /// its motion; zero for other tools.
+    pub cutting: Vec3,
     /// Contacts with a force.
     pub contacts: u32,
     /// Grabbed surface points.

@@ -203,6 +203,8 @@ pub(super) fn build_bodies(
             let mut body = WorldBody::new(name.clone(), mesh, settings, heat).map_err(build_err)?;
             body.set_friction(material.friction)
                 .map_err(|e| settings_err(format!("friction: {e}")))?;
+            body.set_toughness(material.toughness)
+                .map_err(|e| settings_err(format!("toughness: {e}")))?;
             if shadow {
                 body.set_shadow(true).map_err(build_err)?;
             }

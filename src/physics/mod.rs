@@ -15,8 +15,8 @@ use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::precision::{BodySettings, Level};
 use soft_tissue_core::timing::StageRecorder;
 use soft_tissue_core::world::{
-    ContactState, StageTimes, WorldBody, WorldError, detect_contacts, prepare, solve_contacts,
-    step_solvers, switch_precision,
+    ContactState, StageTimes, WorldBody, WorldError, cutting_resistance, detect_contacts, prepare,
+    solve_contacts, step_solvers, switch_precision,
 };
 
 use crate::assets::TetMeshAsset;
@@ -170,6 +170,7 @@ impl Plugin for SoftTissuePhysicsPlugin {
                     build_tools,
                     build_obstacles,
                     cut_stage,
+                    resistance_stage,
                     prepare_stage,
                 )
                     .chain()

@@ -222,6 +222,17 @@ pub(super) fn prepare_stage(
                     ),
                 );
             }
+            if let Err(e) = b.set_toughness(material.toughness) {
+                fail(
+                    &mut status,
+                    stage_error(
+                        SoftTissueStage::Prepare,
+                        "changing the toughness",
+                        Some(entity),
+                        e,
+                    ),
+                );
+            }
         }
         let want_heat = heat.map(|h| h.0);
         if want_heat != b.heat().map(|h| *h.params()) {
@@ -437,6 +448,27 @@ pub(super) fn detect_stage(
         detect_contacts(b, tl, &config.contact, &mut contacts.state)
     });
     status.times.detect_us = lap(&mut t);
+}
+
+/// Each cutting blade's resistance (the work of fracture of what it cut) on the bodies as
+/// the cut stage left them, and the opposite force on the tissue.
+pub(super) fn resistance_stage(
+    mut bodies: Query<(Entity, &mut SoftBodyState)>,
+    mut tools: Query<(Entity, &mut ToolState)>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    let mut t = Instant::now();
+    let r = in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, tl| {
+        cutting_resistance(tl, b)
+    });
+    report(
+        &mut status,
+        SoftTissueStage::Cut,
+        "resisting a blade",
+        r,
+        bodies.iter(),
+    );
+    status.times.cut_us += lap(&mut t);
 }
 
 pub(super) fn switch_stage(
@@ -693,6 +725,7 @@ pub(super) fn writeback_stage(
         let t = &state.tool;
         *reaction = ToolReaction {
             force: to_bevy(&t.reaction_force()),
+            cutting: to_bevy(&t.cutting_resistance()),
             contacts: t.contact_count(),
             grips: t.grips().len() as u32,
             opening: t.opening(),

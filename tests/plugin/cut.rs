@@ -46,6 +46,9 @@ fn through_cut(world: &SoftTissueWorld, name: &str) -> Script {
     }
 }
 
+/// Toughness of the cut cylinder, force per scene length.
+const TOUGHNESS: f64 = 6.0;
+
 #[test]
 fn a_blade_cuts_a_body_in_two_like_the_core_world_and_a_reset_makes_it_whole() {
     let (mut app, bodies, mut world) = scene_app(CYLINDERS);
@@ -60,6 +63,15 @@ fn a_blade_cuts_a_body_in_two_like_the_core_world_and_a_reset_makes_it_whole() {
     app.update();
     world.step_fixed().unwrap();
     let a = bodies[0];
+    // Tissue that resists the cut (a toughness of a hundredth of the cylinder's Young's
+    // modulus times a scene unit), in the plugin as in the core world: the blade is held
+    // back the same, and the tissue pulled the same.
+    app.world_mut()
+        .get_mut::<TissueMaterial>(a)
+        .unwrap()
+        .toughness = TOUGHNESS;
+    world.bodies_mut()[0].set_toughness(TOUGHNESS).unwrap();
+    let mut resisted = 0;
     let nodes = world.bodies()[0].mesh().node_count();
     let mut piece = None;
     for k in 1..=50 {
@@ -71,6 +83,16 @@ fn a_blade_cuts_a_body_in_two_like_the_core_world_and_a_reset_makes_it_whole() {
             act.apply(t).unwrap();
         }
         world.step_fixed().unwrap();
+        let reaction = app.world().get::<ToolReaction>(tool).unwrap();
+        let core = world.tools()[ti].cutting_resistance();
+        assert_eq!(
+            reaction.cutting,
+            bevy_soft_tissue::convert::to_bevy(&core),
+            "step {k}"
+        );
+        if core.norm() > 0.0 {
+            resisted += 1;
+        }
         if piece.is_none() {
             let mut q = app.world_mut().query::<(Entity, &CutPiece)>();
             piece = q.iter(app.world()).next().map(|(e, c)| {
@@ -93,6 +115,7 @@ fn a_blade_cuts_a_body_in_two_like_the_core_world_and_a_reset_makes_it_whole() {
             );
         }
     }
+    assert!(resisted > 5, "the blade was held back in {resisted} steps");
     let piece = piece.expect("the cut made a piece");
     assert_eq!(
         app.world().get::<Name>(piece).unwrap().as_str(),

@@ -192,6 +192,11 @@ pub struct BodySpec {
     /// Surface friction (absent: [`Friction::default`], wet tissue).
     #[serde(default)]
     pub friction: Option<Friction>,
+    /// Fracture toughness, energy per area of cut (force per length in the scene's units;
+    /// liver 164 J/m^2 in a scene in metres): a cutting blade is held back by it (see
+    /// `world::cut_force`). Absent: 0, a blade cuts freely.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub toughness: Option<f64>,
 }
 
 /// The shape of a static obstacle, in its own frame (placed by its [`Placement`]).
@@ -362,6 +367,7 @@ impl Scene {
             anchor: Anchor::FixedBottom { fraction: 0.05 },
             heat: None,
             friction: None,
+            toughness: None,
         };
         Scene {
             name: "cylinders".into(),
@@ -393,6 +399,7 @@ impl Scene {
                 // for a temperature field.
                 heat: (*o == Organ::Liver).then(crate::heat::HeatParams::liver),
                 friction: None,
+                toughness: None,
             })
             .collect();
         Scene {
@@ -475,6 +482,7 @@ impl Scene {
             anchor: Anchor::Free,
             heat: None,
             friction: Some(Friction::new(0.4)),
+            toughness: None,
         };
         Scene {
             name: "grasp".into(),
@@ -515,6 +523,7 @@ impl Scene {
             anchor: Anchor::Free,
             heat: None,
             friction: None,
+            toughness: None,
         };
         // Files (organ-scene units): liver x -0.567..2.234, y 0.136..1.665, z -0.420..0.420;
         // stomach x -1.389..0.121, y -0.392..1.217, z -0.316..0.516; spleen (turned a quarter

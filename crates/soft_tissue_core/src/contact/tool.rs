@@ -207,6 +207,8 @@ pub struct Tool {
     grip_limit: f64,
     /// A blade's cutting is on.
     cutting: bool,
+    /// The tissue's resistance to the blade's cut over the last step.
+    resistance: Vec3,
 }
 
 impl Tool {
@@ -240,6 +242,7 @@ impl Tool {
             jaw_speed: 2.0 * open,
             grip_limit: f64::INFINITY,
             cutting: false,
+            resistance: Vec3::zeros(),
         };
         t.last_parts = [t.part_pose(0), t.part_pose(1)];
         Ok(t)
@@ -474,9 +477,21 @@ impl Tool {
     }
 
     /// Force of the tissue on the tool over the last step: the sum of the contact forces of
-    /// its contacts (and grips) as the step's contact solve balanced them.
+    /// its contacts (and grips) as the step's contact solve balanced them, and a blade's
+    /// cutting resistance ([`Tool::cutting_resistance`]).
     pub fn reaction_force(&self) -> Vec3 {
-        self.reaction
+        self.reaction + self.resistance
+    }
+
+    /// The tissue's resistance to a blade's cut over the last step (against its motion: the
+    /// work of fracture of what it cut, see `world::cut_force`); zero for other tools.
+    pub fn cutting_resistance(&self) -> Vec3 {
+        self.resistance
+    }
+
+    /// Sets the cutting resistance of this step (the world's cut stage).
+    pub(crate) fn set_cutting_resistance(&mut self, force: Vec3) {
+        self.resistance = force;
     }
 
     /// Contacts of the last step's solve (points with a force, or within the margin).

@@ -30,6 +30,8 @@ pub struct WorldBody {
     pub(crate) diagnostics: BodyDiagnostics,
     /// Surface friction.
     pub(crate) friction: Friction,
+    /// Fracture toughness (see [`WorldBody::set_toughness`]).
+    pub(crate) toughness: f64,
     // Per-step contact bookkeeping and workspaces.
     pub(crate) touched: bool,
     pub(crate) contacts: u32,
@@ -156,6 +158,7 @@ impl WorldBody {
             vaporize_tried: Vec::new(),
             loose: false,
             friction: Friction::default(),
+            toughness: 0.0,
             touched: false,
             contacts: 0,
             active: false,

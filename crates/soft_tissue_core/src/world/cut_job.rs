@@ -511,6 +511,7 @@ impl WorldBody {
                 })?;
             }
             body.friction = self.friction;
+            body.toughness = self.toughness;
             // What was set at run time beyond the settings.
             body.model
                 .set_precise_cg_must_converge(self.model.cg_must_converge());

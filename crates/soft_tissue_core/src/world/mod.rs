@@ -28,6 +28,7 @@
 mod body;
 mod burn;
 mod cut;
+mod cut_force;
 mod cut_job;
 mod scene;
 mod script;
@@ -37,6 +38,7 @@ mod teleport;
 pub use body::{SETTLE_STEPS, WorldBody};
 pub use burn::CARVE_GROWTH;
 pub use cut::{BladeCut, BladeOutcome, CutRecord, Incision, remap_grips, swept_triangles};
+pub use cut_force::cutting_resistance;
 pub use cut_job::{CutJob, CutPlace};
 pub use soft_world::SoftTissueWorld;
 

@@ -159,6 +159,8 @@ pub struct SceneBody {
     pub heat: Option<(crate::heat::HeatParams, HeatBoundary)>,
     /// Surface friction.
     pub friction: Friction,
+    /// Fracture toughness (0: a blade cuts it freely; see [`WorldBody::set_toughness`]).
+    pub toughness: f64,
 }
 
 /// Reads or generates every body of the scene (mesh files relative to `assets`) and the world
@@ -188,6 +190,7 @@ pub fn scene_bodies_with(
             name: spec.name.clone(),
             heat: spec.heat.map(|p| (p, HeatBoundary::insulated())),
             friction: spec.friction.unwrap_or_default(),
+            toughness: spec.toughness.unwrap_or(0.0),
             mesh,
             settings,
         });
@@ -225,6 +228,7 @@ impl SoftTissueWorld {
         for b in bodies {
             let mut body = WorldBody::new(b.name, Arc::new(b.mesh), b.settings, b.heat)?;
             body.set_friction(b.friction)?;
+            body.set_toughness(b.toughness)?;
             world.add_body(body)?;
         }
         for o in obstacles {

@@ -536,6 +536,8 @@ impl SoftTissueWorld {
             e
         };
         self.cut_stage()?;
+        // On the bodies as the cut left them (a cut landing now replaced the body).
+        super::cut_force::cutting_resistance(&mut self.tools, &mut self.bodies)?;
         self.times.cut_us = lap(&mut t);
         prepare(&mut self.bodies, &mut self.tools, dt);
         self.times.prepare_us = lap(&mut t);
