@@ -336,3 +336,58 @@ fn the_delassus_operator_is_h_c_ht_and_symmetric() {
         }
     }
 }
+
+/// The two halves of a cylinder cut through press on each other: each side's vertices
+/// against the other's triangles, rows that say nearly the same thing, so the forces may
+/// shift between them without end while the motion is found. Every solve ends by its
+/// conditions (the rows met to a tenth of the contact tolerance), not at the sweep cap, and
+/// rows that nothing can move (the fixed base's nodes pressed together) start no round.
+/// (Ending on the forces' change alone, rounds ran to the cap, 400 sweeps, and the fixed
+/// base's penetration started five rounds a step.)
+#[test]
+fn the_sides_of_a_through_cut_settle_without_running_to_the_sweep_cap() {
+    use soft_tissue_core::mesh::cut::CutOptions;
+    use soft_tissue_core::scenario::Scene;
+    use soft_tissue_core::world::{Script, SoftTissueWorld};
+    let scene = Scene::from_ron(
+        &std::fs::read_to_string(assets().join("scenes/cylinders.scene.ron")).unwrap(),
+        "cylinders.scene.ron",
+    )
+    .unwrap();
+    let mut w = SoftTissueWorld::from_scene(&scene, assets()).unwrap();
+    w.set_cut_options(CutOptions {
+        background_steps: 4,
+        ..CutOptions::default()
+    })
+    .unwrap();
+    let path = assets().join("scripts/cut-cylinder-through.ron");
+    let script = Script::from_ron(&std::fs::read_to_string(&path).unwrap(), "through").unwrap();
+    let t = w.add_tool(soft_tissue_core::contact::Tool::new("blade", script.tool).unwrap());
+    let dt = w.config().dt;
+    let cap = w.config().contact.max_sweeps;
+    let (mut pressed, mut worst, mut rounds) = (0, 0.0f64, 0);
+    for k in 1..=150 {
+        let time = k as f64 * dt;
+        let (p, r) = script.pose_rotation_at(time);
+        let tool = &mut w.tools_mut()[t];
+        tool.set_pose_rotation(p, r).unwrap();
+        for e in script.events_in(time - dt, time) {
+            e.action.apply(tool).unwrap();
+        }
+        w.step_fixed().unwrap();
+        let s = w.contacts().stats();
+        if s.rows > 20 && w.bodies().len() > 2 {
+            pressed += 1;
+            worst = worst.max(s.sweeps as f64 / s.rounds.max(1) as f64);
+            rounds = rounds.max(s.rounds);
+        }
+    }
+    println!("{pressed} steps pressed, at most {worst:.0} sweeps a round, {rounds} rounds");
+    assert!(pressed > 20, "the halves did not press ({pressed} steps)");
+    // Two phases of a solve (static, then kinetic friction) each below the cap.
+    assert!(
+        worst < cap as f64,
+        "a round took {worst} sweeps (cap {cap})"
+    );
+    assert!(rounds < w.config().contact.max_rounds, "{rounds} rounds");
+}

@@ -233,6 +233,13 @@ pub struct SolverSettings {
     pub max_sweeps: u32,
     /// Stops when no force changed by more than this fraction of the largest force in a sweep.
     pub tolerance: f64,
+    /// Stops too when every row that can move meets its conditions to this distance (scene
+    /// units; 0: never): a pressed row's gap closed, a free row not penetrating, a sticking
+    /// row not slipping, an attachment held. Rows that say the same thing (the two sides of
+    /// a cut pressed together, each side's vertices against the other's triangles) leave
+    /// the forces free to shift between them without end while the motion is already
+    /// found: this ends the solve there.
+    pub gap_tolerance: f64,
 }
 
 impl Default for SolverSettings {
@@ -240,6 +247,7 @@ impl Default for SolverSettings {
         SolverSettings {
             max_sweeps: 200,
             tolerance: 1e-7,
+            gap_tolerance: 0.0,
         }
     }
 }
@@ -491,6 +499,13 @@ impl ContactSolver {
         lo + cols[lo..hi].binary_search(&d).expect("pattern")
     }
 
+    /// Whether anything can move row `c` of the last assembly along its normal (its
+    /// diagonal compliance is positive; not so for fixed nodes against a tool or each
+    /// other).
+    pub fn movable(&self, c: usize) -> bool {
+        self.blocks[self.diag[c] as usize][(0, 0)] > 0.0
+    }
+
     /// The assembled Delassus block between rows `c` and `d` (row frames), if they couple.
     pub fn block(&self, c: usize, d: usize) -> Option<Matrix3<f64>> {
         let (lo, hi) = (self.start[c] as usize, self.start[c + 1] as usize);
@@ -579,12 +594,17 @@ impl ContactSolver {
         for sweep in 1..=settings.max_sweeps.max(1) {
             let mut change: f64 = 0.0;
             let mut largest: f64 = 0.0;
+            // How far the rows were from their conditions as the sweep reached them.
+            let mut unmet: f64 = 0.0;
             for c in 0..n {
                 let r = self.residual(rows, c);
                 let w = self.blocks[self.diag[c] as usize];
                 let old = rows[c].force;
                 let new = match rows[c].kind {
-                    RowKind::Attachment => old - self.block_inv[c] * r,
+                    RowKind::Attachment => {
+                        unmet = unmet.max(r.norm());
+                        old - self.block_inv[c] * r
+                    }
                     RowKind::Contact {
                         static_friction,
                         kinetic_friction,
@@ -594,6 +614,16 @@ impl ContactSolver {
                             // Nothing on either side can move along this normal.
                             Vec3::zeros()
                         } else {
+                            unmet = unmet.max(if old.x > 0.0 { r.x.abs() } else { -r.x });
+                            let mu = if rows[c].sliding {
+                                kinetic_friction
+                            } else {
+                                static_friction
+                            };
+                            let held = Vector2::new(old.y, old.z).norm();
+                            if old.x > 0.0 && held < mu * old.x * (1.0 - 1e-6) {
+                                unmet = unmet.max(Vector2::new(r.y, r.z).norm());
+                            }
                             let ln = (old.x - r.x / wnn).max(0.0);
                             let dn = ln - old.x;
                             let rt = Vector2::new(r.y + w[(1, 0)] * dn, r.z + w[(2, 0)] * dn);
@@ -617,7 +647,8 @@ impl ContactSolver {
                 largest = largest.max(new.amax());
             }
             last = if largest > 0.0 { change / largest } else { 0.0 };
-            if last <= settings.tolerance || !last.is_finite() {
+            let met = settings.gap_tolerance > 0.0 && unmet <= settings.gap_tolerance;
+            if last <= settings.tolerance || met || !last.is_finite() {
                 return (sweep, last);
             }
         }

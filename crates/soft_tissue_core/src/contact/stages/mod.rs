@@ -91,6 +91,9 @@ pub struct ContactState {
     /// The bodies' surface identities the previous rows were made for.
     previous_ids: Vec<u64>,
     solver: ContactSolver,
+    /// Rows of the last round that nothing can move along their normal (fixed nodes against
+    /// a tool or each other), sorted: their penetration does not start another round.
+    immovable: Vec<super::problem::RowKey>,
     stats: ContactStats,
 }
 
@@ -455,6 +458,8 @@ fn solve_all<B: BorrowMut<WorldBody> + Sync, T: BorrowMut<Tool>>(
     state.solved.clear();
     let settings = SolverSettings {
         max_sweeps: config.max_sweeps,
+        // A tenth of the penetration a round may leave.
+        gap_tolerance: 0.1 * config.tolerance,
         ..SolverSettings::default()
     };
     let mut failure: Option<WorldError> = None;
@@ -538,7 +543,21 @@ fn solve_all<B: BorrowMut<WorldBody> + Sync, T: BorrowMut<Tool>>(
             .fold(0.0, f64::max);
         stats.max_penetration = penetration;
         stats.detect_us += lap(&mut t);
-        let settled = round > 0 && penetration <= config.tolerance;
+        // What another round could correct: no round moves a row nothing can move.
+        let movable = state
+            .rows
+            .iter()
+            .filter(|r| r.is_contact() && state.immovable.binary_search(&r.key).is_err())
+            .map(|r| (-r.gap).max(0.0))
+            .chain(
+                state
+                    .rows
+                    .iter()
+                    .filter(|r| !r.is_contact())
+                    .map(|r| Vec3::new(r.gap, r.slip[0], r.slip[1]).norm()),
+            )
+            .fold(0.0, f64::max);
+        let settled = round > 0 && movable <= config.tolerance;
         if state.rows.is_empty() || round == config.max_rounds || settled {
             // The final measurement: per body, its deepest contact.
             for r in &state.rows {
@@ -567,6 +586,13 @@ fn solve_all<B: BorrowMut<WorldBody> + Sync, T: BorrowMut<Tool>>(
             return Err(e);
         }
         let s = state.solver.solve(&mut state.rows, &settings);
+        state.immovable.clear();
+        for (c, r) in state.rows.iter().enumerate() {
+            if r.is_contact() && !state.solver.movable(c) {
+                state.immovable.push(r.key);
+            }
+        }
+        state.immovable.sort_unstable();
         stats.sweeps += s.sweeps;
         stats.rounds += 1;
         stats.solve_us += lap(&mut t);
