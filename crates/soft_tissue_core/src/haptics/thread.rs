@@ -504,7 +504,9 @@ pub fn contact_model(
     // outer side of every surface it touches (a whole radius could put the centre on the
     // surface, where the push-out direction flips and the tool slips through).
     let reach = 0.5 * tool.shape().radius();
-    let reaction = tool.reaction_force();
+    // The contact forces only: a blade's cutting resistance pushes against its motion, not
+    // out of a surface, and as a plane it would chatter with the hand's jitter.
+    let reaction = tool.reaction_force() - tool.cutting_resistance();
     let f = reaction.norm();
     let grab = !tool.grips().is_empty();
     let mut stiffness = if previous.active && previous.stiffness > 0.0 {

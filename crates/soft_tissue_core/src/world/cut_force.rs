@@ -9,8 +9,11 @@
 //! sweeps nothing). The tool is held back against its motion `d` by `J L d_across / |d|`, so
 //! the work it does over the step is the fracture energy of what it cut; the tissue takes
 //! the opposite force where the edge passes through its surface (half at each crossing;
-//! where the edge lies wholly inside, at the surface point nearest its middle). The tool's
-//! [`crate::contact::Tool::reaction_force`] includes it, so the haptic loop feels it.
+//! where the edge lies wholly inside, at the surface point nearest its middle), as a load of
+//! the step. The surface is the body's as the last step left it (the collider gathered
+//! then). The tool's [`crate::contact::Tool::reaction_force`] includes the resistance; the
+//! 1 kHz haptic loop's contact plane does not (a force against the motion is no surface,
+//! and as one it would chatter with the hand's jitter): rendering it there is not done.
 //!
 //! A body's toughness is [`WorldBody::set_toughness`] (0, the default: no resistance), in
 //! force per length of the scene's units (J/m^2 in a scene in metres). Liver: 164 +- 6 J/m^2
@@ -18,9 +21,13 @@
 //! 2012).
 //!
 //! Not modelled: the force before the tissue gives way (the deformation phase of Mahvash and
-//! Hayward: the blade has no contact of its own), friction along the blade's faces, and
-//! tissue already cut (the edge is taken to cut whole tissue wherever it is inside the
-//! body, so drawing it back through its own incision is resisted too).
+//! Hayward: the blade has no contact of its own), friction along the blade's faces, tissue
+//! already cut (the edge is taken to cut whole tissue wherever it is inside the body, so
+//! drawing it back through its own incision is resisted too), and the tissue's own motion
+//! (the blade's motion in space is used, not relative to the tissue: tissue dragged along
+//! with the blade is still pulled). The tissue's load sits on its surface, not along the
+//! edge's crack front; a line through a surface edge exactly may be missed by both
+//! triangles there (the piece's middle then decides).
 
 use super::*;
 use crate::contact::SurfaceCollider;
