@@ -15,8 +15,8 @@ use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::precision::{BodySettings, Level};
 use soft_tissue_core::timing::StageRecorder;
 use soft_tissue_core::world::{
-    ContactState, StageTimes, WorldBody, WorldError, cutting_resistance, detect_contacts, prepare,
-    solve_contacts, step_solvers, switch_precision,
+    ContactState, StageTimes, WorldBody, WorldError, cutting_resistance, detect_contacts,
+    load_cutting, prepare, solve_contacts, step_solvers, switch_precision,
 };
 
 use crate::assets::TetMeshAsset;
@@ -111,6 +111,7 @@ impl Plugin for SoftTissuePhysicsPlugin {
             .init_resource::<SoftTissueObstacles>()
             .init_resource::<NextBodyOrder>()
             .init_resource::<CutJobs>()
+            .init_resource::<stages::CutLoads>()
             .insert_resource(Time::<SoftPhysics>::default())
             .add_message::<LevelChanged>()
             .add_message::<BodyTouched>()
@@ -169,8 +170,9 @@ impl Plugin for SoftTissuePhysicsPlugin {
                     build_bodies,
                     build_tools,
                     build_obstacles,
-                    cut_stage,
                     resistance_stage,
+                    cut_stage,
+                    cut_load_stage,
                     prepare_stage,
                 )
                     .chain()

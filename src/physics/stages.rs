@@ -450,21 +450,63 @@ pub(super) fn detect_stage(
     status.times.detect_us = lap(&mut t);
 }
 
-/// Each cutting blade's resistance (the work of fracture of what it cut) on the bodies as
-/// the cut stage left them, and the opposite force on the tissue.
+/// The blades' pulls on the bodies of this step, from [`resistance_stage`] to
+/// [`cut_load_stage`].
+#[derive(Resource, Default)]
+pub(crate) struct CutLoads(pub(crate) Vec<soft_tissue_core::world::CutLoad>);
+
+/// Each cutting blade's resistance (the work of fracture of what it cuts) on the bodies as
+/// the step begins, before the cut stage (a cut landing now would have opened the tissue the
+/// blade went through); the blades are put where they are now first, as the cut stage does.
 pub(super) fn resistance_stage(
     mut bodies: Query<(Entity, &mut SoftBodyState)>,
-    mut tools: Query<(Entity, &mut ToolState)>,
+    mut tools: Query<(Entity, &SoftTool, &mut ToolState)>,
+    poses: TransformHelper,
+    mut loads: ResMut<CutLoads>,
     mut status: ResMut<SoftTissueStatus>,
 ) {
     let mut t = Instant::now();
-    let r = in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, tl| {
-        cutting_resistance(tl, b)
+    for (entity, spec, mut state) in &mut tools {
+        if !matches!(spec.shape, ToolShape::Blade { .. }) || state.tool.shape() != spec.shape {
+            continue;
+        }
+        if let Some((position, rotation)) = build::tool_pose(&poses, entity) {
+            // A failure is the cut stage's to report (it sets the same again).
+            let state = &mut *state;
+            let _ = state
+                .tool
+                .set_pose_rotation(position, rotation)
+                .and_then(|_| state.tool.set_cutting(spec.cut));
+        }
+    }
+    in_order(
+        bodies.iter_mut(),
+        tools.iter_mut().map(|(e, _, s)| (e, s)),
+        None,
+        |b, tl| cutting_resistance(tl, b, &mut loads.0),
+    );
+    status.times.cut_us += lap(&mut t);
+}
+
+/// The blades' pulls on the bodies, after the cut stage (on the bodies it left: a body it
+/// cut keeps its place in the order).
+pub(super) fn cut_load_stage(
+    mut bodies: Query<(Entity, &mut SoftBodyState)>,
+    mut tools: Query<(Entity, &mut ToolState)>,
+    loads: Res<CutLoads>,
+    mut status: ResMut<SoftTissueStatus>,
+) {
+    if loads.0.is_empty() {
+        return;
+    }
+    let mut t = Instant::now();
+    let r = in_order(bodies.iter_mut(), tools.iter_mut(), None, |b, _| {
+        load_cutting(b, &loads.0)
     });
     report(
         &mut status,
         SoftTissueStage::Cut,
-        "resisting a blade",
+        "pulling the tissue a blade cuts",
         r,
         bodies.iter(),
     );

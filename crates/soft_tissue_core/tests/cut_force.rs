@@ -22,9 +22,14 @@ const THICK: f64 = 0.02;
 /// A block 4 x 2 x 2 cm of soft tissue (1000 kg/m^3, no damping, no gravity), free or
 /// held at its bottom layer, with the liver's toughness.
 fn tissue(held: bool) -> WorldBody {
+    tissue_of(held, 2.0e4)
+}
+
+/// [`tissue`] with Young's modulus `young`, Pa.
+fn tissue_of(held: bool, young: f64) -> WorldBody {
     let mesh = block(Vec3::zeros(), Vec3::new(0.04, 0.02, THICK), [4, 2, 2]).unwrap();
     let fem = FemParams {
-        young_modulus: 2.0e4,
+        young_modulus: young,
         poisson_ratio: 0.4,
         mass: 1000.0 * mesh.volume(),
         damping: 0.0,
@@ -237,5 +242,42 @@ fn on_the_liver_the_length_inside_is_the_sampled_one() {
             (force - sampled).abs() <= 4.0 * length / n as f64,
             "{force} vs {sampled}"
         );
+    }
+}
+
+/// Cuts that land within the step (the core's default) open the tissue the blade just went
+/// through; the resistance is measured before they do, so a blade pushed through a stiff
+/// block (little pulled along) is held back by J times its thickness every step, in the
+/// step and with the cuts prepared in the background alike.
+#[test]
+fn the_resistance_holds_while_cuts_land() {
+    use soft_tissue_core::mesh::cut::CutOptions;
+    for background in [0, 4] {
+        let (mut w, t) = scalpel_before(tissue_of(true, 2.0e7));
+        w.set_cut_options(CutOptions {
+            background_steps: background,
+            ..CutOptions::default()
+        })
+        .unwrap();
+        let mut x = 0.002;
+        w.tools_mut()[t]
+            .set_pose(Vec3::new(x, 0.015, -0.02), Vec3::z())
+            .unwrap();
+        w.step_fixed().unwrap();
+        w.tools_mut()[t].set_cutting(true).unwrap();
+        for k in 0..14 {
+            x += 0.0025;
+            w.tools_mut()[t]
+                .set_pose(Vec3::new(x, 0.015, -0.02), Vec3::z())
+                .unwrap();
+            w.step_fixed().unwrap();
+            let f = w.tools()[t].cutting_resistance().x;
+            println!("background {background}, step {k}: {f:.4}");
+            assert!(
+                (f + LIVER * THICK).abs() <= 0.02 * LIVER * THICK,
+                "step {k}: {f} against {}",
+                -LIVER * THICK
+            );
+        }
     }
 }

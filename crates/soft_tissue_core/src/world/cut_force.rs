@@ -10,8 +10,9 @@
 //! the work it does over the step is the fracture energy of what it cut; the tissue takes
 //! the opposite force where the edge passes through its surface (half at each crossing;
 //! where the edge lies wholly inside, at the surface point nearest its middle), as a load of
-//! the step. The surface is the body's as the last step left it (the collider gathered
-//! then). The tool's [`crate::contact::Tool::reaction_force`] includes the resistance; the
+//! the step. The resistance is measured on the bodies as the step begins (their surfaces as
+//! the last step left them), before the cut stage: a cut landing in the step opens the
+//! tissue the blade just went through. The load goes on the bodies the cut stage left. The tool's [`crate::contact::Tool::reaction_force`] includes the resistance; the
 //! 1 kHz haptic loop's contact plane does not (a force against the motion is no surface,
 //! and as one it would chatter with the hand's jitter): rendering it there is not done.
 //!
@@ -142,13 +143,30 @@ fn segment_triangle(
     (0.0..=1.0).contains(&s).then_some((s, [1.0 - u - v, u, v]))
 }
 
-/// Sets each tool's cutting resistance for this step (see the module docs) and loads the
-/// bodies it cuts with the opposite force; zero for a tool that is not a blade cutting, or
-/// that did not move.
-pub fn cutting_resistance<T: BorrowMut<Tool>, B: BorrowMut<WorldBody>>(
+/// A blade's pull on a body for this step (see [`cutting_resistance`]): the body's index,
+/// where on its surface (a point where the edge crossed it, as the step began) and the
+/// force there.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CutLoad {
+    /// Index of the body (among those given to [`cutting_resistance`]).
+    pub body: usize,
+    /// The point, scene coordinates.
+    pub point: Vec3,
+    /// The force on the tissue there.
+    pub force: Vec3,
+}
+
+/// Sets each tool's cutting resistance for this step (see the module docs), measured on the
+/// bodies as the step begins (before the cut stage: a cut that lands now has opened the
+/// tissue the blade just went through, and would hide it), and lists the opposite pull on
+/// the tissue in `loads` (cleared first) for [`load_cutting`] after the cut stage. Zero for
+/// a tool that is not a blade cutting, or that did not move.
+pub fn cutting_resistance<T: BorrowMut<Tool>, B: Borrow<WorldBody>>(
     tools: &mut [T],
-    bodies: &mut [B],
-) -> Result<(), WorldError> {
+    bodies: &[B],
+    loads: &mut Vec<CutLoad>,
+) {
+    loads.clear();
     let (mut scratch, mut crossings) = (Vec::new(), Vec::new());
     for tool in tools.iter_mut() {
         let tool = tool.borrow_mut();
@@ -163,22 +181,75 @@ pub fn cutting_resistance<T: BorrowMut<Tool>, B: BorrowMut<WorldBody>>(
                 let along = (b1 - a1) / edge;
                 let across = (motion - along * motion.dot(&along)).norm() / moved;
                 let dir = motion / moved;
-                for body in bodies.iter_mut() {
-                    let body = body.borrow_mut();
+                for (i, body) in bodies.iter().enumerate() {
+                    let body = body.borrow();
                     if body.toughness <= 0.0 {
                         continue;
                     }
                     let inside =
                         segment_inside(&body.collider, &a1, &b1, &mut scratch, &mut crossings);
                     let force = body.toughness * inside * across;
-                    if force > 0.0 && force.is_finite() {
-                        total -= dir * force;
-                        body.load_cut(dir * force, &crossings, &((a1 + b1) * 0.5))?;
+                    if !(force > 0.0 && force.is_finite()) {
+                        continue;
+                    }
+                    total -= dir * force;
+                    // Half at each crossing of its surface; where the edge crosses none, at
+                    // the surface point nearest its middle.
+                    let x = body.collider.positions();
+                    let n = loads.len();
+                    for c in &crossings {
+                        let t = body.collider.triangles()[c.triangle as usize];
+                        let point = (0..3).map(|k| x[t[k] as usize] * c.weights[k]).sum();
+                        loads.push(CutLoad {
+                            body: i,
+                            point,
+                            force: Vec3::zeros(),
+                        });
+                    }
+                    if loads.len() == n {
+                        let middle = (a1 + b1) * 0.5;
+                        if let Some(h) = body.collider.closest(&middle, f64::INFINITY) {
+                            loads.push(CutLoad {
+                                body: i,
+                                point: h.point,
+                                force: Vec3::zeros(),
+                            });
+                        }
+                    }
+                    let share = dir * (force / (loads.len() - n).max(1) as f64);
+                    for l in &mut loads[n..] {
+                        l.force = share;
                     }
                 }
             }
         }
         tool.set_cutting_resistance(total);
+    }
+}
+
+/// Loads the bodies with the pulls [`cutting_resistance`] listed, after the cut stage: each
+/// at the surface point of its body nearest where it was measured (spread over that
+/// triangle's nodes by the weights). A body the cut stage replaced keeps its index; a piece
+/// it cut loose this step takes none.
+pub fn load_cutting<B: BorrowMut<WorldBody>>(
+    bodies: &mut [B],
+    loads: &[CutLoad],
+) -> Result<(), WorldError> {
+    for l in loads {
+        let Some(body) = bodies.get_mut(l.body) else {
+            continue;
+        };
+        let body = body.borrow_mut();
+        let Some(h) = body.collider.closest(&l.point, f64::INFINITY) else {
+            continue;
+        };
+        let tri = body.collider.triangles()[h.triangle as usize];
+        for (v, w) in tri.into_iter().zip(h.weights) {
+            let node = body.collider.nodes()[v as usize] as usize;
+            body.model
+                .add_force(node, l.force * w)
+                .map_err(|e| body.precision_err(e))?;
+        }
     }
     Ok(())
 }
@@ -202,36 +273,6 @@ impl WorldBody {
             });
         }
         self.toughness = toughness;
-        Ok(())
-    }
-
-    /// Loads this body with a blade's pull `force` for this step: half at each crossing of
-    /// its surface (spread over the triangle's nodes by the weights), or at the surface
-    /// point nearest `middle` where the edge crosses none.
-    fn load_cut(
-        &mut self,
-        force: Vec3,
-        crossings: &[Crossing],
-        middle: &Vec3,
-    ) -> Result<(), WorldError> {
-        let nearest;
-        let points: Vec<(u32, [f64; 3])> = if crossings.is_empty() {
-            nearest = self.collider.closest(middle, f64::INFINITY);
-            nearest.iter().map(|h| (h.triangle, h.weights)).collect()
-        } else {
-            crossings.iter().map(|c| (c.triangle, c.weights)).collect()
-        };
-        let share = 1.0 / points.len().max(1) as f64;
-        for (t, w) in points {
-            let tri = self.collider.triangles()[t as usize];
-            for k in 0..3 {
-                let node = self.collider.nodes()[tri[k] as usize] as usize;
-                let f = force * (share * w[k]);
-                self.model
-                    .add_force(node, f)
-                    .map_err(|e| self.precision_err(e))?;
-            }
-        }
         Ok(())
     }
 }

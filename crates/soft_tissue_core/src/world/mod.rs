@@ -38,7 +38,7 @@ mod teleport;
 pub use body::{SETTLE_STEPS, WorldBody};
 pub use burn::CARVE_GROWTH;
 pub use cut::{BladeCut, BladeOutcome, CutRecord, Incision, remap_grips, swept_triangles};
-pub use cut_force::cutting_resistance;
+pub use cut_force::{CutLoad, cutting_resistance, load_cutting};
 pub use cut_job::{CutJob, CutPlace};
 pub use soft_world::SoftTissueWorld;
 

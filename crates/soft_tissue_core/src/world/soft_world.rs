@@ -8,6 +8,8 @@ pub struct SoftTissueWorld {
     config: WorldConfig,
     bodies: Vec<WorldBody>,
     tools: Vec<Tool>,
+    /// Blades' pulls on the bodies of the step (kept to reuse its room).
+    cut_loads: Vec<super::cut_force::CutLoad>,
     obstacles: Vec<Obstacle>,
     contacts: ContactState,
     steps: u64,
@@ -60,6 +62,7 @@ impl SoftTissueWorld {
         Ok(SoftTissueWorld {
             config,
             bodies: Vec::new(),
+            cut_loads: Vec::new(),
             tools: Vec::new(),
             obstacles: Vec::new(),
             contacts: ContactState::default(),
@@ -535,9 +538,14 @@ impl SoftTissueWorld {
             *t = Instant::now();
             e
         };
+        // A blade's resistance on the bodies as the step began; its pull on them after the
+        // cut stage (a cut landing now replaced the body).
+        let mut loads = std::mem::take(&mut self.cut_loads);
+        super::cut_force::cutting_resistance(&mut self.tools, &self.bodies, &mut loads);
         self.cut_stage()?;
-        // On the bodies as the cut left them (a cut landing now replaced the body).
-        super::cut_force::cutting_resistance(&mut self.tools, &mut self.bodies)?;
+        let loaded = super::cut_force::load_cutting(&mut self.bodies, &loads);
+        self.cut_loads = loads;
+        loaded?;
         self.times.cut_us = lap(&mut t);
         prepare(&mut self.bodies, &mut self.tools, dt);
         self.times.prepare_us = lap(&mut t);
