@@ -415,17 +415,7 @@ impl Work<'_> {
             if on[a as usize] || on[b as usize] || (phi[&a] > 0.0) == (phi[&b] > 0.0) {
                 return None;
             }
-            let f = w.positions[a as usize] - c;
-            let d = w.positions[b as usize] - w.positions[a as usize];
-            let (qa, qb, qc) = (d.dot(&d), 2.0 * f.dot(&d), f.dot(&f) - r * r);
-            let root = (qb * qb - 4.0 * qa * qc).max(0.0).sqrt();
-            // From inside (qc < 0) the far root; from outside the near one.
-            let s = if qc < 0.0 {
-                (-qb + root) / (2.0 * qa)
-            } else {
-                (-qb - root) / (2.0 * qa)
-            };
-            Some(s.clamp(0.0, 1.0))
+            Some(w.sphere_crossing(a, b, ball))
         };
         loop {
             let mut changed = false;
