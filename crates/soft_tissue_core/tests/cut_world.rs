@@ -669,3 +669,85 @@ fn warm_compliance_columns_are_the_cold_ones() {
     let n = b.mesh().node_count() as u32;
     assert!(b.model_mut().warm_contact_columns(&[n]).is_err());
 }
+
+/// A piece a cut takes off a burnt spot keeps the burn drawn: the marks of what the spots
+/// burnt go with every piece (the burnt volumes and the heat the water took stay with the
+/// body, counted once). An electrode burns the top of a heated bar for 0.25 s, a blade then
+/// cuts the top 2 cm off: a sample on the loose piece at the burn's centre shows the damage,
+/// one on the kept piece far from it none.
+#[test]
+fn a_piece_cut_off_a_burn_keeps_its_marks() {
+    use soft_tissue_core::heat::{ElectrodeSource, HeatSample};
+    let mesh = block(Vec3::zeros(), Vec3::new(0.02, 0.1, 0.02), [2, 10, 2]).unwrap();
+    let fem = FemParams {
+        young_modulus: 2.0e4,
+        poisson_ratio: 0.4,
+        mass: 1000.0 * mesh.volume(),
+        damping: 1.0,
+    };
+    let msd = MsdParams {
+        stiffness: 200.0,
+        mass: fem.mass,
+        damping: 0.1,
+    };
+    let mut s = BodySettings::new(fem, msd, DT);
+    s.boundary = Boundary::fixed_below(mesh.positions(), 1, 0.01);
+    let heat = HeatParams {
+        meters_per_unit: 1.0,
+        ..HeatParams::liver()
+    };
+    let body = WorldBody::new(
+        "bar",
+        Arc::new(mesh),
+        s,
+        Some((heat, HeatBoundary::insulated())),
+    )
+    .unwrap();
+    let mut w = world_with(body);
+    let burn = Vec3::new(0.01, 0.1, 0.01);
+    let nearest = |b: &WorldBody, p: Vec3| {
+        let x = b.mesh().positions();
+        (0..x.len())
+            .min_by(|&i, &j| (x[i] - p).norm().total_cmp(&(x[j] - p).norm()))
+            .unwrap()
+    };
+    let top = nearest(&w.bodies()[0], burn);
+    for _ in 0..50 {
+        let source = ElectrodeSource {
+            center: burn,
+            watts: 10.0,
+            radius: 1e-3,
+            tissue_fraction: 0.5,
+        };
+        w.bodies_mut()[0]
+            .heat_mut()
+            .unwrap()
+            .add_electrode(&source, &[(top, 1.0)])
+            .unwrap();
+        w.step_fixed().unwrap();
+    }
+    sweep_blade(&mut w, 0.08);
+    assert_eq!(w.bodies().len(), 2, "the top did not come off");
+    let damage_at = |w: &mut SoftTissueWorld, i: usize, p: Vec3| {
+        let k = nearest(&w.bodies()[i], p);
+        let at = w.bodies()[i].mesh().positions()[k];
+        let h = w.bodies_mut()[i].heat_mut().unwrap();
+        h.set_samples(vec![HeatSample {
+            position: at,
+            nodes: [
+                (k as u32, 1.0),
+                (k as u32, 0.0),
+                (k as u32, 0.0),
+                (k as u32, 0.0),
+            ],
+        }])
+        .unwrap();
+        h.sample_damage()[0]
+    };
+    let (kept, loose) = (0, 1);
+    let on_loose = damage_at(&mut w, loose, burn);
+    let far = damage_at(&mut w, kept, Vec3::new(0.01, 0.0, 0.01));
+    println!("damage at the burn on the loose piece {on_loose:.3e}, far on the kept one {far:.3e}");
+    assert!(on_loose >= 1.0, "the loose piece lost the burn: {on_loose}");
+    assert_eq!(far, 0.0);
+}

@@ -323,6 +323,18 @@ impl HeatField {
         self.version += 1;
     }
 
+    /// Takes `other`'s burn marks (what its spots burnt where), without its burnt volumes or
+    /// the heat its water took: a piece a cut took off a body, which keeps those (counted
+    /// once), draws the burn on its part all the same.
+    pub fn carry_marks_from(&mut self, other: &HeatField) {
+        self.marks = other.marks.clone();
+        for spot in &other.spots {
+            self.keep_mark(spot.mark());
+        }
+        self.changed = true;
+        self.version += 1;
+    }
+
     /// Follows temperature, damage and peak temperature at `samples` (see [`HeatSample`]);
     /// replaces the points followed before. Their damage and peak start from what spots
     /// that ended burnt there, and what the body's spots had burnt before its mesh changed

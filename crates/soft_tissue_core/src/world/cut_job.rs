@@ -498,12 +498,15 @@ impl WorldBody {
                     .set_temperatures(|i| t[nodes[i] as usize])
                     .and_then(|_| h.set_damage(|i| d[nodes[i] as usize]));
                 if r.is_ok()
-                    && built.is_empty()
                     && let Some(old) = self.heat.as_ref()
                 {
                     // The kept piece goes on with the body's burns (volumes, the heat the
-                    // water took).
-                    h.carry_burns_from(old);
+                    // water took); every piece with its marks (the burn stays drawn).
+                    if built.is_empty() {
+                        h.carry_burns_from(old);
+                    } else {
+                        h.carry_marks_from(old);
+                    }
                 }
                 r.map_err(|source| WorldError::Heat {
                     body: body.label(),
