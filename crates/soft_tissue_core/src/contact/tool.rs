@@ -483,6 +483,12 @@ impl Tool {
         self.reaction + self.resistance
     }
 
+    /// The contact part of [`Tool::reaction_force`]: the forces of its contacts and grips as
+    /// the step's contact solve balanced them, without a blade's cutting resistance.
+    pub fn contact_force(&self) -> Vec3 {
+        self.reaction
+    }
+
     /// The tissue's resistance to a blade's cut over the last step (against its motion: the
     /// work of fracture of what it cut, see `world::cut_force`); zero for other tools.
     pub fn cutting_resistance(&self) -> Vec3 {

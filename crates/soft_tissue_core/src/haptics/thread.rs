@@ -506,7 +506,7 @@ pub fn contact_model(
     let reach = 0.5 * tool.shape().radius();
     // The contact forces only: a blade's cutting resistance pushes against its motion, not
     // out of a surface, and as a plane it would chatter with the hand's jitter.
-    let reaction = tool.reaction_force() - tool.cutting_resistance();
+    let reaction = tool.contact_force();
     let f = reaction.norm();
     let grab = !tool.grips().is_empty();
     let mut stiffness = if previous.active && previous.stiffness > 0.0 {

@@ -530,33 +530,26 @@ fn solve_all<B: BorrowMut<WorldBody> + Sync, T: BorrowMut<Tool>>(
         } else {
             state.previous = from;
         }
-        let penetration = state
-            .rows
-            .iter()
-            .map(|r| {
-                if r.is_contact() {
-                    (-r.gap).max(0.0)
-                } else {
-                    Vec3::new(r.gap, r.slip[0], r.slip[1]).norm()
-                }
-            })
-            .fold(0.0, f64::max);
+        // The deepest penetration, and the deepest another round could correct (no round
+        // moves a row nothing can move).
+        let (penetration, movable) =
+            state
+                .rows
+                .iter()
+                .fold((0.0f64, 0.0f64), |(all, fixable), r| {
+                    let depth = if r.is_contact() {
+                        (-r.gap).max(0.0)
+                    } else {
+                        Vec3::new(r.gap, r.slip[0], r.slip[1]).norm()
+                    };
+                    let moves = !r.is_contact() || state.immovable.binary_search(&r.key).is_err();
+                    (
+                        all.max(depth),
+                        if moves { fixable.max(depth) } else { fixable },
+                    )
+                });
         stats.max_penetration = penetration;
         stats.detect_us += lap(&mut t);
-        // What another round could correct: no round moves a row nothing can move.
-        let movable = state
-            .rows
-            .iter()
-            .filter(|r| r.is_contact() && state.immovable.binary_search(&r.key).is_err())
-            .map(|r| (-r.gap).max(0.0))
-            .chain(
-                state
-                    .rows
-                    .iter()
-                    .filter(|r| !r.is_contact())
-                    .map(|r| Vec3::new(r.gap, r.slip[0], r.slip[1]).norm()),
-            )
-            .fold(0.0, f64::max);
         let settled = round > 0 && movable <= config.tolerance;
         if state.rows.is_empty() || round == config.max_rounds || settled {
             // The final measurement: per body, its deepest contact.
