@@ -9,6 +9,7 @@ use soft_tissue_core::heat::HeatParams;
 use soft_tissue_core::precision::Level;
 use soft_tissue_core::scenario::{PreciseMethod, Scene};
 use soft_tissue_core::world::{Script, ScriptAction, SoftTissueWorld, WorldError};
+use soft_tissue_core::world::burn::tissue_fraction;
 
 fn assets() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets"))
@@ -346,6 +347,16 @@ fn cautery_burns_a_millimetre_spot_with_its_power() {
     );
     assert!(v.vaporized > 0.0 && v.charred >= v.vaporized && v.coagulated >= v.charred);
     assert!(heat.crater_radii().iter().any(|&r| r > 1e-3));
+    // The first spot (made before any carve) takes the rest mesh's share of tissue about
+    // its centre: a little under 1/2 on the liver's faceted, convex face.
+    let places: Vec<_> = heat.spot_places().collect();
+    println!("spots (centre, radius m, tissue fraction) {places:.4?}");
+    let before = organs();
+    let (centre, radius, fraction) = places[0];
+    let s = heat.params().meters_per_unit;
+    let expected = tissue_fraction(before.bodies()[liver].mesh(), &centre, radius / s);
+    assert_eq!(fraction, expected);
+    assert!((fraction - 0.5).abs() < 0.1 && fraction != 0.5, "{places:?}");
     let coarse = heat.temperatures().iter().copied().fold(f64::MIN, f64::max);
     assert!(coarse < 60.0, "hottest node {coarse} C");
     assert_eq!(

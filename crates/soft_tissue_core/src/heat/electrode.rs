@@ -9,8 +9,8 @@ impl HeatField {
     /// Heats through an electrode for the next step: `source.watts` into the tissue at
     /// `source.center` (rest, scene units), where the coarse field is interpolated by
     /// `nodes` (node, weight; weights summing to 1). The power goes into the spot already at
-    /// that place (within half an electrode radius) or a new one; see the module `spot` for
-    /// the model.
+    /// that place (within half an electrode radius; it keeps its own tissue fraction) or a
+    /// new one; see the module `spot` for the model.
     pub fn add_electrode(
         &mut self,
         source: &ElectrodeSource,
@@ -70,13 +70,7 @@ impl HeatField {
         if source.watts == 0.0 {
             return Ok(());
         }
-        let s = self.params.meters_per_unit;
-        let near = self.spots.iter().position(|p| {
-            p.grid.radius == source.radius
-                && p.fraction == source.tissue_fraction
-                && (p.center - source.center).norm() * s < 0.5 * source.radius
-        });
-        let k = match near {
+        let k = match self.spot_index(&source.center, source.radius) {
             Some(k) => k,
             None => {
                 if self.spots.len() >= MAX_SPOTS
@@ -114,6 +108,30 @@ impl HeatField {
         };
         self.spots[k].power += source.watts;
         Ok(())
+    }
+
+    /// The spot an electrode of `radius` (m) at `center` (rest, scene units) heats: one of
+    /// that radius within half of it. Its tissue fraction stays the one it was made with.
+    fn spot_index(&self, center: &Vec3, radius: f64) -> Option<usize> {
+        let s = self.params.meters_per_unit;
+        self.spots.iter().position(|p| {
+            p.grid.radius == radius && (p.center - center).norm() * s < 0.5 * radius
+        })
+    }
+
+    /// The tissue fraction of the spot an electrode of `radius` (m) at `center` (rest, scene
+    /// units) would heat, if there is one ([`HeatField::add_electrode`] adds to it; its
+    /// fraction was set when it was made, so a caller need not measure one again).
+    pub fn spot_fraction_at(&self, center: &Vec3, radius: f64) -> Option<f64> {
+        self.spot_index(center, radius).map(|k| self.spots[k].fraction)
+    }
+
+    /// Each spot's centre (rest, scene units), electrode radius (m) and tissue fraction,
+    /// oldest first.
+    pub fn spot_places(&self) -> impl Iterator<Item = (Vec3, f64, f64)> + '_ {
+        self.spots
+            .iter()
+            .map(|p| (p.center, p.grid.radius, p.fraction))
     }
 
     /// Power queued at electrodes for the next step, W.

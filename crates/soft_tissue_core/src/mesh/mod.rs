@@ -13,6 +13,7 @@ pub mod cut;
 pub mod embed;
 pub mod generate;
 pub mod io;
+pub mod occupancy;
 pub mod pieces;
 mod quality;
 pub mod subdivide;

@@ -5,6 +5,20 @@
 use super::*;
 use crate::mesh::cut::Ball;
 
+/// Where an electrode's sub-grid field is measured for its tissue fraction, in electrode
+/// radii from its centre (the distances its closed-form check uses).
+pub const FRACTION_RADII: [f64; 3] = [1.5, 2.0, 3.0];
+
+/// The share of an electrode's surroundings that is tissue: of the spheres at
+/// [`FRACTION_RADII`] electrode radii (`radius`, scene units) about `centre` on the rest
+/// mesh, the part inside it ([`crate::mesh::occupancy::sphere_share_inside`]): about 1/2 on a
+/// flat surface, 1/4 on a right-angled edge, more at the floor of a crater. Kept within
+/// [1/8, 1] (a centre off the mesh still heats the tissue it touches).
+pub fn tissue_fraction(mesh: &crate::mesh::TetMesh, centre: &Vec3, radius: f64) -> f64 {
+    let radii = FRACTION_RADII.map(|k| k * radius);
+    crate::mesh::occupancy::sphere_share_inside(mesh, centre, &radii).clamp(0.125, 1.0)
+}
+
 /// A crater is carved again (after a carve that did not land) once its ball has grown by this
 /// factor.
 pub const CARVE_GROWTH: f64 = 1.25;

@@ -26,7 +26,7 @@
 //! Everything runs on one thread in index order, so a run is bit-for-bit repeatable.
 
 mod body;
-mod burn;
+pub mod burn;
 mod cut;
 mod cut_force;
 mod cut_job;
@@ -392,8 +392,8 @@ pub fn step_solvers<B: BorrowMut<WorldBody> + Send, T: Borrow<Tool>>(
 
 /// An electrode's power into the bodies it presses, each body's share by its part of the
 /// normal force, at the force-weighted centre of its pressed points on the rest mesh (see
-/// [`HeatField::add_electrode`]; the electrode is taken as centred on a flat surface, half
-/// of its sphere in tissue).
+/// [`HeatField::add_electrode`]; a new spot's tissue fraction is the share of the rest mesh
+/// around that centre, [`burn::tissue_fraction`]).
 fn electrode_power<B: BorrowMut<WorldBody>>(
     bodies: &mut [B],
     state: &ContactState,
@@ -433,11 +433,15 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
         for n in &mut nodes {
             n.1 /= part;
         }
+        let tissue_fraction = match h.spot_fraction_at(&center, radius) {
+            Some(f) => f,
+            None => burn::tissue_fraction(&b.mesh, &center, radius / h.params().meters_per_unit),
+        };
         let source = crate::heat::ElectrodeSource {
             center,
             watts: watts * part / force,
             radius,
-            tissue_fraction: 0.5,
+            tissue_fraction,
         };
         h.add_electrode(&source, &nodes)
             .map_err(|source| WorldError::Heat {
