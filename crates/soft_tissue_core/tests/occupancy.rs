@@ -57,7 +57,16 @@ fn the_floor_of_a_crater_is_more_than_half_tissue() {
     let mesh = block(Vec3::zeros(), Vec3::new(4.0, 4.0, 2.0), [16, 16, 8]).unwrap();
     let big_r = 0.5;
     let top = Vec3::new(2.05, 1.95, 2.0);
-    let cut = carve(&mesh, None, &[Ball { centre: top, radius: big_r }], 0.3).unwrap();
+    let cut = carve(
+        &mesh,
+        None,
+        &[Ball {
+            centre: top,
+            radius: big_r,
+        }],
+        0.3,
+    )
+    .unwrap();
     let floor = top - Vec3::new(0.0, 0.0, big_r * 0.98);
     for rho in [0.25, 0.4, 0.7, 1.0] {
         let got = sphere_share_inside(&cut.mesh, &floor, &[rho]);
@@ -69,7 +78,10 @@ fn the_floor_of_a_crater_is_more_than_half_tissue() {
             (got - expected).abs() <= 0.03,
             "rho {rho}: {got} against {expected}"
         );
-        assert!(got > 0.5 + 0.05, "the crater's floor is more than half tissue");
+        assert!(
+            got > 0.5 + 0.05,
+            "the crater's floor is more than half tissue"
+        );
     }
     // The world's rule (clamped, at its own radii) on the flat face and in the crater.
     let a = 0.05;

@@ -8,8 +8,8 @@ use soft_tissue_core::contact::{Tool, ToolShape};
 use soft_tissue_core::heat::HeatParams;
 use soft_tissue_core::precision::Level;
 use soft_tissue_core::scenario::{PreciseMethod, Scene};
-use soft_tissue_core::world::{Script, ScriptAction, SoftTissueWorld, WorldError};
 use soft_tissue_core::world::burn::tissue_fraction;
+use soft_tissue_core::world::{Script, ScriptAction, SoftTissueWorld, WorldError};
 
 fn assets() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets"))
@@ -356,7 +356,10 @@ fn cautery_burns_a_millimetre_spot_with_its_power() {
     let s = heat.params().meters_per_unit;
     let expected = tissue_fraction(before.bodies()[liver].mesh(), &centre, radius / s);
     assert_eq!(fraction, expected);
-    assert!((fraction - 0.5).abs() < 0.1 && fraction != 0.5, "{places:?}");
+    assert!(
+        (fraction - 0.5).abs() < 0.1 && fraction != 0.5,
+        "{places:?}"
+    );
     let coarse = heat.temperatures().iter().copied().fold(f64::MIN, f64::max);
     assert!(coarse < 60.0, "hottest node {coarse} C");
     assert_eq!(

@@ -28,7 +28,9 @@ pub fn sphere_share_inside(mesh: &TetMesh, centre: &Vec3, radii: &[f64]) -> f64 
         .iter()
         .filter_map(|t| {
             let x = t.map(|n| p[n as usize]);
-            let (lo, hi) = x.iter().fold((x[0], x[0]), |(lo, hi), v| (lo.inf(v), hi.sup(v)));
+            let (lo, hi) = x
+                .iter()
+                .fold((x[0], x[0]), |(lo, hi), v| (lo.inf(v), hi.sup(v)));
             let gap = (lo - centre).sup(&(centre - hi)).sup(&Vec3::zeros());
             if gap.norm() > reach {
                 return None;
