@@ -114,16 +114,17 @@ impl HeatField {
     /// that radius within half of it. Its tissue fraction stays the one it was made with.
     fn spot_index(&self, center: &Vec3, radius: f64) -> Option<usize> {
         let s = self.params.meters_per_unit;
-        self.spots.iter().position(|p| {
-            p.grid.radius == radius && (p.center - center).norm() * s < 0.5 * radius
-        })
+        self.spots
+            .iter()
+            .position(|p| p.grid.radius == radius && (p.center - center).norm() * s < 0.5 * radius)
     }
 
     /// The tissue fraction of the spot an electrode of `radius` (m) at `center` (rest, scene
     /// units) would heat, if there is one ([`HeatField::add_electrode`] adds to it; its
     /// fraction was set when it was made, so a caller need not measure one again).
     pub fn spot_fraction_at(&self, center: &Vec3, radius: f64) -> Option<f64> {
-        self.spot_index(center, radius).map(|k| self.spots[k].fraction)
+        self.spot_index(center, radius)
+            .map(|k| self.spots[k].fraction)
     }
 
     /// Each spot's centre (rest, scene units), electrode radius (m) and tissue fraction,
