@@ -3,7 +3,10 @@
 //! start of every physics step the tool is put where the thread's tool proxy is and its
 //! buttons set grab (first button; with a blade it cuts instead) and cautery (second); after
 //! the step the tissue's local
-//! contact model is handed back to the thread, which renders the force between steps.
+//! contact model is handed back to the thread, which renders the force between steps, and
+//! with it a cutting blade's cut model (the thread renders the cutting resistance as a
+//! friction across the edge, breakaway at the toughness times the edge's length in tissue:
+//! [`soft_tissue_core::haptics::cutting`]).
 //! Removing the component (or despawning the entity) stops the thread and leaves the device
 //! with zero force. The thread asks for real-time scheduling ([`HapticConfig::priority`]);
 //! [`HapticTool::priority`] says what it got, and the physics (Bevy's threads) stays at normal
@@ -27,8 +30,8 @@ use std::sync::Arc;
 
 use bevy::prelude::*;
 use soft_tissue_core::haptics::{
-    ContactModel, HapticConfig, HapticDevice, HapticError, HapticShared, HapticThread,
-    PriorityOutcome, ToolSample, contact_model,
+    ContactModel, CutModel, HapticConfig, HapticDevice, HapticError, HapticShared, HapticThread,
+    PriorityOutcome, ToolSample, contact_model, cut_model,
 };
 
 use crate::components::{SoftTool, ToolState};
@@ -62,7 +65,12 @@ pub struct HapticTool {
     /// Tissue stiffness the contact model starts from (scene units; it adapts to the
     /// measured force). Default: the coupling stiffness.
     pub nominal_stiffness: f64,
+    /// Stiffness of the cut's bristle (scene units): a cutting blade moves
+    /// `breakaway / cut_stiffness` across its edge before it slips on. Default:
+    /// [`CutModel::STIFFNESS_PER_COUPLING`] times the coupling stiffness.
+    pub cut_stiffness: f64,
     model: ContactModel,
+    cut: CutModel,
     last: ToolSample,
 }
 
@@ -85,7 +93,9 @@ impl HapticTool {
             thread,
             cautery_watts,
             nominal_stiffness: config.coupling.stiffness,
+            cut_stiffness: CutModel::STIFFNESS_PER_COUPLING * config.coupling.stiffness,
             model: ContactModel::NONE,
+            cut: CutModel::NONE,
             last,
         })
     }
@@ -98,6 +108,12 @@ impl HapticTool {
     /// The contact model handed to the thread at the last step.
     pub fn model(&self) -> &ContactModel {
         &self.model
+    }
+
+    /// The cut model handed to the thread at the last step ([`CutModel::NONE`] unless the
+    /// tool is a blade cutting tissue with a toughness).
+    pub fn cut(&self) -> &CutModel {
+        &self.cut
     }
 
     /// The scheduling the haptic thread asked for and got (policy and priority, or why the
@@ -175,7 +191,16 @@ fn publish_models(
             haptic.nominal_stiffness,
             status.steps,
         );
+        // A cut model that cannot be made (a cut stiffness set out of range) is dropped with
+        // a warning: the contact still goes over.
+        let cut = cut_model(&state.tool, haptic.cut_stiffness).unwrap_or_else(|e| {
+            warn!("haptic cut model: {e}");
+            CutModel::NONE
+        });
         haptic.model = model;
-        haptic.thread.shared().publish_model(&model);
+        haptic.cut = cut;
+        if let Err(e) = haptic.thread.shared().publish(&model, &cut) {
+            warn!("haptic models: {e}");
+        }
     }
 }

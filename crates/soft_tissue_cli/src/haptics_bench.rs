@@ -12,8 +12,8 @@ use clap::Args;
 use serde_json::json;
 use soft_tissue_core::contact::Tool;
 use soft_tissue_core::haptics::{
-    ContactModel, DEFAULT_REALTIME_LEVEL, HapticConfig, HapticPriority, HapticThread, Recording,
-    ReplayDevice, Scheduling, contact_model,
+    ContactModel, CutModel, DEFAULT_REALTIME_LEVEL, HapticConfig, HapticPriority, HapticThread,
+    Recording, ReplayDevice, Scheduling, contact_model, cut_model,
 };
 use soft_tissue_core::world::{Script, SoftTissueWorld};
 
@@ -135,6 +135,7 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
         ..HapticConfig::default()
     };
     let nominal = config.coupling.stiffness;
+    let cut_stiffness = CutModel::STIFFNESS_PER_COUPLING * nominal;
     let max_force = config.coupling.max_force;
     let thread = HapticThread::spawn(Box::new(ReplayDevice::new(recording, max_force)?), config)?;
     let shared = thread.shared().clone();
@@ -193,7 +194,8 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
                 nominal,
                 world.step_count(),
             );
-            shared.publish_model(&model);
+            let cut = cut_model(&world.tools()[tool], cut_stiffness)?;
+            shared.publish(&model, &cut)?;
             k += 1;
         }
         Ok(())

@@ -209,6 +209,9 @@ pub struct Tool {
     cutting: bool,
     /// The tissue's resistance to the blade's cut over the last step.
     resistance: Vec3,
+    /// The force it takes to push a cutting blade's edge across itself, as the last step
+    /// found it (toughness times the edge's length inside, summed over the bodies).
+    strength: f64,
 }
 
 impl Tool {
@@ -243,6 +246,7 @@ impl Tool {
             grip_limit: f64::INFINITY,
             cutting: false,
             resistance: Vec3::zeros(),
+            strength: 0.0,
         };
         t.last_parts = [t.part_pose(0), t.part_pose(1)];
         Ok(t)
@@ -498,6 +502,22 @@ impl Tool {
     /// Sets the cutting resistance of this step (the world's cut stage).
     pub(crate) fn set_cutting_resistance(&mut self, force: Vec3) {
         self.resistance = force;
+    }
+
+    /// The force it takes to push a cutting blade's edge straight across itself, as the last
+    /// step found it: each body's toughness times the length of the edge inside it, summed
+    /// (`J L`; the largest [`Tool::cutting_resistance`] can be, reached when the blade moves
+    /// straight across its edge). Found whether or not the blade moved over the step, so a
+    /// blade resting in tissue reports what it will take to move it; zero for other tools,
+    /// with cutting off, or outside tissue. The 1 kHz haptic loop renders it as the
+    /// breakaway force of a friction ([`crate::haptics::CutModel`]).
+    pub fn cutting_strength(&self) -> f64 {
+        self.strength
+    }
+
+    /// Sets the cutting strength of this step (the world's cut stage).
+    pub(crate) fn set_cutting_strength(&mut self, strength: f64) {
+        self.strength = strength;
     }
 
     /// Contacts of the last step's solve (points with a force, or within the margin).

@@ -2,11 +2,13 @@
 //! spring-damper and pushed by the tissue's local contact model; the user feels the coupling
 //! force. The proxy is integrated with implicit Euler at the haptic rate (unconditionally
 //! stable for any coupling or tissue stiffness), the coupling damping is critical for the
-//! proxy's mass, and the device force is clamped to the device's limit.
+//! proxy's mass, and the device force is clamped to the device's limit. A blade's cut acts
+//! on the proxy as a friction across its edge ([`super::cutting`]).
 
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 
+use super::cutting::{Bristle, CutModel};
 use crate::Vec3;
 
 /// The tissue as the haptic loop sees it between physics steps, linearised at the last one:
@@ -168,7 +170,8 @@ impl CouplingParams {
     }
 }
 
-/// The proxy and the contact models it feels (the old one fading out, the new one in).
+/// The proxy and the contact models it feels (the old one fading out, the new one in), and
+/// a blade's cut (likewise).
 #[derive(Debug, Clone)]
 pub struct Coupling {
     params: CouplingParams,
@@ -177,6 +180,10 @@ pub struct Coupling {
     old: ContactModel,
     new: ContactModel,
     blend: u32,
+    cut_old: CutModel,
+    cut_new: CutModel,
+    cut_blend: u32,
+    bristle: Bristle,
 }
 
 impl Coupling {
@@ -189,6 +196,10 @@ impl Coupling {
             old: ContactModel::NONE,
             new: ContactModel::NONE,
             blend: params.blend_ticks,
+            cut_old: CutModel::NONE,
+            cut_new: CutModel::NONE,
+            cut_blend: params.blend_ticks,
+            bristle: Bristle::default(),
         }
     }
 
@@ -224,12 +235,43 @@ impl Coupling {
         self.blend = 0;
     }
 
+    /// Hands over a new cut model (with the contact model of the same physics step); its
+    /// breakaway force fades in over `blend_ticks` ticks. An invalid one is ignored.
+    pub fn set_cut(&mut self, cut: CutModel) {
+        if cut.validate().is_err() {
+            return;
+        }
+        self.cut_old = self.cut_now();
+        self.cut_new = cut;
+        self.cut_blend = 0;
+    }
+
+    /// The newest cut model.
+    pub fn cut(&self) -> &CutModel {
+        &self.cut_new
+    }
+
+    /// The cut as the proxy feels it this tick (the models blended).
+    pub fn cut_now(&self) -> CutModel {
+        CutModel::blend(&self.cut_old, &self.cut_new, self.ratio(self.cut_blend))
+    }
+
+    /// The cut's friction on the proxy now (the bristle's spring; zero when not cutting).
+    pub fn cutting_force(&self) -> Vec3 {
+        self.bristle.force(&self.cut_now())
+    }
+
     /// Weight of the new model this tick.
     fn weight(&self) -> f64 {
+        self.ratio(self.blend)
+    }
+
+    /// How far a blend that has run `ticks` is.
+    fn ratio(&self, ticks: u32) -> f64 {
         if self.params.blend_ticks == 0 {
             1.0
         } else {
-            (f64::from(self.blend) / f64::from(self.params.blend_ticks)).min(1.0)
+            (f64::from(ticks) / f64::from(self.params.blend_ticks)).min(1.0)
         }
     }
 
@@ -274,16 +316,19 @@ impl Coupling {
             a += n * n.transpose() * (wi * (h * h * k + h * b));
             rhs += n * (wi * h * k * d);
         }
-        let v = a
-            .try_inverse()
-            .map(|inv| inv * rhs)
-            .filter(|v| v.iter().all(|c| c.is_finite()))
-            .unwrap_or_else(Vec3::zeros);
+        // A blade's cut: a friction across its edge (stuck or slipping, see `cutting`).
+        let cut = self.cut_now();
+        let v = self.bristle.solve(&cut, &a, &rhs, h, m);
+        let before = self.x;
         self.v = v;
         self.x += v * h;
         self.keep_within_reach();
+        self.bristle.follow(&cut, &(self.x - before));
         if self.blend < p.blend_ticks {
             self.blend += 1;
+        }
+        if self.cut_blend < p.blend_ticks {
+            self.cut_blend += 1;
         }
         let f = (self.x - device) * kc + (self.v - device_velocity) * bc;
         clamp(f, p.max_force)
@@ -312,6 +357,8 @@ impl Coupling {
     pub fn teleport(&mut self, position: Vec3) {
         self.x = position;
         self.v = Vec3::zeros();
+        // The cut's anchor comes along: no stretch.
+        self.bristle = Bristle::default();
     }
 }
 

@@ -7,9 +7,12 @@
 //!   the deadline). Each tick reads the device, advances the virtual coupling
 //!   ([`coupling::Coupling`]: tool proxy, spring-damper to the device, critical damping,
 //!   implicit Euler), evaluates the tissue's local [`ContactModel`] that the physics handed
-//!   over at its last step, clamps and writes the force, publishes the tool pose and records
+//!   over at its last step and a cutting blade's friction across its edge ([`CutModel`]:
+//!   breakaway at the toughness times the edge's length in tissue, [`cutting`]), clamps and
+//!   writes the force, publishes the tool pose and records
 //!   the device sample. The physics reads the tool with [`HapticShared::tool`] and publishes
-//!   models with [`HapticShared::publish_model`]; both go through lock-free sequence cells
+//!   models with [`HapticShared::publish_model`] (with a cut: [`HapticShared::publish`]);
+//!   both go through lock-free sequence cells
 //!   ([`exchange::SeqCell`]), so a stalled physics step never stalls the haptic loop, and the
 //!   loop does not allocate. The thread asks for real-time scheduling ([`HapticPriority`],
 //!   default `SCHED_FIFO` 80 where the OS allows it, else the lowest nice value allowed, else
@@ -26,6 +29,7 @@
 //! [`DeviceMapping`].
 
 pub mod coupling;
+pub mod cutting;
 pub mod exchange;
 #[cfg(feature = "haply")]
 pub mod haply;
@@ -34,6 +38,7 @@ mod recording;
 mod thread;
 
 pub use coupling::{ContactModel, CouplingParams};
+pub use cutting::{CutModel, cut_model};
 pub use priority::{DEFAULT_REALTIME_LEVEL, HapticPriority, PriorityOutcome, Scheduling};
 pub use recording::{
     CAUTERY_BUTTON, CUT_BUTTON, GRAB_BUTTON, JAWS_BUTTON, MAX_RECORDING_SAMPLES, RecordedSample,
@@ -64,6 +69,16 @@ pub enum HapticError {
     #[error("haptic setting `{what}` = {value} is out of range ({why})")]
     BadConfig {
         /// Which setting.
+        what: &'static str,
+        /// Its value.
+        value: f64,
+        /// The valid range.
+        why: &'static str,
+    },
+    /// A model handed to the loop is unusable (a number not finite, out of range).
+    #[error("haptic model `{what}` = {value} is out of range ({why})")]
+    BadModel {
+        /// Which number.
         what: &'static str,
         /// Its value.
         value: f64,

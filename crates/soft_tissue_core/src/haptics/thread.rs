@@ -1,6 +1,6 @@
 //! The haptic thread: a fixed-rate loop (sleep, then spin to the deadline) that couples the
-//! device to the tool proxy and renders the contact force; and the linearisation of a
-//! world's tool contact that the physics hands it.
+//! device to the tool proxy and renders the contact force and a blade's cut; and the
+//! linearisation of a world's tool contact that the physics hands it.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -8,6 +8,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use super::coupling::{ContactModel, Coupling, CouplingParams, MODEL_WORDS, clamp};
+use super::cutting::{CUT_WORDS, CutModel};
 use super::exchange::SeqCell;
 use super::priority::{self, HapticPriority, PriorityOutcome};
 use super::recording::{RecordedSample, Recording};
@@ -170,11 +171,29 @@ impl ToolSample {
     }
 }
 
+/// Words the physics hands the loop each step: a contact model, then a cut model (one
+/// write, so the loop never mixes two steps' models).
+const HANDOVER_WORDS: usize = MODEL_WORDS + CUT_WORDS;
+
+fn handover(contact: &ContactModel, cut: &CutModel) -> [f64; HANDOVER_WORDS] {
+    let mut w = [0.0; HANDOVER_WORDS];
+    w[..MODEL_WORDS].copy_from_slice(&contact.encode());
+    w[MODEL_WORDS..].copy_from_slice(&cut.encode());
+    w
+}
+
+fn handed_over(w: &[f64; HANDOVER_WORDS]) -> (ContactModel, CutModel) {
+    (
+        ContactModel::decode(&std::array::from_fn(|i| w[i])),
+        CutModel::decode(&std::array::from_fn(|i| w[MODEL_WORDS + i])),
+    )
+}
+
 /// State shared by the haptic thread and the physics.
 #[derive(Debug)]
 pub struct HapticShared {
     tool: SeqCell<TOOL_WORDS>,
-    model: SeqCell<MODEL_WORDS>,
+    model: SeqCell<HANDOVER_WORDS>,
     stop: AtomicBool,
     ticks: AtomicU64,
 }
@@ -185,14 +204,29 @@ impl HapticShared {
         ToolSample::decode(&self.tool.read().0)
     }
 
-    /// Hands the loop a new contact model. Call from one thread only (the physics).
+    /// Hands the loop a new contact model, and no cut ([`CutModel::NONE`]). Call from one
+    /// thread only (the physics).
     pub fn publish_model(&self, model: &ContactModel) {
-        self.model.write(model.encode());
+        self.model.write(handover(model, &CutModel::NONE));
     }
 
-    /// The last model published.
+    /// Hands the loop a new contact model and a blade's cut model together (from the same
+    /// physics step). Call from one thread only (the physics). A cut model that is not
+    /// valid ([`CutModel::validate`]) is refused and nothing is handed over.
+    pub fn publish(&self, model: &ContactModel, cut: &CutModel) -> Result<(), HapticError> {
+        cut.validate()?;
+        self.model.write(handover(model, cut));
+        Ok(())
+    }
+
+    /// The last contact model published.
     pub fn model(&self) -> ContactModel {
-        ContactModel::decode(&self.model.read().0)
+        handed_over(&self.model.read().0).0
+    }
+
+    /// The last cut model published.
+    pub fn cut_model(&self) -> CutModel {
+        handed_over(&self.model.read().0).1
     }
 
     /// Ticks run so far.
@@ -286,7 +320,7 @@ impl HapticThread {
                 }
                 .encode(),
             ),
-            model: SeqCell::new(ContactModel::NONE.encode()),
+            model: SeqCell::new(handover(&ContactModel::NONE, &CutModel::NONE)),
             stop: AtomicBool::new(false),
             ticks: AtomicU64::new(0),
         });
@@ -432,7 +466,9 @@ fn run(
         let new_model = writes != model_writes;
         if new_model {
             model_writes = writes;
-            coupling.set_model(ContactModel::decode(&words));
+            let (contact, cut) = handed_over(&words);
+            coupling.set_model(contact);
+            coupling.set_cut(cut);
         }
         let f_scene = coupling.step(&x_device, &device_velocity, h);
         let force = clamp(f_scene * mapping.force_scale, limit);

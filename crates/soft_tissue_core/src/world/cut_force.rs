@@ -14,7 +14,9 @@
 //! the last step left them), before the cut stage: a cut landing in the step opens the
 //! tissue the blade just went through. The load goes on the bodies the cut stage left. The tool's [`crate::contact::Tool::reaction_force`] includes the resistance; the
 //! 1 kHz haptic loop's contact plane does not (a force against the motion is no surface,
-//! and as one it would chatter with the hand's jitter): rendering it there is not done.
+//! and as one it would chatter with the hand's jitter). The loop renders the cut as a
+//! friction across the edge instead ([`crate::haptics::CutModel`]): its breakaway force is
+//! the tool's [`crate::contact::Tool::cutting_strength`], `J L` as this step measured it.
 //!
 //! A body's toughness is [`WorldBody::set_toughness`] (0, the default: no resistance), in
 //! force per length of the scene's units (J/m^2 in a scene in metres). Liver: 164 +- 6 J/m^2
@@ -160,7 +162,9 @@ pub struct CutLoad {
 /// bodies as the step begins (before the cut stage: a cut that lands now has opened the
 /// tissue the blade just went through, and would hide it), and lists the opposite pull on
 /// the tissue in `loads` (cleared first) for [`load_cutting`] after the cut stage. Zero for
-/// a tool that is not a blade cutting, or that did not move.
+/// a tool that is not a blade cutting, or that did not move. Sets each tool's cutting
+/// strength too ([`Tool::cutting_strength`], the toughness times the length inside, whether
+/// it moved or not): the haptic loop's breakaway force.
 pub fn cutting_resistance<T: BorrowMut<Tool>, B: Borrow<WorldBody>>(
     tools: &mut [T],
     bodies: &[B],
@@ -172,15 +176,23 @@ pub fn cutting_resistance<T: BorrowMut<Tool>, B: Borrow<WorldBody>>(
         let tool = tool.borrow_mut();
         let sweep = tool.blade_sweep().filter(|_| tool.cutting());
         let mut total = Vec3::zeros();
+        let mut strength = 0.0;
         if let Some([(a0, b0), (a1, b1)]) = sweep
             && bodies.iter().any(|b| b.borrow().toughness > 0.0)
         {
             let motion = (a1 + b1 - a0 - b0) * 0.5;
             let (moved, edge) = (motion.norm(), (b1 - a1).norm());
-            if moved > 0.0 && edge > 0.0 {
+            if edge > 0.0 {
                 let along = (b1 - a1) / edge;
-                let across = (motion - along * motion.dot(&along)).norm() / moved;
-                let dir = motion / moved;
+                // A blade at rest is measured too (its strength), but pushes nothing.
+                let (across, dir) = if moved > 0.0 {
+                    (
+                        (motion - along * motion.dot(&along)).norm() / moved,
+                        motion / moved,
+                    )
+                } else {
+                    (0.0, Vec3::zeros())
+                };
                 for (i, body) in bodies.iter().enumerate() {
                     let body = body.borrow();
                     if body.toughness <= 0.0 {
@@ -188,7 +200,11 @@ pub fn cutting_resistance<T: BorrowMut<Tool>, B: Borrow<WorldBody>>(
                     }
                     let inside =
                         segment_inside(&body.collider, &a1, &b1, &mut scratch, &mut crossings);
-                    let force = body.toughness * inside * across;
+                    let full = body.toughness * inside;
+                    if full > 0.0 && full.is_finite() {
+                        strength += full;
+                    }
+                    let force = full * across;
                     if !(force > 0.0 && force.is_finite()) {
                         continue;
                     }
@@ -224,6 +240,7 @@ pub fn cutting_resistance<T: BorrowMut<Tool>, B: Borrow<WorldBody>>(
             }
         }
         tool.set_cutting_resistance(total);
+        tool.set_cutting_strength(strength);
     }
 }
 
