@@ -326,7 +326,11 @@ pub struct SoftBodyDiagnostics {
 /// What the body is drawn with, when not its simulation surface: a finer visual mesh whose
 /// vertices are embedded in the simulation's tetrahedra (each follows the tetrahedron that
 /// contains it, or the nearest one for vertices slightly outside) and written every frame.
-/// Without this component the body is drawn with its simulation surface.
+/// Without this component the body is drawn with its simulation surface. When tissue
+/// leaves the mesh, a subdivided one is made again from the new surface; a mesh of your own
+/// follows a carve (its vertices in the vaporized tissue move onto the crater's wall) but
+/// not a blade's cut (drawn with the simulation surface from then on). A piece a cut takes
+/// off gets a subdivided one (the body's levels, 2 for a mesh of your own).
 #[derive(Component, Reflect, Clone, Debug)]
 #[reflect(Component)]
 pub enum VisualMesh {
@@ -445,6 +449,9 @@ pub struct SoftBodyState {
     /// Counts the changes of its mesh (cuts, a reset that undoes them): the rendered mesh
     /// is made again when it changes.
     pub(crate) shape: u64,
+    /// What changed its mesh since the rendered mesh was made (the carves a visual mesh of
+    /// the app's own follows).
+    pub(crate) reshaped: crate::render::MeshChanges,
 }
 
 impl SoftBodyState {

@@ -10,6 +10,11 @@
 //! node). Its temperature, damage and char come from the heat field's samples at those
 //! vertices (`HeatField::set_samples`, registered here on the first draw), so an electrode's
 //! millimetre spot shows at the visual mesh's resolution, not as a tint over elements.
+//!
+//! When the body's mesh changes, a subdivided visual mesh is made again from the new
+//! surface, an app's own follows a carve (`carve.rs`: the crater shows as a dent) but not a
+//! blade's cut, whose sides it has no triangles for (the body is drawn with its simulation
+//! surface from then on, until a reset makes it whole).
 
 use bevy::asset::RenderAssetUsages;
 use bevy::mesh::{
@@ -22,6 +27,9 @@ use soft_tissue_core::mesh::embed::Embedding;
 use soft_tissue_core::mesh::subdivide::loop_subdivide;
 
 use crate::components::{SoftBodyState, Temperature, VisualMesh, VisualMeshError};
+
+mod carve;
+pub(crate) use carve::MeshChanges;
 
 /// Creates and updates the bodies' render meshes.
 #[derive(Default)]
@@ -114,17 +122,37 @@ fn normals(positions: &[[f32; 3]], triangles: &[[u32; 3]], out: &mut Vec<[f32; 3
     }
 }
 
-/// A body drawn with an embedded visual mesh: the embedding and the mesh's triangles.
+/// A body drawn with an embedded visual mesh: the embedding, the mesh's triangles and its
+/// vertices' rest positions.
 #[derive(Component)]
 pub struct EmbeddedVisual {
     embedding: Embedding,
     triangles: Vec<[u32; 3]>,
+    /// Where each vertex is embedded (rest, the coordinates of the body's mesh).
+    rest: Vec<soft_tissue_core::Vec3>,
+    /// The distance limit it was embedded with.
+    limit: f64,
+    /// The balls carved out of the body that its vertices were moved out of.
+    carved: Vec<soft_tissue_core::mesh::cut::Ball>,
 }
 
 impl EmbeddedVisual {
     /// The embedding of the visual vertices in the simulation's tetrahedra.
     pub fn embedding(&self) -> &Embedding {
         &self.embedding
+    }
+
+    /// Where each visual vertex is embedded, in the rest shape (the coordinates of the
+    /// body's mesh, `WorldBody::mesh`): where it was given, or, for a vertex that was inside
+    /// tissue a carve removed, on the crater's wall (see `render/carve.rs`).
+    pub fn rest_positions(&self) -> &[soft_tissue_core::Vec3] {
+        &self.rest
+    }
+
+    /// The balls carved out of the body since the visual mesh was made whose vertices were
+    /// moved onto their walls (rest shape).
+    pub fn carved(&self) -> &[soft_tissue_core::mesh::cut::Ball] {
+        &self.carved
     }
 }
 
@@ -218,6 +246,7 @@ fn visual_mesh(
     };
     let triangles = mesh_triangles(&mesh).map_err(bad)?;
     let embedding = Embedding::new(tets, &points, limit).map_err(|e| embed(e.to_string()))?;
+    let carved = Vec::new();
     let n = embedding.len();
     let mut scratch = vec![[0.0; 3]; n];
     embedding
@@ -236,6 +265,9 @@ fn visual_mesh(
         EmbeddedVisual {
             embedding,
             triangles,
+            rest: points,
+            limit,
+            carved,
         },
     )))
 }
@@ -399,6 +431,55 @@ fn create_meshes(
     }
 }
 
+/// The visual mesh of a body whose tetrahedral mesh changed (by `changes` since it was
+/// drawn), embedded in the new tetrahedra, its mesh asset written where it was made again;
+/// `Ok(None)`: the body is drawn with its simulation surface from now on.
+///
+/// - A subdivided visual mesh is made again from the new surface (its burn starts from the
+///   heat field's marks), and so is any visual mesh of a body a reset made whole again.
+/// - An app's own mesh after carves only keeps its vertices, triangles and attributes:
+///   those in the tissue the carves removed move onto the craters' walls, and all are
+///   embedded again (`render/carve.rs`).
+/// - An app's own mesh after a blade's cut no longer fits: the cut opens the surface, and
+///   the mesh has no triangles for its sides.
+#[allow(clippy::too_many_arguments)]
+fn refit_visual(
+    sim: &SoftBodyState,
+    changes: &MeshChanges,
+    visual: Option<&EmbeddedVisual>,
+    kind: Option<&VisualMesh>,
+    name: Option<&Name>,
+    entity: Entity,
+    meshes: &mut Assets<Mesh>,
+    handle: &Mesh3d,
+) -> Result<Option<EmbeddedVisual>, VisualMeshError> {
+    let Some(kind) = kind else {
+        return Ok(None);
+    };
+    let name = name.map_or_else(|| format!("{entity}"), |n| n.to_string());
+    let whole = sim.body().cut_record().is_none();
+    let embedded = if whole || (visual.is_some() && matches!(kind, VisualMesh::Subdivided { .. })) {
+        let Some((m, embedded)) = visual_mesh(kind, sim, meshes, entity, &name)? else {
+            return Ok(None);
+        };
+        if let Some(mut mesh) = meshes.get_mut(&handle.0) {
+            *mesh = m;
+        }
+        embedded
+    } else if let (Some(v), Some(balls)) = (visual, changes.only_carves()) {
+        carve::refit(v, balls, sim.body().mesh()).map_err(|e| VisualMeshError::Embedding {
+            body: entity,
+            name,
+            message: format!("after a carve: {e}"),
+        })?
+    } else {
+        return Ok(None);
+    };
+    // The heat field, made again with the mesh, has no samples: the next draw registers
+    // them at the new vertices.
+    Ok(Some(embedded))
+}
+
 /// Per-frame scratch buffers of [`upload_meshes`].
 #[derive(Default)]
 struct Scratch {
@@ -433,28 +514,38 @@ fn upload_meshes(
             continue;
         }
         sim.dirty = false;
-        // A cut, a carve (or a reset that undid one) changed the body's mesh: a subdivided
-        // visual mesh is made again from the new surface (its burn starts from the heat
-        // field's marks); a visual mesh of the app's own no longer fits the new shape, and
-        // the body is drawn with its simulation surface from then on.
+        // A cut, a carve (or a reset that undid one) changed the body's mesh.
         if rendered.shape != sim.shape {
-            if visual.is_some()
-                && let Some(kind @ VisualMesh::Subdivided { .. }) = kind
-            {
-                let name = name.map_or_else(|| format!("{entity}"), |n| n.to_string());
-                match visual_mesh(kind, &sim, &meshes, entity, &name) {
-                    Ok(Some((m, embedded))) => {
-                        if let Some(mut mesh) = meshes.get_mut(&handle.0) {
-                            *mesh = m;
-                        }
-                        rendered.shape = sim.shape;
-                        commands.entity(entity).insert(embedded);
-                        sim.dirty = true;
-                        continue;
-                    }
-                    Ok(None) => {}
-                    Err(why) => warn!("{why}; drawing its simulation surface"),
+            let changes = std::mem::take(&mut sim.reshaped);
+            let refit = refit_visual(
+                &sim,
+                &changes,
+                visual,
+                kind,
+                name,
+                entity,
+                &mut meshes,
+                handle,
+            );
+            let embedded = match refit {
+                Ok(embedded) => embedded,
+                Err(why) => {
+                    error!("{why}; drawing its simulation surface");
+                    commands.entity(entity).insert(why);
+                    None
                 }
+            };
+            if let Some(embedded) = embedded {
+                commands
+                    .entity(entity)
+                    .insert(embedded)
+                    .remove::<VisualMeshError>();
+                *rendered = RenderedSurface {
+                    shape: sim.shape,
+                    ..Default::default()
+                };
+                sim.dirty = true;
+                continue;
             }
             if visual.is_some() {
                 info!("body {entity} was cut: drawn with its simulation surface from now on");

@@ -248,6 +248,7 @@ pub(super) fn build_bodies(
                     to_local: None,
                     built_from: BuiltFrom::of(spec, tuning, dt, &config),
                     shape: 0,
+                    reshaped: Default::default(),
                 };
                 state.set_pose(placement);
                 e.insert(state);

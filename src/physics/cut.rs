@@ -1,12 +1,14 @@
 //! The cut stage: every blade with cutting on cuts the bodies its incision crosses (the
 //! core's [`WorldBody::begin_cut`] and [`WorldBody::finish_cut`], in the step or on a thread of
 //! its own, landing `CutOptions::background_steps` steps later); the pieces that come
-//! loose become entities of their own.
+//! loose become entities of their own (those of a body with a [`VisualMesh`] drawn with a
+//! subdivided one, so the burn marks they took along show). The balls a carve removed are
+//! noted for the body's visual mesh (`render/carve.rs`).
 //! It runs in [`SoftTissueSystems::Prepare`] before the prepare stage, so the pieces'
 //! entities exist when this step's bodies are gathered.
 
 use super::*;
-use soft_tissue_core::mesh::cut::CutTriangle;
+use soft_tissue_core::mesh::cut::{Ball, CutTriangle};
 use soft_tissue_core::scenario::Anchor;
 use soft_tissue_core::world::{BladeOutcome, CutPlace, Incision, remap_grips};
 
@@ -62,6 +64,7 @@ pub(super) fn cut_stage(
         Option<&CutShare>,
     )>,
     mut tools: Query<(Entity, &SoftTool, &mut ToolState)>,
+    visuals: Query<&VisualMesh>,
     poses: TransformHelper,
     mut assets: ResMut<Assets<TetMeshAsset>>,
     mut next: ResMut<NextBodyOrder>,
@@ -127,11 +130,12 @@ pub(super) fn cut_stage(
     let steps = status.steps;
     // One call of `landed` with this stage's state, wherever a cut lands.
     macro_rules! land {
-        ($i:expr, $outcome:expr, $from:expr) => {
+        ($i:expr, $outcome:expr, $from:expr, $carved:expr) => {
             landed(
                 $i,
                 $outcome,
                 $from,
+                $carved,
                 &mut list,
                 &mut made,
                 &mut commands,
@@ -160,7 +164,12 @@ pub(super) fn cut_stage(
         if !job.vaporized.is_empty() && matches!(outcome, Ok(BladeOutcome::Missed)) {
             list[i].2.body.vaporize_refused(&job.vaporized);
         }
-        if !land!(i, outcome, (job.blade, job.incision, job.mark)) {
+        if !land!(
+            i,
+            outcome,
+            (job.blade, job.incision, job.mark),
+            &job.vaporized
+        ) {
             failed = true;
             break;
         }
@@ -208,7 +217,7 @@ pub(super) fn cut_stage(
                 }
                 Err(e) => Err(e),
             };
-            if !land!(i, outcome, (*blade, *id, mark)) {
+            if !land!(i, outcome, (*blade, *id, mark), &[]) {
                 failed = true;
                 break 'blades;
             }
@@ -245,7 +254,7 @@ pub(super) fn cut_stage(
             if matches!(outcome, Ok(BladeOutcome::Missed)) {
                 list[i].2.body.vaporize_refused(&balls);
             }
-            if !land!(i, outcome, (Entity::PLACEHOLDER, 0, 0)) {
+            if !land!(i, outcome, (Entity::PLACEHOLDER, 0, 0), &balls) {
                 break;
             }
         }
@@ -253,6 +262,7 @@ pub(super) fn cut_stage(
     for (from, share, body, spec, built_from, placement, pose, incision) in made {
         let name = Name::new(body.name().to_owned());
         let heat = body.heat().is_some();
+        let visual = visuals.get(from).ok().map(piece_visual);
         let order = next.0;
         next.0 += 1;
         let mut source = commands.entity(from);
@@ -278,6 +288,7 @@ pub(super) fn cut_stage(
             to_local: None,
             built_from,
             shape: 0,
+            reshaped: Default::default(),
         };
         state.set_pose(pose);
         e.insert((
@@ -291,6 +302,9 @@ pub(super) fn cut_stage(
         if heat {
             e.insert(Temperature::default());
         }
+        if let Some(visual) = visual {
+            e.insert(visual);
+        }
         // Every blade's strips pending for the body when it was cut are pending for the
         // piece (but not the strips that made it).
         let piece = e.id();
@@ -303,6 +317,22 @@ pub(super) fn cut_stage(
         }
     }
     status.times.cut_us = t.elapsed().as_secs_f64() * 1e6;
+}
+
+/// Loop subdivision rounds of the visual mesh of a piece cut off a body drawn with a mesh of
+/// the app's own (which does not fit the piece).
+const PIECE_SUBDIVISION: u8 = 2;
+
+/// The visual mesh of a piece cut off a body drawn with `visual`: its simulation surface
+/// subdivided, as the body's was or [`PIECE_SUBDIVISION`] times, so the burn marks it took
+/// along are drawn at its visual vertices (finer than its elements).
+fn piece_visual(visual: &VisualMesh) -> VisualMesh {
+    match visual {
+        VisualMesh::Subdivided { levels } => VisualMesh::Subdivided { levels: *levels },
+        VisualMesh::Mesh { .. } => VisualMesh::Subdivided {
+            levels: PIECE_SUBDIVISION,
+        },
+    }
 }
 
 /// Where a cut is prepared: in the step, or (`background`) on a thread the solver stage's
@@ -324,6 +354,7 @@ fn landed(
     i: usize,
     outcome: Result<BladeOutcome, soft_tissue_core::world::WorldError>,
     (blade, id, mark): (Entity, u64, u64),
+    carved: &[Ball],
     list: &mut [BodyItem],
     made: &mut Vec<Made>,
     commands: &mut Commands,
@@ -385,6 +416,12 @@ fn landed(
     spec.bypass_change_detection().mesh = handle;
     sim.shape += 1;
     sim.dirty = true;
+    // A visual mesh of the app's own follows a carve (not a blade's cut).
+    if carved.is_empty() {
+        sim.reshaped.cut();
+    } else {
+        sim.reshaped.carve(carved);
+    }
     // Its cage is new: the component takes its triangles again.
     commands
         .entity(*entity)

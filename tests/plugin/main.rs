@@ -5,6 +5,7 @@
 //! helpers they share are here.
 
 mod assets;
+mod burn;
 mod contact;
 mod cut;
 mod inputs;
