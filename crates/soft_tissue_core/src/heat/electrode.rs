@@ -342,6 +342,35 @@ impl HeatField {
         self.version += 1;
     }
 
+    /// Takes `other`'s burn history and its spots, which go on in this field: a body's field
+    /// after a carve that left it one piece (the rest shape about the spots is the one they
+    /// burnt, less the carved balls they vaporized). `nearest(centre)`: this field's coarse
+    /// nodes and weights to stand for a spot's centre (its own nodes were carved away). This
+    /// field's temperatures must be `other`'s coarse field without the spots
+    /// ([`HeatField::temperatures`]), so the spots' heat is neither lost nor counted twice.
+    pub fn carry_spots_from(
+        &mut self,
+        other: &HeatField,
+        nearest: impl Fn(&Vec3) -> Vec<(u32, f64)>,
+    ) {
+        self.retired = other.retired;
+        self.retired_boiled = other.retired_boiled;
+        self.marks = other.marks.clone();
+        self.departed = other.departed;
+        for spot in &other.spots {
+            let mut p = spot.clone();
+            let nodes = nearest(&p.center);
+            let near = self.near_nodes(&p.center, p.grid.outer);
+            p.rebind(nodes, &near);
+            if !self.grids.iter().any(|g| Arc::ptr_eq(g, &p.grid)) {
+                self.grids.push(p.grid.clone());
+            }
+            self.spots.push(p);
+        }
+        self.changed = true;
+        self.version += 1;
+    }
+
     /// Takes `other`'s burn marks (what its spots burnt where), without its burnt volumes or
     /// the heat its water took: a piece a cut took off a body, which keeps those (counted
     /// once), draws the burn on its part all the same.
@@ -356,8 +385,10 @@ impl HeatField {
 
     /// Follows temperature, damage and peak temperature at `samples` (see [`HeatSample`]);
     /// replaces the points followed before. Their damage and peak start from what spots
-    /// that ended burnt there, and what the body's spots had burnt before its mesh changed
-    /// (a cut, a carve; [`HeatField::carry_burns_from`]), else at zero and the temperature now.
+    /// that ended burnt there, what the body's spots had burnt before its mesh changed
+    /// (a cut, a carve; [`HeatField::carry_burns_from`]) and what its spots burnt (spots
+    /// carried over a carve, [`HeatField::carry_spots_from`]), else at zero and the
+    /// temperature now.
     pub fn set_samples(&mut self, samples: Vec<HeatSample>) -> Result<(), HeatError> {
         let n = self.temperature.len();
         for p in &samples {
@@ -394,9 +425,10 @@ impl HeatField {
         // samples: each starts with the most damage and highest peak a mark has there (and
         // at least the nodes' damage there).
         let s = self.params.meters_per_unit;
+        let live: Vec<super::spot::BurnMark> = self.spots.iter().map(Spot::mark).collect();
         for (k, p) in samples.iter().enumerate() {
             self.sample_damage[k] = interpolate(&self.damage, &p.nodes).max(0.0);
-            for m in &self.marks {
+            for m in self.marks.iter().chain(&live) {
                 if let Some((damage, peak)) = m.at((p.position - m.center).norm() * s) {
                     self.sample_damage[k] = self.sample_damage[k].max(damage);
                     self.sample_peak[k] = self.sample_peak[k].max(peak);

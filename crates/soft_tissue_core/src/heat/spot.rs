@@ -244,7 +244,7 @@ impl std::ops::AddAssign for BurnVolumes {
 }
 
 /// One place an electrode heated (see the module docs).
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub(crate) struct Spot {
     pub(crate) center: Vec3,
     /// The coarse nodes at the centre and their weights.
@@ -291,17 +291,7 @@ impl Spot {
         near: &[(u32, f64, f64)],
         base: f64,
     ) -> Self {
-        let near = near
-            .iter()
-            .map(|&(node, d, a)| NearNode {
-                node,
-                far: ((grid.outer - d + a) / (2.0 * a)).clamp(0.0, 1.0),
-                first: grid.r.partition_point(|&r| r <= d - a),
-                last: grid.r.partition_point(|&r| r < d + a),
-                inside: d - a,
-                per_metre: 0.5 / a,
-            })
-            .collect();
+        let near = near_nodes(&grid, near);
         Spot {
             center,
             nodes,
@@ -323,6 +313,14 @@ impl Spot {
             outflow: 0.0,
             perfused: 0.0,
         }
+    }
+
+    /// Takes other coarse nodes: `nodes` at its centre, `near` around it (as for
+    /// [`Spot::new`]); its excess, burns and bases stay (a body's field after a carve: the
+    /// same rest shape about it, other nodes).
+    pub(crate) fn rebind(&mut self, nodes: Vec<(u32, f64)>, near: &[(u32, f64, f64)]) {
+        self.near = near_nodes(&self.grid, near);
+        self.nodes = nodes;
     }
 
     /// Sets the shells' bases, and their peaks to them (a new spot).
@@ -626,7 +624,22 @@ impl Spot {
 /// within the spot's outer radius: its share of that ball inside the spot's sphere (its outer
 /// radius), the shells the ball's surface crosses (`first..last`; from `last` on it is all
 /// inside), and its share in the ball out to radius `r` there, `(r - inside) * per_metre`.
-#[derive(Debug)]
+/// The coarse nodes around a spot (node, distance from its centre and radius of the ball
+/// of its lumped volume, m) as its shells see them.
+fn near_nodes(grid: &RadialGrid, near: &[(u32, f64, f64)]) -> Vec<NearNode> {
+    near.iter()
+        .map(|&(node, d, a)| NearNode {
+            node,
+            far: ((grid.outer - d + a) / (2.0 * a)).clamp(0.0, 1.0),
+            first: grid.r.partition_point(|&r| r <= d - a),
+            last: grid.r.partition_point(|&r| r < d + a),
+            inside: d - a,
+            per_metre: 0.5 / a,
+        })
+        .collect()
+}
+
+#[derive(Debug, Clone)]
 struct NearNode {
     node: u32,
     far: f64,

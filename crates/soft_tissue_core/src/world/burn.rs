@@ -5,6 +5,22 @@
 use super::*;
 use crate::mesh::cut::Ball;
 
+/// A body's heat after a carve that left it one piece (`cut_job.rs`): `field`, built for
+/// the new `mesh` with `old`'s coarse temperatures (without the spots), takes `old`'s
+/// spots, each standing at the new mesh's node nearest its centre (the nodes about it were
+/// carved away), so the electrode's millimetre field goes on through the carve instead of
+/// being handed to the nodes and started again. The carved balls count as tried (the
+/// caller), so a crater is carved again only once it has grown by [`CARVE_GROWTH`].
+pub(super) fn carry_spots(field: &mut HeatField, mesh: &TetMesh, old: &HeatField) {
+    let x = mesh.positions();
+    field.carry_spots_from(old, |centre| {
+        let nearest = (0..x.len())
+            .min_by(|&a, &b| (x[a] - centre).norm().total_cmp(&(x[b] - centre).norm()))
+            .unwrap_or(0);
+        vec![(nearest as u32, 1.0)]
+    });
+}
+
 /// Where an electrode's sub-grid field is measured for its tissue fraction, in electrode
 /// radii from its centre (the distances its closed-form check uses).
 pub const FRACTION_RADII: [f64; 3] = [1.5, 2.0, 3.0];

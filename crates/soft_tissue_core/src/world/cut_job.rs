@@ -177,6 +177,8 @@ struct PreparedCut {
     /// Each piece's nodes (cut mesh indices) and its body, at rest; the kept piece first.
     parts: Vec<(Vec<u32>, WorldBody)>,
     node_map: Vec<(u32, u32)>,
+    /// The balls a carve took out (empty for a blade's cut).
+    carved: Vec<Ball>,
 }
 
 impl WorldBody {
@@ -440,7 +442,10 @@ impl WorldBody {
             origins,
             parts,
             node_map,
+            carved,
         } = *cut;
+        // A carve that leaves one piece keeps the electrodes' spots going (`burn.rs`).
+        let spots_go_on = !carved.is_empty() && parts.len() == 1;
         // Every field of the body now, carried to the new nodes.
         let (x, v) = self.model.node_state().map_err(|e| self.precision_err(e))?;
         let carry = |field: &[Vec3]| -> Vec<Vec3> {
@@ -467,8 +472,13 @@ impl WorldBody {
         }
         let heat_all = self.heat.as_ref().map(|h| {
             // The electrodes' spots give their heat to the nodes (the pieces start without
-            // spots; burnt volumes and the heat the water took start again in them).
-            let now = h.temperatures_with_spots();
+            // spots; burnt volumes and the heat the water took start again in them), but
+            // where a carve leaves one piece they go on in its field (`burn::carry_spots`).
+            let now = if spots_go_on {
+                h.temperatures().to_vec()
+            } else {
+                h.temperatures_with_spots()
+            };
             let t: Vec<f64> = origins.iter().map(|o| o.interpolate(&now)).collect();
             let d: Vec<f64> = origins.iter().map(|o| o.interpolate(h.damage())).collect();
             (t, d)
@@ -502,7 +512,10 @@ impl WorldBody {
                 {
                     // The kept piece goes on with the body's burns (volumes, the heat the
                     // water took); every piece with its marks (the burn stays drawn).
-                    if built.is_empty() {
+                    if spots_go_on {
+                        burn::carry_spots(h, &body.mesh, old);
+                        body.vaporize_tried = [&self.vaporize_tried[..], &carved].concat();
+                    } else if built.is_empty() {
                         h.carry_burns_from(old);
                     } else {
                         h.carry_marks_from(old);
@@ -807,6 +820,10 @@ fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
         origins,
         parts: built,
         node_map,
+        carved: match input.change {
+            Change::Carve(balls) => balls,
+            Change::Blade { .. } => Vec::new(),
+        },
     })))
 }
 
