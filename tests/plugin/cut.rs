@@ -141,3 +141,116 @@ fn a_blade_cuts_a_body_in_two_like_the_core_world_and_a_reset_makes_it_whole() {
     assert_eq!(sim.body().mesh().node_count(), nodes);
     assert!(sim.body().cut_record().is_none());
 }
+
+/// A blade driven by a haptic device through the haptic thread, cutting tissue with a
+/// toughness: after each step the thread is handed the cut (breakaway at the toughness times
+/// the edge's length in the body, its whole height here, and the edge's direction), the
+/// hand stroking across the edge is held back against its stroke by about that force and
+/// not along the edge; with the button released no cut is handed over and the force goes.
+#[cfg(feature = "haptics")]
+#[test]
+fn a_haptic_blade_hands_its_cut_to_the_haptic_thread_and_the_hand_is_held_back() {
+    use bevy_soft_tissue::core::haptics::{CUT_BUTTON, CutModel, HapticConfig, VirtualDevice};
+    use bevy_soft_tissue::haptics::{HapticTool, SoftTissueHapticsPlugin};
+    let (mut app, bodies, world) = scene_app(CYLINDERS);
+    app.add_plugins(SoftTissueHapticsPlugin);
+    let a = bodies[0];
+    app.world_mut()
+        .get_mut::<TissueMaterial>(a)
+        .unwrap()
+        .toughness = TOUGHNESS;
+    let script = through_cut(&world, "Model A");
+    let (lo, hi) = world.bodies()[0].collider().bounds();
+    let expected = TOUGHNESS * (hi.y - lo.y);
+    let (start, _) = script.pose_at(0.2);
+    let middle = bevy_soft_tissue::core::Vec3::new(start.x, start.y, 0.5 * (lo.z + hi.z));
+    let (device, handle) = VirtualDevice::new(start, 1e3);
+    let config = HapticConfig {
+        // The device limit above the breakaway force.
+        coupling: bevy_soft_tissue::core::haptics::CouplingParams {
+            max_force: 100.0,
+            ..Default::default()
+        },
+        record_seconds: 30.0,
+        stats_seconds: 30.0,
+        spin_us: 200.0,
+        ..HapticConfig::default()
+    };
+    let haptic = HapticTool::start(Box::new(device), config, 0.0).unwrap();
+    let blade = SoftTool {
+        shape: script.tool,
+        grab: false,
+        cautery_watts: 0.0,
+        electrode_radius: Some(1e-3),
+        jaws: 0.0,
+        cut: false,
+        friction: Default::default(),
+    };
+    // An identity rotation: the edge stands along +y from the tool's position.
+    let tool = app
+        .world_mut()
+        .spawn((blade, Transform::default(), haptic))
+        .id();
+    app.update();
+    // Stroke across the edge (+z) into the middle of A with the cut button held, a little
+    // each step.
+    let mut held = Vec::new();
+    let (mut rendering, mut dropped) = (0, 0);
+    let steps = 400;
+    for k in 1..=steps {
+        let s = k as f64 / steps as f64;
+        handle.set(start + (middle - start) * s, CUT_BUTTON);
+        app.update();
+        std::thread::sleep(Duration::from_millis(2));
+        let h = app.world().get::<HapticTool>(tool).unwrap();
+        let core = app.world().get::<ToolState>(tool).unwrap().tool();
+        let cut = *h.cut();
+        // What was handed over is the core tool's strength, and the thread has it.
+        if core.cutting() && core.cutting_strength() > 0.0 {
+            assert_eq!(cut.strength, core.cutting_strength(), "step {k}");
+            assert!((cut.edge - bevy_soft_tissue::core::Vec3::y()).norm() < 1e-6);
+        } else {
+            assert_eq!(cut, CutModel::NONE, "step {k}");
+        }
+        assert_eq!(h.shared().cut_model(), cut);
+        // The hand has been held by a cut for the last 8 steps (the physics finds the edge
+        // in tissue in runs of steps: see below).
+        rendering = if cut.strength > 1.0 { rendering + 1 } else { 0 };
+        dropped += usize::from(core.cutting() && s > 0.3 && cut.strength <= 1.0);
+        if rendering > 8 {
+            held.push((cut.strength, handle.force()));
+        }
+    }
+    assert!(!held.is_empty(), "the blade never cut A");
+    let (strength, force) = *held.last().unwrap();
+    println!(
+        "haptic blade in A: breakaway {strength:.4} (toughness times A's height {expected:.4}), \
+         hand force {force:.4} at the end of the stroke; held in {} steps, the physics found \
+         no edge in A in {dropped} steps of the stroke's last 70 %",
+        held.len()
+    );
+    // The length in A is its height, as the tissue deforms a little under the pull.
+    assert!((strength - expected).abs() < 0.05 * expected, "{strength}");
+    for (strength, force) in &held {
+        assert!(force.z < -0.5 * strength, "{force} vs {strength}");
+        assert!(force.norm() < 1.5 * strength, "{force} vs {strength}");
+        assert!(force.y.abs() < 0.1 * strength, "along the edge {force}");
+    }
+    // Released: no cut handed over, and the hand is let go.
+    let end = handle.force();
+    handle.set(middle, 0);
+    for _ in 0..100 {
+        app.update();
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let h = app.world().get::<HapticTool>(tool).unwrap();
+    assert_eq!(*h.cut(), CutModel::NONE);
+    assert!(
+        handle.force().norm() < 0.05 * end.norm(),
+        "{} after release (from {end}): {:?}, {:?}, {:?}",
+        handle.force(),
+        h.shared().tool(),
+        h.shared().model(),
+        h.shared().cut_model()
+    );
+}
