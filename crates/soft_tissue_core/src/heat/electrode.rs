@@ -127,6 +127,20 @@ impl HeatField {
             .map(|k| self.spots[k].fraction)
     }
 
+    /// The newest spot of electrode `radius` (m) that had power in the last step: its
+    /// centre, coarse nodes and tissue fraction (where an electrode goes on heating in a step
+    /// whose contact rows no longer fit the mesh: a carve just landed).
+    pub fn powered_spot(&self, radius: f64) -> Option<(Vec3, Vec<(usize, f64)>, f64)> {
+        self.spots
+            .iter()
+            .rev()
+            .find(|p| p.powered && p.grid.radius == radius)
+            .map(|p| {
+                let nodes = p.nodes.iter().map(|&(i, w)| (i as usize, w)).collect();
+                (p.center, nodes, p.fraction)
+            })
+    }
+
     /// Each spot's centre (rest, scene units), electrode radius (m) and tissue fraction,
     /// oldest first.
     pub fn spot_places(&self) -> impl Iterator<Item = (Vec3, f64, f64)> + '_ {

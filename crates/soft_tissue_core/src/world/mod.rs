@@ -343,6 +343,9 @@ pub fn step_solvers<B: BorrowMut<WorldBody> + Send, T: Borrow<Tool>>(
                 && r.is_contact()
                 && r.force.x > 0.0
         };
+        // Rows on a body a cut or a carve replaced this step name the old body's nodes: an
+        // electrode goes on at the spot it powered (carried through a carve), nodal
+        // heating skips that body for the step.
         let total = state.solved_rows().iter().filter(pressing).count();
         if total == 0 {
             continue;
@@ -354,6 +357,9 @@ pub fn step_solvers<B: BorrowMut<WorldBody> + Send, T: Borrow<Tool>>(
         let share = watts / total as f64;
         for r in state.solved_rows().iter().filter(pressing) {
             let b = bodies[r.a.body as usize].borrow_mut();
+            if !state.rows_fit(r.a.body as usize, b.collider.id()) {
+                continue;
+            }
             let label = || BodyName {
                 name: b.name.clone(),
                 id: Some(b.collider.id()),
@@ -412,7 +418,38 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
         }
         done.push(body);
         let b = bodies[body as usize].borrow_mut();
+        let fits = state.rows_fit(body as usize, b.collider.id());
         let Some(h) = b.heat.as_mut() else { continue };
+        if !fits {
+            let part: f64 = rows
+                .iter()
+                .filter(|q| q.a.body == body)
+                .map(|q| q.force.x)
+                .sum();
+            match h.powered_spot(radius) {
+                Some((center, nodes, tissue_fraction)) => {
+                    let source = crate::heat::ElectrodeSource {
+                        center,
+                        watts: watts * part / force,
+                        radius,
+                        tissue_fraction,
+                    };
+                    h.add_electrode(&source, &nodes)
+                        .map_err(|source| WorldError::Heat {
+                            body: BodyName {
+                                name: b.name.clone(),
+                                id: Some(b.collider.id()),
+                            },
+                            source,
+                        })?;
+                }
+                None => log::debug!(
+                    "body `{}`: its mesh changed this step and no spot had power: the electrode skips it for the step",
+                    b.name
+                ),
+            }
+            continue;
+        }
         let rest = b.mesh.positions();
         let mut center = Vec3::zeros();
         let mut nodes: Vec<(usize, f64)> = Vec::new();

@@ -205,6 +205,12 @@ impl ContactState {
         &self.solved
     }
 
+    /// Whether the last solve's rows on body `body` name the nodes of the body `id` (its
+    /// collider's [`SurfaceCollider::id`]): not once a cut or a carve replaced it since.
+    pub fn rows_fit(&self, body: usize, id: u64) -> bool {
+        self.previous_ids.get(body) == Some(&id)
+    }
+
     /// What the last contact solve did.
     pub fn stats(&self) -> ContactStats {
         self.stats
