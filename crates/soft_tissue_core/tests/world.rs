@@ -361,7 +361,11 @@ fn cautery_burns_a_millimetre_spot_with_its_power() {
     // mesh they once put a spot 9.5 mm away.)
     for p in &places {
         let d = (p.0 - centre).norm() * s;
-        assert!(d < 2e-3, "a spot {:.1} mm from the first: {places:?}", d * 1e3);
+        assert!(
+            d < 2e-3,
+            "a spot {:.1} mm from the first: {places:?}",
+            d * 1e3
+        );
     }
     assert!(
         (fraction - 0.5).abs() < 0.1 && fraction != 0.5,
