@@ -273,6 +273,31 @@ fn below_the_breakaway_the_proxy_does_not_creep() {
     }
 }
 
+/// A stiffer bristle handed over while the proxy sticks keeps the force, not the stretch:
+/// the same stretch in a spring four times as stiff would hold four times the energy put in,
+/// and could give it to the hand.
+#[test]
+fn a_new_bristle_stiffness_keeps_the_force_not_the_stretch() {
+    let p = params();
+    let offset = 0.5 * STRENGTH * (1.0 / p.stiffness + 1.0 / cut().stiffness);
+    let mut l = Loop::new(params(), Vec3::zeros(), cut());
+    for k in 0..1500 {
+        let ramp = (k as f64 * H / 0.2).min(1.0);
+        l.tick(Vec3::new(offset * ramp, 0.0, 0.0));
+    }
+    let before = l.coupling.cutting_force().x;
+    let stiffer = CutModel::new(Vec3::z(), STRENGTH, 4.0 * cut().stiffness).unwrap();
+    l.coupling.set_cut(stiffer);
+    l.tick(Vec3::new(offset, 0.0, 0.0));
+    let after = l.coupling.cutting_force().x;
+    println!("held at {before:.6} N; the bristle four times stiffer: {after:.6} N");
+    assert!((before / STRENGTH + 0.5).abs() < 0.05, "{before}");
+    assert!(
+        (after - before).abs() < 0.05 * before.abs(),
+        "the force jumped from {before} to {after}"
+    );
+}
+
 /// Drawn along its edge, or with no cut (not cutting, or cutting nothing), the hand feels
 /// exactly what the coupling alone gives.
 #[test]

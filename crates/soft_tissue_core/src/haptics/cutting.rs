@@ -206,6 +206,8 @@ pub fn cut_model(tool: &Tool, stiffness: f64) -> Result<CutModel, HapticError> {
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub(crate) struct Bristle {
     z: Vec3,
+    /// The stiffness the stretch was held at (0: none yet).
+    k: f64,
 }
 
 impl Bristle {
@@ -223,8 +225,15 @@ impl Bristle {
     fn settle(&mut self, cut: &CutModel) {
         if !cut.renders() {
             self.z = Vec3::zeros();
+            self.k = 0.0;
             return;
         }
+        // A new stiffness keeps the force, not the stretch: a stiffer spring at the same
+        // stretch would hold more energy than was put in (and could give it to the hand).
+        if self.k > 0.0 && self.k != cut.stiffness {
+            self.z *= self.k / cut.stiffness;
+        }
+        self.k = cut.stiffness;
         self.z = cut.across(&self.z);
         let (n, stick) = (self.z.norm(), cut.stick());
         if n > stick {

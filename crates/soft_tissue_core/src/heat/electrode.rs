@@ -130,14 +130,15 @@ impl HeatField {
     /// The newest spot of electrode `radius` (m) that had power in the last step: its
     /// centre, coarse nodes and tissue fraction (where an electrode goes on heating in a step
     /// whose contact rows no longer fit the mesh: a carve just landed).
-    pub fn powered_spot(&self, radius: f64) -> Option<(Vec3, Vec<(usize, f64)>, f64)> {
+    pub fn powered_spot(&self, radius: f64) -> Option<SpotPlace> {
         self.spots
             .iter()
             .rev()
             .find(|p| p.powered && p.grid.radius == radius)
-            .map(|p| {
-                let nodes = p.nodes.iter().map(|&(i, w)| (i as usize, w)).collect();
-                (p.center, nodes, p.fraction)
+            .map(|p| SpotPlace {
+                center: p.center,
+                nodes: p.nodes.iter().map(|&(i, w)| (i as usize, w)).collect(),
+                tissue_fraction: p.fraction,
             })
     }
 

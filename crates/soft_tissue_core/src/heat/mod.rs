@@ -31,7 +31,7 @@ mod spot;
 
 pub use spot::{
     BurnVolumes, CELLS as SPOT_SHELLS, ELECTRODE_RADIUS_RANGE, ElectrodeSource, MAX_SUBSTEPS,
-    MIN_OUTER_RADIUS, RETIRE_KELVIN,
+    MIN_OUTER_RADIUS, RETIRE_KELVIN, SpotPlace,
 };
 use spot::{RadialGrid, Spot};
 

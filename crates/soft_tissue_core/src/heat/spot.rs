@@ -220,7 +220,20 @@ pub struct ElectrodeSource {
     /// Electrode radius, m.
     pub radius: f64,
     /// Share of the sphere around the electrode that is tissue, in (0, 1] (1/2 on a flat
-    /// surface).
+    /// surface). A source that joins a spot already at its place heats with that spot's
+    /// fraction (the one it was made with).
+    pub tissue_fraction: f64,
+}
+
+/// Where a spot heats: its centre (rest, scene units), the coarse nodes and weights that
+/// stand for it, and its tissue fraction (see [`crate::heat::HeatField::powered_spot`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpotPlace {
+    /// Centre, rest, scene units.
+    pub center: Vec3,
+    /// Coarse nodes and weights (summing to 1).
+    pub nodes: Vec<(usize, f64)>,
+    /// Share of the sphere about it that is tissue.
     pub tissue_fraction: f64,
 }
 

@@ -420,59 +420,50 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
         let b = bodies[body as usize].borrow_mut();
         let fits = state.rows_fit(body as usize, b.collider.id());
         let Some(h) = b.heat.as_mut() else { continue };
-        if !fits {
+        // On a body replaced this step the rows name the old mesh's nodes: the power goes
+        // to the spot the electrode powered last (carried through a carve), if any.
+        let (center, nodes, tissue_fraction, part) = if fits {
+            let rest = b.mesh.positions();
+            let mut center = Vec3::zeros();
+            let mut nodes: Vec<(usize, f64)> = Vec::new();
+            let mut part = 0.0;
+            for q in rows.iter().filter(|q| q.a.body == body) {
+                let f = q.force.x;
+                part += f;
+                for (v, w) in q.a.terms() {
+                    let node = b.collider.nodes()[v as usize] as usize;
+                    center += rest[node] * (f * w);
+                    nodes.push((node, f * w));
+                }
+            }
+            if part <= 0.0 {
+                continue;
+            }
+            center /= part;
+            for n in &mut nodes {
+                n.1 /= part;
+            }
+            let fraction = match h.spot_fraction_at(&center, radius) {
+                Some(f) => f,
+                None => {
+                    burn::tissue_fraction(&b.mesh, &center, radius / h.params().meters_per_unit)
+                }
+            };
+            (center, nodes, fraction, part)
+        } else {
             let part: f64 = rows
                 .iter()
                 .filter(|q| q.a.body == body)
                 .map(|q| q.force.x)
                 .sum();
-            match h.powered_spot(radius) {
-                Some((center, nodes, tissue_fraction)) => {
-                    let source = crate::heat::ElectrodeSource {
-                        center,
-                        watts: watts * part / force,
-                        radius,
-                        tissue_fraction,
-                    };
-                    h.add_electrode(&source, &nodes)
-                        .map_err(|source| WorldError::Heat {
-                            body: BodyName {
-                                name: b.name.clone(),
-                                id: Some(b.collider.id()),
-                            },
-                            source,
-                        })?;
-                }
-                None => log::debug!(
+            let Some(spot) = h.powered_spot(radius) else {
+                log::debug!(
                     "body `{}`: its mesh changed this step and no spot had power: the electrode skips it for the step",
                     b.name
-                ),
-            }
-            continue;
-        }
-        let rest = b.mesh.positions();
-        let mut center = Vec3::zeros();
-        let mut nodes: Vec<(usize, f64)> = Vec::new();
-        let mut part = 0.0;
-        for q in rows.iter().filter(|q| q.a.body == body) {
-            let f = q.force.x;
-            part += f;
-            for (v, w) in q.a.terms() {
-                let node = b.collider.nodes()[v as usize] as usize;
-                center += rest[node] * (f * w);
-                nodes.push((node, f * w));
-            }
-        }
-        if part <= 0.0 {
-            continue;
-        }
-        center /= part;
-        for n in &mut nodes {
-            n.1 /= part;
-        }
-        let tissue_fraction = match h.spot_fraction_at(&center, radius) {
-            Some(f) => f,
-            None => burn::tissue_fraction(&b.mesh, &center, radius / h.params().meters_per_unit),
+                );
+                continue;
+            };
+            (spot.center, spot.nodes, spot.tissue_fraction, part)
         };
         let source = crate::heat::ElectrodeSource {
             center,
