@@ -605,9 +605,10 @@ impl HeatField {
         self.coarse_heat_content() + self.subgrid_heat_content()
     }
 
-    /// Heat that left the body's field with changes of its mesh, J: the heat of tissue an
-    /// electrode's crater carved out, and what handing the field to a cut mesh changed (the
-    /// spots' heat given to the nodes, new nodes' capacities), counted on the piece that
+    /// Heat that left the body's field with changes of its mesh, J: the coarse field's heat
+    /// of tissue an electrode's crater carved out, and what handing the field to a cut mesh
+    /// changed (the spots' heat given to the nodes where they do not go on, new nodes'
+    /// capacities; a carve that leaves one piece keeps the spots), counted on the piece that
     /// kept the body. Summed over the body's pieces, `heat_content` plus this is what the
     /// sources delivered since the start, across cuts and carves.
     pub fn departed_heat(&self) -> f64 {
