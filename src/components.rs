@@ -450,7 +450,7 @@ pub struct SoftBodyState {
     /// is made again when it changes.
     pub(crate) shape: u64,
     /// What changed its mesh since the rendered mesh was made (the carves a visual mesh of
-    /// the app's own follows).
+    /// the app's own follows; a reset that makes the body whole starts it again).
     pub(crate) reshaped: crate::render::MeshChanges,
 }
 

@@ -23,6 +23,7 @@ use bevy::mesh::{
 use bevy::prelude::*;
 
 use soft_tissue_core::heat::HeatSample;
+use soft_tissue_core::mesh::cut::Ball;
 use soft_tissue_core::mesh::embed::Embedding;
 use soft_tissue_core::mesh::subdivide::loop_subdivide;
 
@@ -182,13 +183,15 @@ fn mesh_triangles(mesh: &Mesh) -> Result<Vec<[u32; 3]>, String> {
 }
 
 /// The render mesh and embedding of a body's [`VisualMesh`]; `Ok(None)` while its asset
-/// is still loading.
+/// is still loading. An app's own mesh has its vertices in the `carved` balls moved onto
+/// their walls first (`render/carve.rs`; a subdivided one is made from the carved surface).
 fn visual_mesh(
     visual: &VisualMesh,
     sim: &SoftBodyState,
     meshes: &Assets<Mesh>,
     entity: Entity,
     name: &str,
+    carved: &[Ball],
 ) -> Result<Option<(Mesh, EmbeddedVisual)>, VisualMeshError> {
     let bad = |message: String| VisualMeshError::BadMesh {
         body: entity,
@@ -245,8 +248,16 @@ fn visual_mesh(
         }
     };
     let triangles = mesh_triangles(&mesh).map_err(bad)?;
+    let carved = match visual {
+        VisualMesh::Mesh { .. } => carved.to_vec(),
+        VisualMesh::Subdivided { .. } => Vec::new(),
+    };
+    let points = if carved.is_empty() {
+        points
+    } else {
+        carve::onto_crater(&points, &triangles, &carved).0
+    };
     let embedding = Embedding::new(tets, &points, limit).map_err(|e| embed(e.to_string()))?;
-    let carved = Vec::new();
     let n = embedding.len();
     let mut scratch = vec![[0.0; 3]; n];
     embedding
@@ -410,7 +421,7 @@ fn create_meshes(
             && !failed
         {
             let name = name.map_or_else(|| format!("{entity}"), |n| n.to_string());
-            match visual_mesh(visual, sim, &meshes, entity, &name) {
+            match visual_mesh(visual, sim, &meshes, entity, &name, &[]) {
                 Ok(None) => continue,
                 Ok(Some((mesh, embedded))) => {
                     let rendered = RenderedSurface {
@@ -439,7 +450,8 @@ fn create_meshes(
 ///   heat field's marks), and so is any visual mesh of a body a reset made whole again.
 /// - An app's own mesh after carves only keeps its vertices, triangles and attributes:
 ///   those in the tissue the carves removed move onto the craters' walls, and all are
-///   embedded again (`render/carve.rs`).
+///   embedded again (`render/carve.rs`). After a reset and carves since, it is made again
+///   from the mesh as it was given, fitted to those carves alone.
 /// - An app's own mesh after a blade's cut no longer fits: the cut opens the surface, and
 ///   the mesh has no triangles for its sides.
 #[allow(clippy::too_many_arguments)]
@@ -458,8 +470,16 @@ fn refit_visual(
     };
     let name = name.map_or_else(|| format!("{entity}"), |n| n.to_string());
     let whole = sim.body().cut_record().is_none();
-    let embedded = if whole || (visual.is_some() && matches!(kind, VisualMesh::Subdivided { .. })) {
-        let Some((m, embedded)) = visual_mesh(kind, sim, meshes, entity, &name)? else {
+    let subdivided = matches!(kind, VisualMesh::Subdivided { .. });
+    // Made again from what it was given: whole, subdivided, or carved since a reset (the
+    // mesh drawn is of the body before the reset).
+    let again = if whole || (visual.is_some() && subdivided) {
+        Some(&[][..])
+    } else {
+        changes.only_carves().filter(|_| changes.since_reset())
+    };
+    let embedded = if let Some(carved) = again {
+        let Some((m, embedded)) = visual_mesh(kind, sim, meshes, entity, &name, carved)? else {
             return Ok(None);
         };
         if let Some(mut mesh) = meshes.get_mut(&handle.0) {

@@ -48,6 +48,8 @@ pub(super) fn reset_simulation(
             // its entity is now.
             b.set_pose(uncut.pose);
             b.shape += 1;
+            // The carves and cuts noted for the visual mesh were of the body before.
+            b.reshaped.reset();
             if let Some(mut spec) = spec {
                 spec.bypass_change_detection().mesh = uncut.mesh.clone();
             }

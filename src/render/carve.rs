@@ -52,6 +52,9 @@ pub(crate) struct MeshChanges {
     carved: Vec<Ball>,
     /// A change other than a carve (a blade's cut).
     other: bool,
+    /// A reset made the body whole again first: the visual mesh the body was drawn with
+    /// is of the mesh before, and the carves since apply to the mesh as it was given.
+    reset: bool,
 }
 
 impl MeshChanges {
@@ -73,8 +76,22 @@ impl MeshChanges {
         self.carved = Vec::new();
     }
 
-    /// The balls carved since the rendered mesh was made, when carves are all that changed
-    /// the mesh.
+    /// A reset made the body whole again: what changed before no longer counts.
+    pub(crate) fn reset(&mut self) {
+        *self = MeshChanges {
+            reset: true,
+            ..Default::default()
+        };
+    }
+
+    /// Whether a reset made the body whole again since the rendered mesh was made (the
+    /// carves since start from the mesh as it was given, not from the one drawn).
+    pub(crate) fn since_reset(&self) -> bool {
+        self.reset
+    }
+
+    /// The balls carved since the rendered mesh was made (since the last reset), when carves
+    /// are all that changed the mesh.
     pub(crate) fn only_carves(&self) -> Option<&[Ball]> {
         (!self.other && !self.carved.is_empty()).then_some(&self.carved[..])
     }

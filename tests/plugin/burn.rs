@@ -277,6 +277,142 @@ fn an_apps_own_visual_mesh_shows_a_carved_crater_as_a_dent() {
     assert_eq!(visual.rest_positions(), &original[..]);
 }
 
+/// Whether the bodies' render meshes are written this frame: a test holds the drawing back
+/// so that steps land between two frames drawn.
+#[derive(Resource)]
+struct Drawing(bool);
+
+fn hold_drawing(app: &mut App) {
+    app.insert_resource(Drawing(true));
+    app.configure_sets(
+        PostUpdate,
+        bevy_soft_tissue::SoftTissueMeshSystems.run_if(|d: Res<Drawing>| d.0),
+    );
+}
+
+/// Heats `body` at `at` (30 W) until a carve lands; the steps it took.
+fn carve_at(app: &mut App, body: Entity, at: V) -> usize {
+    let mut steps = 0;
+    while app
+        .world()
+        .get::<SoftBodyState>(body)
+        .unwrap()
+        .body()
+        .cut_record()
+        .is_none()
+    {
+        steps += 1;
+        assert!(steps <= 256, "no crater was carved at {at}");
+        heat_at(app, body, at, 30.0);
+        app.update();
+        assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
+    }
+    steps
+}
+
+/// The block of the dent test is carved at one place, reset (whole again) and carved at
+/// another 4 mm away before a frame is drawn, with the first crater drawn before the reset
+/// or not. The app's visual mesh is fitted to the second carve alone, from the rest shape
+/// it was given: the balls it keeps are the second crater's, every vertex outside them is
+/// embedded where it was given (none left in the first crater's dent), those inside lie on
+/// the second crater's sphere, and the mesh is drawn where the embedding puts it.
+#[test]
+fn a_carve_after_a_reset_fits_the_apps_visual_mesh_from_the_shape_it_was_given() {
+    let side = 0.012;
+    let (lo, hi) = (V::zeros(), V::repeat(side));
+    let (first, second) = (V::new(0.004, side, 0.006), V::new(0.008, side, 0.006));
+    for drawn_between in [true, false] {
+        let source = grid_box(Vec3::ZERO, Vec3::splat(side as f32), 48);
+        let Some(VertexAttributeValues::Float32x3(given)) =
+            source.attribute(Mesh::ATTRIBUTE_POSITION)
+        else {
+            panic!("positions are Float32x3");
+        };
+        let original: Vec<V> = given
+            .iter()
+            .map(|p| V::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            .collect();
+        let (mut app, body) = burnt_block(1.0 / 64.0, lo, hi, [6, 6, 6], source);
+        hold_drawing(&mut app);
+        app.world_mut().resource_mut::<Drawing>().0 = drawn_between;
+        carve_at(&mut app, body, first);
+        if drawn_between {
+            let visual = app.world().get::<EmbeddedVisual>(body).unwrap();
+            assert!(
+                !visual.carved().is_empty(),
+                "the first crater was not drawn"
+            );
+        }
+        app.world_mut().resource_mut::<Drawing>().0 = false;
+        app.world_mut()
+            .write_message(bevy_soft_tissue::ResetSimulation);
+        app.update();
+        let sim = app.world().get::<SoftBodyState>(body).unwrap();
+        assert!(sim.body().cut_record().is_none(), "the reset left a carve");
+        let steps = carve_at(&mut app, body, second);
+        app.world_mut().resource_mut::<Drawing>().0 = true;
+        app.update();
+        app.update();
+        assert_eq!(app.world().get::<VisualMeshError>(body), None);
+        let visual = app
+            .world()
+            .get::<EmbeddedVisual>(body)
+            .expect("the visual mesh was dropped");
+        let balls = visual.carved().to_vec();
+        let rest = visual.rest_positions();
+        let apart = (second - first).norm();
+        println!(
+            "first crater drawn before the reset: {drawn_between}; the second carve landed \
+             {steps} steps after it; the visual mesh keeps {} ball(s) at {:?} mm from the \
+             second spot",
+            balls.len(),
+            balls
+                .iter()
+                .map(|b| (b.centre - second).norm() * 1e3)
+                .collect::<Vec<_>>()
+        );
+        assert!(!balls.is_empty(), "the second carve was not followed");
+        for b in &balls {
+            assert!(
+                (b.centre - second).norm() < 0.5 * apart,
+                "a ball at {} is the first crater's (drawn between: {drawn_between})",
+                b.centre
+            );
+        }
+        let inside = |p: &V| {
+            balls
+                .iter()
+                .any(|c| (p - c.centre).norm() < c.radius * (1.0 - 1e-6))
+        };
+        let mut moved = 0;
+        for (k, (p, q)) in original.iter().zip(rest).enumerate() {
+            if inside(p) {
+                moved += 1;
+                let off = balls
+                    .iter()
+                    .map(|c| ((q - c.centre).norm() - c.radius).abs() / c.radius)
+                    .fold(f64::INFINITY, f64::min);
+                assert!(off < 1e-9, "vertex {k} is {off} radii off the sphere");
+            } else {
+                assert_eq!(
+                    p, q,
+                    "vertex {k} outside the second crater is not where it was given \
+                     (drawn between: {drawn_between})"
+                );
+            }
+        }
+        assert!(moved > 0, "no visual vertex was in the second crater");
+        // Drawn where the embedding in the carved body puts it.
+        let sim = app.world().get::<SoftBodyState>(body).unwrap();
+        let mut placed = vec![[0.0f32; 3]; original.len()];
+        visual
+            .embedding()
+            .apply(sim.body().model().node_positions(), &mut placed)
+            .unwrap();
+        assert!(max_gap(&placed, &drawn(&app, body)) < 1e-7);
+    }
+}
+
 fn max_gap(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
     a.iter()
         .zip(b)
