@@ -278,7 +278,7 @@ struct Incidence {
 }
 
 /// `compliance(body, vertices, out)`: the body's compliance blocks between the given surface
-/// vertices (see [`ContactSolver::assemble`]).
+/// vertices (see [`ContactSolver::assemble`]); it writes every block of `out`.
 pub type Compliance<'a> = dyn FnMut(u32, &[u32], &mut [Matrix3<f64>]) + 'a;
 
 /// `each(body, forces)`: forces on a body's surface vertices (see [`ContactSolver::apply`]).
@@ -307,6 +307,7 @@ pub struct ContactSolver {
     b: Vec<Vec3>,
     scratch: Vec<u32>,
     forces: Vec<(u32, Vec3)>,
+    summed: Vec<Vec3>,
 }
 
 /// Finds the local index of `vertex` in a sorted list.
@@ -315,8 +316,8 @@ fn local_of(list: &[u32], vertex: u32) -> u32 {
 }
 
 impl ContactSolver {
-    /// Builds the Delassus operator of `rows`. `compliance(body, vertices, out)` writes the
-    /// body's compliance blocks between the given surface vertices into `out` (row-major,
+    /// Builds the Delassus operator of `rows`. `compliance(body, vertices, out)` writes all
+    /// the body's compliance blocks between the given surface vertices into `out` (row-major,
     /// `vertices.len()^2` blocks, world frame: block `(i, j)` is the displacement of vertex
     /// `i` per unit force on vertex `j` over the step).
     pub fn assemble(&mut self, rows: &[ContactRow], compliance: &mut Compliance<'_>) {
@@ -384,7 +385,8 @@ impl ContactSolver {
             gathered_len += distinct * distinct;
             k = end;
         }
-        self.gathered.clear();
+        // Every block is written by `compliance` (no zeroing first: at a crater's 124 rows
+        // these are a megabyte a step).
         self.gathered.resize(gathered_len, Matrix3::zeros());
         for (body, _, vr, off) in &self.bodies {
             let n = vr.len();
@@ -401,22 +403,37 @@ impl ContactSolver {
         for row in rows {
             self.start.push(self.cols.len() as u32);
             self.scratch.clear();
+            let mut touched = 0;
             for (bi, (body, ..)) in self.bodies.iter().enumerate() {
                 let on = |p: &BodyPoint| p.body == *body;
                 let touches = on(&row.a) || matches!(&row.other, Counterpart::Body(p) if on(p));
                 if touches {
+                    touched += 1;
                     self.scratch
                         .extend_from_slice(&self.body_rows[self.body_row_ranges[bi].clone()]);
                 }
             }
-            self.scratch.sort_unstable();
-            self.scratch.dedup();
+            // One body's rows are sorted and distinct already (gathered in row order).
+            if touched > 1 {
+                self.scratch.sort_unstable();
+                self.scratch.dedup();
+            }
             self.cols.extend_from_slice(&self.scratch);
         }
         self.start.push(self.cols.len() as u32);
-        self.blocks.clear();
+        // The blocks on and above the diagonal are summed into, so they start at zero; those
+        // below are written whole by the frames' pass.
         self.blocks.resize(self.cols.len(), Matrix3::zeros());
-        // G blocks (world frame), body by body.
+        for c in 0..n {
+            for j in self.start[c] as usize..self.start[c + 1] as usize {
+                if self.cols[j] as usize >= c {
+                    self.blocks[j] = Matrix3::zeros();
+                }
+            }
+        }
+        // G blocks (world frame), body by body, on and above the diagonal only (the frames
+        // below mirror them). A row's couplings on one body come in column order, so the
+        // place of each is found by walking the row's pattern, not by searching it.
         for (bi, (_, ir, vr, off)) in self.bodies.iter().enumerate() {
             let nv = vr.len();
             let inc = &self.incidences[ir.clone()];
@@ -429,6 +446,7 @@ impl ContactSolver {
                     pos += 1;
                 }
                 let rc = row as usize;
+                let mut at = self.start[rc] as usize;
                 // Pair (row, d) for every row d of this body from `row` on (the gathered
                 // compliance is symmetric: (d, row) is the transpose): walk d's incidences.
                 let mut q = 0;
@@ -447,19 +465,22 @@ impl ContactSolver {
                                 * (ia.coef * ib.coef);
                         }
                     }
-                    let j = Self::index_in(&self.start, &self.cols, rc, d);
-                    self.blocks[j] += g;
-                    if d != row {
-                        let j = Self::index_in(&self.start, &self.cols, d as usize, row);
-                        self.blocks[j] += g.transpose();
+                    while self.cols[at] < d {
+                        at += 1;
                     }
+                    debug_assert_eq!(self.cols[at], d, "pattern");
+                    self.blocks[at] += g;
                 }
             }
         }
-        // Into the rows' frames; inverses of the diagonal blocks.
+        // Into the rows' frames; inverses of the diagonal blocks. Rows are taken in order, so
+        // the blocks below the diagonal of each row d are reached in column order too: a
+        // cursor per row (`scratch`) finds their places.
         self.diag.clear();
         self.tangent_inv.clear();
         self.block_inv.clear();
+        self.scratch.clear();
+        self.scratch.extend_from_slice(&self.start[..n]);
         for c in 0..n {
             let (lo, hi) = (self.start[c] as usize, self.start[c + 1] as usize);
             let fc = rows[c].frame.transpose();
@@ -475,8 +496,13 @@ impl ContactSolver {
                 }
                 self.blocks[j] = b;
                 if d != c {
-                    let k = Self::index_in(&self.start, &self.cols, d, c as u32);
+                    let mut k = self.scratch[d] as usize;
+                    while self.cols[k] < c as u32 {
+                        k += 1;
+                    }
+                    debug_assert_eq!(self.cols[k], c as u32, "pattern");
                     self.blocks[k] = b.transpose();
+                    self.scratch[d] = k as u32 + 1;
                 }
             }
             let dj = lo
@@ -491,12 +517,6 @@ impl ContactSolver {
             self.block_inv
                 .push(w.try_inverse().unwrap_or_else(Matrix3::zeros));
         }
-    }
-
-    /// Where block `(c, d)` of the pattern is stored.
-    fn index_in(start: &[u32], cols: &[u32], c: usize, d: u32) -> usize {
-        let (lo, hi) = (start[c] as usize, start[c + 1] as usize);
-        lo + cols[lo..hi].binary_search(&d).expect("pattern")
     }
 
     /// Whether anything can move row `c` of the last assembly along its normal (its
@@ -656,19 +676,26 @@ impl ContactSolver {
     }
 
     /// The forces still to apply (`force - applied` of every row, world frame) on each body's
-    /// surface vertices: `each(body, forces)` with `(vertex, force)` pairs (a vertex may
-    /// repeat; the caller sums). Marks the forces applied.
+    /// surface vertices: `each(body, forces)` with `(vertex, force)` pairs (each vertex once,
+    /// in increasing order; none with a zero force). Marks the forces applied.
     pub fn apply(&mut self, rows: &mut [ContactRow], each: &mut ForcesOn<'_>) {
-        for (_, ir, _, _) in &self.bodies {
+        for (_, ir, vr, _) in &self.bodies {
             let body = self.incidences[ir.start].body;
-            self.forces.clear();
+            // Summed per vertex (rows on triangles share them), in vertex order.
+            self.summed.clear();
+            self.summed.resize(vr.len(), Vec3::zeros());
             for i in &self.incidences[ir.clone()] {
                 let row = &rows[i.row as usize];
-                let f = row.frame * (row.force - row.applied) * i.coef;
-                if f != Vec3::zeros() {
-                    self.forces.push((i.vertex, f));
-                }
+                self.summed[i.local as usize] += row.frame * (row.force - row.applied) * i.coef;
             }
+            self.forces.clear();
+            self.forces.extend(
+                self.vertices[vr.clone()]
+                    .iter()
+                    .zip(&self.summed)
+                    .filter(|(_, f)| **f != Vec3::zeros())
+                    .map(|(&v, &f)| (v, f)),
+            );
             if !self.forces.is_empty() {
                 each(body, &self.forces);
             }

@@ -294,14 +294,12 @@ impl FemBody {
                 } else {
                     f
                 };
-                for a in 0..3 {
-                    let column = contact.cache.column(k as usize, a).expect("checked");
-                    let fa = f[a] * scale;
-                    if fa != 0.0 {
-                        for (d, c) in contact.dx.iter_mut().zip(column) {
-                            *d += c * fa;
-                        }
-                    }
+                // The three axes' columns in one pass over the nodes.
+                let f = f * scale;
+                let column = |a| contact.cache.column(k as usize, a).expect("checked");
+                let (c0, c1, c2) = (column(0), column(1), column(2));
+                for (((d, x), y), z) in contact.dx.iter_mut().zip(c0).zip(c1).zip(c2) {
+                    *d += x * f.x + y * f.y + z * f.z;
                 }
             }
             if rotate {

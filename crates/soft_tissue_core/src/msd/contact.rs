@@ -145,12 +145,12 @@ impl MsdBody {
                     .all(|&(k, _)| c.cache.column(k as usize, 0).is_some());
                 if from_columns {
                     for &(k, f) in forces {
-                        for a in 0..3 {
-                            let column = c.cache.column(k as usize, a).expect("checked");
-                            let fa = f[a] * h;
-                            for (d, col) in c.dv.iter_mut().zip(column) {
-                                *d += col * fa;
-                            }
+                        // The three axes' columns in one pass over the nodes.
+                        let f = f * h;
+                        let column = |a| c.cache.column(k as usize, a).expect("checked");
+                        let (c0, c1, c2) = (column(0), column(1), column(2));
+                        for (((d, x), y), z) in c.dv.iter_mut().zip(c0).zip(c1).zip(c2) {
+                            *d += x * f.x + y * f.y + z * f.z;
                         }
                     }
                 }
