@@ -602,7 +602,12 @@ impl ContactSolver {
         let (lo, hi) = (self.start[c] as usize, self.start[c + 1] as usize);
         let mut r = self.b[c];
         for j in lo..hi {
-            r += self.blocks[j] * rows[self.cols[j] as usize].force;
+            // Rows without force add nothing (at a crater about half the rows are candidates
+            // that never touch).
+            let f = rows[self.cols[j] as usize].force;
+            if f != Vec3::zeros() {
+                r += self.blocks[j] * f;
+            }
         }
         r
     }
