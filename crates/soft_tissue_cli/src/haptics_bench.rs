@@ -11,9 +11,10 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use serde_json::json;
 use soft_tissue_core::contact::Tool;
+use soft_tissue_core::contact::ToolShape;
 use soft_tissue_core::haptics::{
-    ContactModel, CutModel, DEFAULT_REALTIME_LEVEL, HapticConfig, HapticPriority, HapticThread,
-    Recording, ReplayDevice, Scheduling, contact_model, cut_model,
+    ContactModel, CutModel, DEFAULT_REALTIME_LEVEL, HapticConfig, HapticError, HapticPriority,
+    HapticThread, Recording, ReplayDevice, Scheduling, contact_model, cut_model,
 };
 use soft_tissue_core::world::{Script, SoftTissueWorld};
 
@@ -73,6 +74,79 @@ pub struct HapticsBenchArgs {
     cut_background_steps: u32,
 }
 
+/// What `haptics-bench` refuses in the tool its `--script` gives.
+#[derive(Debug)]
+pub enum HapticsBenchError {
+    /// The blade's edge is too short for the haptic loop to find its direction (its length
+    /// squared is below the smallest normal number, or its two ends are one point).
+    BladeEdge {
+        /// The `--script` value.
+        script: String,
+        /// The blade's length, scene units.
+        length: f64,
+        /// What the haptic loop refused.
+        why: HapticError,
+    },
+    /// The cut model of a step could not be made from the blade as the step left it.
+    CutModel {
+        /// The `--script` value.
+        script: String,
+        /// The physics step (1-based).
+        step: u64,
+        /// What the haptic loop refused.
+        why: HapticError,
+    },
+}
+
+impl std::fmt::Display for HapticsBenchError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            HapticsBenchError::BladeEdge {
+                script,
+                length,
+                why,
+            } => write!(
+                f,
+                "--script `{script}`: the blade's edge (length {length:e}) is too short for \
+                 the haptic loop to render a cut across it ({why}); give the blade a longer \
+                 edge"
+            ),
+            HapticsBenchError::CutModel { script, step, why } => write!(
+                f,
+                "--script `{script}`: step {step}: the blade's cut model could not be made \
+                 ({why})"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for HapticsBenchError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            HapticsBenchError::BladeEdge { why, .. } | HapticsBenchError::CutModel { why, .. } => {
+                Some(why)
+            }
+        }
+    }
+}
+
+/// Refuses a blade whose edge the haptic loop cannot render a cut across: the cut model of
+/// its edge along the script's starting axis, with the bench's bristle `stiffness`, must be
+/// valid (a length whose square underflows has no direction to speak of).
+fn check_blade(script: &Script, option: &str, stiffness: f64) -> Result<(), HapticsBenchError> {
+    let ToolShape::Blade { length } = script.tool else {
+        return Ok(());
+    };
+    let (_, axis) = script.pose_at(0.0);
+    CutModel::new(axis.normalize() * length, 0.0, stiffness)
+        .map(|_| ())
+        .map_err(|why| HapticsBenchError::BladeEdge {
+            script: option.to_owned(),
+            length,
+            why,
+        })
+}
+
 fn parse_priority(text: &str) -> Result<HapticPriority, String> {
     let level = match text {
         "normal" => return Ok(HapticPriority::Normal),
@@ -117,10 +191,7 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
         background_steps: args.cut_background_steps,
         ..Default::default()
     })?;
-    let blade = matches!(
-        script.tool,
-        soft_tissue_core::contact::ToolShape::Blade { .. }
-    );
+    let blade = matches!(script.tool, ToolShape::Blade { .. });
     // Whole steps while the blade cuts or a cut is being prepared.
     let mut cutting_us = Vec::new();
     let dt = world.config().dt;
@@ -136,6 +207,7 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
     };
     let nominal = config.coupling.stiffness;
     let cut_stiffness = CutModel::STIFFNESS_PER_COUPLING * nominal;
+    check_blade(&script, &args.script, cut_stiffness)?;
     let max_force = config.coupling.max_force;
     let thread = HapticThread::spawn(Box::new(ReplayDevice::new(recording, max_force)?), config)?;
     let shared = thread.shared().clone();
@@ -194,7 +266,13 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
                 nominal,
                 world.step_count(),
             );
-            let cut = cut_model(&world.tools()[tool], cut_stiffness)?;
+            let cut = cut_model(&world.tools()[tool], cut_stiffness).map_err(|why| {
+                HapticsBenchError::CutModel {
+                    script: args.script.clone(),
+                    step: k + 1,
+                    why,
+                }
+            })?;
             shared.publish(&model, &cut)?;
             k += 1;
         }
@@ -336,4 +414,80 @@ fn priority_json(p: &soft_tissue_core::haptics::PriorityOutcome) -> serde_json::
         "refused": p.refused,
         "text": p.to_string(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::FromArgMatches;
+
+    fn blade_script(length: f64) -> String {
+        format!(
+            "(name: \"tiny\", tool: Blade(length: {length:e}), \
+             waypoints: [(t: 0.0, position: (0.0, 0.0, 0.0), axis: (0.0, 2.0, 0.0))], \
+             events: [(t: 0.0, action: Cut(true))])"
+        )
+    }
+
+    /// A blade whose edge has no direction the haptic loop can find (its length squared
+    /// below the smallest normal number, or zero) is refused by name and length; one of a
+    /// sane length passes.
+    #[test]
+    fn a_blade_too_short_for_the_haptic_loop_is_refused_by_name() {
+        let stiffness =
+            CutModel::STIFFNESS_PER_COUPLING * HapticConfig::default().coupling.stiffness;
+        for length in [1e-160, 1e-170] {
+            let script = Script::from_ron(&blade_script(length), "tiny.ron").unwrap();
+            let e = check_blade(&script, "tiny.ron", stiffness).unwrap_err();
+            assert!(
+                matches!(e, HapticsBenchError::BladeEdge { length: l, .. } if l == length),
+                "{e:?}"
+            );
+            let text = e.to_string();
+            assert!(
+                text.contains("--script `tiny.ron`") && text.contains(&format!("{length:e}")),
+                "{text}"
+            );
+        }
+        let script = Script::from_ron(&blade_script(1e-3), "short.ron").unwrap();
+        assert!(check_blade(&script, "short.ron", stiffness).is_ok());
+    }
+
+    /// The bench refuses it before it runs: the error is the typed one (was the haptic
+    /// loop's `edge` out of range, from the middle of the run, naming no option).
+    #[test]
+    fn haptics_bench_refuses_a_blade_too_short_before_it_runs() {
+        let dir = std::env::temp_dir().join(format!("st-hb-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("tiny.ron");
+        std::fs::write(&file, blade_script(1e-160)).unwrap();
+        let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets");
+        let command = HapticsBenchArgs::augment_args(clap::Command::new("haptics-bench"));
+        let matches = command
+            .try_get_matches_from([
+                "haptics-bench".as_ref(),
+                "--scene".as_ref(),
+                "cylinders".as_ref(),
+                "--script".as_ref(),
+                file.as_os_str(),
+                "--seconds".as_ref(),
+                "1".as_ref(),
+                "--spin-us".as_ref(),
+                "300".as_ref(),
+                "--priority".as_ref(),
+                "normal".as_ref(),
+                "--assets".as_ref(),
+                assets.as_os_str(),
+            ])
+            .unwrap();
+        let args = HapticsBenchArgs::from_arg_matches(&matches).unwrap();
+        let e = haptics_bench(&args).expect_err("the bench ran with a blade it cannot render");
+        let typed = e.downcast_ref::<HapticsBenchError>();
+        assert!(
+            matches!(typed, Some(HapticsBenchError::BladeEdge { .. })),
+            "{e}"
+        );
+        assert!(e.to_string().contains("--script"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }
