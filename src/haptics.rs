@@ -65,13 +65,14 @@ pub struct HapticTool {
     /// Tissue stiffness the contact model starts from (scene units; it adapts to the
     /// measured force). Default: the coupling stiffness.
     pub nominal_stiffness: f64,
-    /// Stiffness of the cut's bristle (scene units): a cutting blade moves
-    /// `breakaway / cut_stiffness` across its edge before it slips on. Default:
-    /// [`CutModel::STIFFNESS_PER_COUPLING`] times the coupling stiffness.
-    pub cut_stiffness: f64,
+    /// Stiffness of the cut's bristle ([`HapticTool::set_cut_stiffness`]).
+    cut_stiffness: f64,
     model: ContactModel,
     cut: CutModel,
     last: ToolSample,
+    /// The last warning given about the models handed to the thread: each is given once,
+    /// until a handover works again.
+    warned: Option<String>,
 }
 
 impl HapticTool {
@@ -97,7 +98,38 @@ impl HapticTool {
             model: ContactModel::NONE,
             cut: CutModel::NONE,
             last,
+            warned: None,
         })
+    }
+
+    /// Stiffness of the cut's bristle (scene units): a cutting blade moves
+    /// `breakaway / cut_stiffness` across its edge before it slips on. Default:
+    /// [`CutModel::STIFFNESS_PER_COUPLING`] times the coupling stiffness.
+    pub fn cut_stiffness(&self) -> f64 {
+        self.cut_stiffness
+    }
+
+    /// Sets the stiffness of the cut's bristle (scene units), used from the next physics
+    /// step. One that is not finite and > 0 is refused ([`HapticError::BadConfig`] naming
+    /// `cut_stiffness` and the value), and the stiffness is left as it was.
+    pub fn set_cut_stiffness(&mut self, stiffness: f64) -> Result<(), HapticError> {
+        if !(stiffness.is_finite() && stiffness > 0.0) {
+            return Err(HapticError::BadConfig {
+                what: "cut_stiffness",
+                value: stiffness,
+                why: "finite and > 0",
+            });
+        }
+        self.cut_stiffness = stiffness;
+        Ok(())
+    }
+
+    /// Warns of `text` unless it was the last warning given.
+    fn warn_once(&mut self, entity: Entity, text: String) {
+        if self.warned.as_ref() != Some(&text) {
+            warn!("haptic tool {entity}: {text}");
+            self.warned = Some(text);
+        }
     }
 
     /// The tool as of the last physics step (proxy pose, device pose, force, buttons).
@@ -191,16 +223,19 @@ fn publish_models(
             haptic.nominal_stiffness,
             status.steps,
         );
-        // A cut model that cannot be made (a cut stiffness set out of range) is dropped with
-        // a warning: the contact still goes over.
-        let cut = cut_model(&state.tool, haptic.cut_stiffness).unwrap_or_else(|e| {
-            warn!("haptic cut model: {e}");
-            CutModel::NONE
-        });
+        // A cut model that cannot be made (the blade's strength not finite) is dropped with
+        // a warning, given once: the contact still goes over.
+        let (cut, cut_error) = match cut_model(&state.tool, haptic.cut_stiffness) {
+            Ok(cut) => (cut, None),
+            Err(e) => (CutModel::NONE, Some(format!("haptic cut model: {e}"))),
+        };
         haptic.model = model;
         haptic.cut = cut;
-        if let Err(e) = haptic.thread.shared().publish(&model, &cut) {
-            warn!("haptic models: {e}");
+        let published = haptic.thread.shared().publish(&model, &cut);
+        match (cut_error, published) {
+            (_, Err(e)) => haptic.warn_once(entity, format!("haptic models: {e}")),
+            (Some(text), Ok(())) => haptic.warn_once(entity, text),
+            (None, Ok(())) => haptic.warned = None,
         }
     }
 }

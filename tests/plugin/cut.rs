@@ -254,3 +254,39 @@ fn a_haptic_blade_hands_its_cut_to_the_haptic_thread_and_the_hand_is_held_back()
         h.shared().cut_model()
     );
 }
+
+/// A haptic tool's cut stiffness out of range (not finite, or not above 0) is refused where
+/// it is set, naming `cut_stiffness` and the value, and the stiffness is kept (it was a
+/// public field, and the physics warned of a bad one at every step).
+#[cfg(feature = "haptics")]
+#[test]
+fn a_haptic_cut_stiffness_out_of_range_is_refused_where_it_is_set() {
+    use bevy_soft_tissue::core::haptics::{CutModel, HapticConfig, HapticError, VirtualDevice};
+    use bevy_soft_tissue::haptics::HapticTool;
+    let (device, _handle) = VirtualDevice::new(Default::default(), 8.0);
+    let config = HapticConfig {
+        spin_us: 200.0,
+        ..HapticConfig::default()
+    };
+    let mut haptic = HapticTool::start(Box::new(device), config, 0.0).unwrap();
+    let default = haptic.cut_stiffness();
+    assert_eq!(
+        default,
+        CutModel::STIFFNESS_PER_COUPLING * config.coupling.stiffness
+    );
+    for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        let e = haptic.set_cut_stiffness(bad).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                HapticError::BadConfig { what: "cut_stiffness", value, .. }
+                    if value.to_bits() == bad.to_bits()
+            ),
+            "{e:?}"
+        );
+        assert!(e.to_string().contains("`cut_stiffness`"), "{e}");
+        assert_eq!(haptic.cut_stiffness(), default);
+    }
+    haptic.set_cut_stiffness(2.0 * default).unwrap();
+    assert_eq!(haptic.cut_stiffness(), 2.0 * default);
+}
