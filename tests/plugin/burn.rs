@@ -7,9 +7,10 @@ use bevy::asset::RenderAssetUsages;
 use bevy::mesh::{Indices, PrimitiveTopology};
 use bevy_soft_tissue::EmbeddedVisual;
 use bevy_soft_tissue::core::Vec3 as V;
-use bevy_soft_tissue::core::contact::{ContactConfig, ToolShape};
+use bevy_soft_tissue::core::contact::ContactConfig;
 use bevy_soft_tissue::core::heat::{ElectrodeSource, HeatParams, HeatSample};
 use bevy_soft_tissue::core::material::FemParams;
+use bevy_soft_tissue::core::mesh::cut::Ball;
 use bevy_soft_tissue::core::mesh::embed::Embedding;
 use bevy_soft_tissue::core::mesh::generate::block;
 use bevy_soft_tissue::{CutPiece, TissueHeat};
@@ -87,9 +88,16 @@ fn burnt_block(dt: f64, lo: V, hi: V, cells: [usize; 3], visual: Mesh) -> (App, 
         ))
         .id();
     app.update();
-    assert_eq!(app.world().get::<VisualMeshError>(body), None);
-    assert!(app.world().get::<EmbeddedVisual>(body).is_some());
+    embedded_visual(&app, body);
     (app, body)
+}
+
+/// The app's own visual mesh `body` is drawn with (none refused).
+fn embedded_visual(app: &App, body: Entity) -> &EmbeddedVisual {
+    assert_eq!(app.world().get::<VisualMeshError>(body), None);
+    app.world()
+        .get::<EmbeddedVisual>(body)
+        .expect("the visual mesh was dropped")
 }
 
 /// An electrode of 1 mm at `watts` on the node of `body` nearest `at` (rest), for the next
@@ -123,6 +131,54 @@ fn indices(app: &App, handle: &Handle<Mesh>) -> Vec<u32> {
     mesh.indices().unwrap().iter().map(|i| i as u32).collect()
 }
 
+/// The positions of an app's mesh as the rest positions they are embedded at (the block's
+/// frame is the world's).
+fn given_positions(mesh: &Mesh) -> Vec<V> {
+    mesh_positions(mesh)
+        .iter()
+        .map(|p| V::new(p[0] as f64, p[1] as f64, p[2] as f64))
+        .collect()
+}
+
+/// Heats `body` at `at` (30 W) until a carve lands; the visual mesh as drawn when the step
+/// that carved began.
+fn carve_at(app: &mut App, body: Entity, at: V) -> Vec<[f32; 3]> {
+    let mut steps = 0;
+    loop {
+        let before = drawn(app, body);
+        steps += 1;
+        assert!(steps <= 256, "no crater was carved at {at}");
+        heat_at(app, body, at, 30.0);
+        app.update();
+        assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
+        let sim = app.world().get::<SoftBodyState>(body).unwrap();
+        if sim.body().cut_record().is_some() {
+            return before;
+        }
+    }
+}
+
+/// How far the visual mesh of `body` is drawn from where its embedding puts its vertices in
+/// the body's tetrahedra as they are now.
+fn off_embedding(app: &App, body: Entity) -> f32 {
+    let visual = app.world().get::<EmbeddedVisual>(body).unwrap();
+    let sim = app.world().get::<SoftBodyState>(body).unwrap();
+    let mut placed = vec![[0.0f32; 3]; visual.embedding().len()];
+    visual
+        .embedding()
+        .apply(sim.body().model().node_positions(), &mut placed)
+        .unwrap();
+    max_distance(&placed, &drawn(app, body))
+}
+
+/// How far `q` is from the nearest of the spheres of `balls`, in their radii.
+fn radii_off_the_spheres(q: &V, balls: &[Ball]) -> f64 {
+    balls
+        .iter()
+        .map(|c| ((q - c.centre).norm() - c.radius).abs() / c.radius)
+        .fold(f64::INFINITY, f64::min)
+}
+
 /// A 12 mm block of liver (2 mm elements) drawn with a mesh of the app's own (a box, every
 /// face a 48 by 48 grid: 0.25 mm) is burnt at 30 W in the middle of its top face until
 /// the crater is carved out of its tetrahedra. The visual mesh keeps its vertices and
@@ -136,41 +192,14 @@ fn an_apps_own_visual_mesh_shows_a_carved_crater_as_a_dent() {
     let (lo, hi) = (V::zeros(), V::repeat(side));
     let source = grid_box(Vec3::ZERO, Vec3::splat(side as f32), 48);
     let count = source.count_vertices();
-    let Some(VertexAttributeValues::Float32x3(given)) = source.attribute(Mesh::ATTRIBUTE_POSITION)
-    else {
-        panic!("positions are Float32x3");
-    };
-    let original: Vec<V> = given
-        .iter()
-        .map(|p| V::new(p[0] as f64, p[1] as f64, p[2] as f64))
-        .collect();
+    let original = given_positions(&source);
     let source_indices: Vec<u32> = source.indices().unwrap().iter().map(|i| i as u32).collect();
     let (mut app, body) = burnt_block(1.0 / 64.0, lo, hi, [6, 6, 6], source);
     let top = V::new(0.5 * side, side, 0.5 * side);
-    let mut before = drawn(&app, body);
-    let mut steps = 0;
-    while app
-        .world()
-        .get::<SoftBodyState>(body)
-        .unwrap()
-        .body()
-        .cut_record()
-        .is_none()
-    {
-        steps += 1;
-        assert!(steps <= 256, "no crater was carved");
-        before = drawn(&app, body);
-        heat_at(&mut app, body, top, 30.0);
-        app.update();
-        assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
-    }
+    let before = carve_at(&mut app, body, top);
     // The visual mesh was fitted to the carved body (this frame) and is drawn (the next).
     app.update();
-    assert_eq!(app.world().get::<VisualMeshError>(body), None);
-    let visual = app
-        .world()
-        .get::<EmbeddedVisual>(body)
-        .expect("the visual mesh was dropped");
+    let visual = embedded_visual(&app, body);
     let sim = app.world().get::<SoftBodyState>(body).unwrap();
     let b = sim.body();
     let handle = app.world().get::<Mesh3d>(body).unwrap().0.clone();
@@ -179,12 +208,7 @@ fn an_apps_own_visual_mesh_shows_a_carved_crater_as_a_dent() {
     assert_eq!(visual.embedding().len(), count);
     assert_eq!(indices(&app, &handle), source_indices);
     // Every vertex embedded in the carved body's tetrahedra, drawn where they put it.
-    let mut placed = vec![[0.0f32; 3]; count];
-    visual
-        .embedding()
-        .apply(b.model().node_positions(), &mut placed)
-        .unwrap();
-    assert!(max_gap(&placed, &after) < 1e-7);
+    assert!(off_embedding(&app, body) < 1e-7);
     let balls = visual.carved().to_vec();
     assert!(!balls.is_empty());
     let rest = visual.rest_positions();
@@ -200,10 +224,7 @@ fn an_apps_own_visual_mesh_shows_a_carved_crater_as_a_dent() {
     let mut depth = 0.0f64;
     for &k in &moved {
         let q = rest[k];
-        let off = balls
-            .iter()
-            .map(|c| ((q - c.centre).norm() - c.radius).abs() / c.radius)
-            .fold(f64::INFINITY, f64::min);
+        let off = radii_off_the_spheres(&q, &balls);
         assert!(off < 1e-9, "vertex {k} is {off} radii off the sphere");
         assert!(!inside(&q), "vertex {k} is left in the crater");
         depth = depth.max(original[k].y - q.y);
@@ -290,26 +311,6 @@ fn hold_drawing(app: &mut App) {
     );
 }
 
-/// Heats `body` at `at` (30 W) until a carve lands; the steps it took.
-fn carve_at(app: &mut App, body: Entity, at: V) -> usize {
-    let mut steps = 0;
-    while app
-        .world()
-        .get::<SoftBodyState>(body)
-        .unwrap()
-        .body()
-        .cut_record()
-        .is_none()
-    {
-        steps += 1;
-        assert!(steps <= 256, "no crater was carved at {at}");
-        heat_at(app, body, at, 30.0);
-        app.update();
-        assert!(app.world().resource::<SoftTissueStatus>().error.is_none());
-    }
-    steps
-}
-
 /// The block of the dent test is carved at one place, reset (whole again) and carved at
 /// another 4 mm away before a frame is drawn, with the first crater drawn before the reset
 /// or not. The app's visual mesh is fitted to the second carve alone, from the rest shape
@@ -323,15 +324,7 @@ fn a_carve_after_a_reset_fits_the_apps_visual_mesh_from_the_shape_it_was_given()
     let (first, second) = (V::new(0.004, side, 0.006), V::new(0.008, side, 0.006));
     for drawn_between in [true, false] {
         let source = grid_box(Vec3::ZERO, Vec3::splat(side as f32), 48);
-        let Some(VertexAttributeValues::Float32x3(given)) =
-            source.attribute(Mesh::ATTRIBUTE_POSITION)
-        else {
-            panic!("positions are Float32x3");
-        };
-        let original: Vec<V> = given
-            .iter()
-            .map(|p| V::new(p[0] as f64, p[1] as f64, p[2] as f64))
-            .collect();
+        let original = given_positions(&source);
         let (mut app, body) = burnt_block(1.0 / 64.0, lo, hi, [6, 6, 6], source);
         hold_drawing(&mut app);
         app.world_mut().resource_mut::<Drawing>().0 = drawn_between;
@@ -349,22 +342,17 @@ fn a_carve_after_a_reset_fits_the_apps_visual_mesh_from_the_shape_it_was_given()
         app.update();
         let sim = app.world().get::<SoftBodyState>(body).unwrap();
         assert!(sim.body().cut_record().is_none(), "the reset left a carve");
-        let steps = carve_at(&mut app, body, second);
+        carve_at(&mut app, body, second);
         app.world_mut().resource_mut::<Drawing>().0 = true;
         app.update();
         app.update();
-        assert_eq!(app.world().get::<VisualMeshError>(body), None);
-        let visual = app
-            .world()
-            .get::<EmbeddedVisual>(body)
-            .expect("the visual mesh was dropped");
+        let visual = embedded_visual(&app, body);
         let balls = visual.carved().to_vec();
         let rest = visual.rest_positions();
         let apart = (second - first).norm();
         println!(
-            "first crater drawn before the reset: {drawn_between}; the second carve landed \
-             {steps} steps after it; the visual mesh keeps {} ball(s) at {:?} mm from the \
-             second spot",
+            "first crater drawn before the reset: {drawn_between}; the visual mesh keeps {} \
+             ball(s) at {:?} mm from the second spot",
             balls.len(),
             balls
                 .iter()
@@ -388,10 +376,7 @@ fn a_carve_after_a_reset_fits_the_apps_visual_mesh_from_the_shape_it_was_given()
         for (k, (p, q)) in original.iter().zip(rest).enumerate() {
             if inside(p) {
                 moved += 1;
-                let off = balls
-                    .iter()
-                    .map(|c| ((q - c.centre).norm() - c.radius).abs() / c.radius)
-                    .fold(f64::INFINITY, f64::min);
+                let off = radii_off_the_spheres(q, &balls);
                 assert!(off < 1e-9, "vertex {k} is {off} radii off the sphere");
             } else {
                 assert_eq!(
@@ -403,21 +388,8 @@ fn a_carve_after_a_reset_fits_the_apps_visual_mesh_from_the_shape_it_was_given()
         }
         assert!(moved > 0, "no visual vertex was in the second crater");
         // Drawn where the embedding in the carved body puts it.
-        let sim = app.world().get::<SoftBodyState>(body).unwrap();
-        let mut placed = vec![[0.0f32; 3]; original.len()];
-        visual
-            .embedding()
-            .apply(sim.body().model().node_positions(), &mut placed)
-            .unwrap();
-        assert!(max_gap(&placed, &drawn(&app, body)) < 1e-7);
+        assert!(off_embedding(&app, body) < 1e-7);
     }
-}
-
-fn max_gap(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
-    a.iter()
-        .zip(b)
-        .map(|(p, q)| Vec3::from_array(*p).distance(Vec3::from_array(*q)))
-        .fold(0.0, f32::max)
 }
 
 /// A bar 2 by 10 by 2 cm of liver drawn with a mesh of the app's own is burnt at 10 W on the
@@ -442,15 +414,7 @@ fn a_piece_cut_off_a_burnt_body_draws_its_burn_marks() {
     let blade = app
         .world_mut()
         .spawn((
-            SoftTool {
-                shape: ToolShape::Blade { length: 0.06 },
-                grab: false,
-                cautery_watts: 0.0,
-                electrode_radius: Some(1e-3),
-                jaws: 0.0,
-                cut: false,
-                friction: Default::default(),
-            },
+            soft_tool(ToolShape::Blade { length: 0.06 }),
             Transform::from_xyz(-0.01, y, -0.02).with_rotation(along_z),
         ))
         .id();

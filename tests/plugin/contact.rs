@@ -118,15 +118,7 @@ fn contacts_name_the_touched_body_while_another_moves_or_is_rebuilt() {
     let probe = app
         .world_mut()
         .spawn((
-            SoftTool {
-                shape: ToolShape::Sphere { radius: 0.1 },
-                grab: false,
-                cautery_watts: 0.0,
-                electrode_radius: Some(1e-3),
-                jaws: 0.0,
-                cut: false,
-                friction: Default::default(),
-            },
+            soft_tool(ToolShape::Sphere { radius: 0.1 }),
             Transform::from_xyz(0.0, 0.66, 0.0),
         ))
         .id();

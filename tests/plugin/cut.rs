@@ -4,7 +4,6 @@
 //! puts the whole body back.
 
 use super::*;
-use bevy_soft_tissue::core::contact::ToolShape;
 use bevy_soft_tissue::core::world::{ScriptEvent, Waypoint};
 use bevy_soft_tissue::{CutPiece, RenderedSurface, ResetSimulation, SoftBodyDiagnostics};
 
@@ -75,14 +74,7 @@ fn a_blade_cuts_a_body_in_two_like_the_core_world_and_a_reset_makes_it_whole() {
     let nodes = world.bodies()[0].mesh().node_count();
     let mut piece = None;
     for k in 1..=50 {
-        let (p, r, actions) = drive_tool(&mut app, tool, &script, k, dt);
-        app.update();
-        let t = &mut world.tools_mut()[ti];
-        t.set_pose_rotation(p, r).unwrap();
-        for act in actions {
-            act.apply(t).unwrap();
-        }
-        world.step_fixed().unwrap();
+        step_both(&mut app, &mut world, (tool, ti), &script, k, dt);
         let reaction = app.world().get::<ToolReaction>(tool).unwrap();
         let core = world.tools()[ti].cutting_resistance();
         assert_eq!(
@@ -150,7 +142,7 @@ fn a_blade_cuts_a_body_in_two_like_the_core_world_and_a_reset_makes_it_whole() {
 #[cfg(feature = "haptics")]
 #[test]
 fn a_haptic_blade_hands_its_cut_to_the_haptic_thread_and_the_hand_is_held_back() {
-    use bevy_soft_tissue::core::haptics::{CUT_BUTTON, CutModel, HapticConfig, VirtualDevice};
+    use bevy_soft_tissue::core::haptics::{CUT_BUTTON, CutModel, VirtualDevice};
     use bevy_soft_tissue::haptics::{HapticTool, SoftTissueHapticsPlugin};
     let (mut app, bodies, world) = scene_app(CYLINDERS);
     app.add_plugins(SoftTissueHapticsPlugin);
@@ -165,31 +157,14 @@ fn a_haptic_blade_hands_its_cut_to_the_haptic_thread_and_the_hand_is_held_back()
     let (start, _) = script.pose_at(0.2);
     let middle = bevy_soft_tissue::core::Vec3::new(start.x, start.y, 0.5 * (lo.z + hi.z));
     let (device, handle) = VirtualDevice::new(start, 1e3);
-    let config = HapticConfig {
-        // The device limit above the breakaway force.
-        coupling: bevy_soft_tissue::core::haptics::CouplingParams {
-            max_force: 100.0,
-            ..Default::default()
-        },
-        record_seconds: 30.0,
-        stats_seconds: 30.0,
-        spin_us: 200.0,
-        ..HapticConfig::default()
-    };
+    let mut config = haptic_config();
+    // The device limit above the breakaway force.
+    config.coupling.max_force = 100.0;
     let haptic = HapticTool::start(Box::new(device), config, 0.0).unwrap();
-    let blade = SoftTool {
-        shape: script.tool,
-        grab: false,
-        cautery_watts: 0.0,
-        electrode_radius: Some(1e-3),
-        jaws: 0.0,
-        cut: false,
-        friction: Default::default(),
-    };
     // An identity rotation: the edge stands along +y from the tool's position.
     let tool = app
         .world_mut()
-        .spawn((blade, Transform::default(), haptic))
+        .spawn((soft_tool(script.tool), Transform::default(), haptic))
         .id();
     app.update();
     // Stroke across the edge (+z) into the middle of A with the cut button held, a little
@@ -261,13 +236,10 @@ fn a_haptic_blade_hands_its_cut_to_the_haptic_thread_and_the_hand_is_held_back()
 #[cfg(feature = "haptics")]
 #[test]
 fn a_haptic_cut_stiffness_out_of_range_is_refused_where_it_is_set() {
-    use bevy_soft_tissue::core::haptics::{CutModel, HapticConfig, HapticError, VirtualDevice};
+    use bevy_soft_tissue::core::haptics::{CutModel, HapticError, VirtualDevice};
     use bevy_soft_tissue::haptics::HapticTool;
     let (device, _handle) = VirtualDevice::new(Default::default(), 8.0);
-    let config = HapticConfig {
-        spin_us: 200.0,
-        ..HapticConfig::default()
-    };
+    let config = haptic_config();
     let mut haptic = HapticTool::start(Box::new(device), config, 0.0).unwrap();
     let default = haptic.cut_stiffness();
     assert_eq!(

@@ -297,9 +297,7 @@ fn a_parented_body_lands_at_its_global_pose() {
 #[test]
 fn contacts_name_entities() {
     let (mut app, bodies, world) = scene_app(CYLINDERS);
-    let script = Script::builtin("push-a-into-b", &world).unwrap();
-    let dt = world.config().dt;
-    let tool = spawn_tool(&mut app, &script);
+    let (script, tool, dt) = scripted_tool(&mut app, &world, "push-a-into-b");
     let (a, b) = (bodies[0], bodies[1]);
     app.update();
     let (mut tool_seen, mut body_seen) = (false, false);

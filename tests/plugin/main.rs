@@ -21,6 +21,7 @@ use bevy::ecs::schedule::{LogLevel, ScheduleBuildSettings, ScheduleLabel};
 use bevy::mesh::{Mesh, Mesh3d, VertexAttributeValues};
 use bevy::prelude::*;
 use bevy::time::TimeUpdateStrategy;
+use bevy_soft_tissue::core::contact::ToolShape;
 use bevy_soft_tissue::core::scenario::{PreciseMethod, Scene};
 use bevy_soft_tissue::core::world::{Script, ScriptAction, SoftTissueWorld};
 use bevy_soft_tissue::prelude::*;
@@ -137,20 +138,54 @@ fn add_core_tool(world: &mut SoftTissueWorld, script: &Script) -> usize {
     ti
 }
 
-/// A tool entity with the script's shape, at the script's start.
-fn spawn_tool(app: &mut App, script: &Script) -> Entity {
-    let tool = SoftTool {
-        shape: script.tool,
+/// One step of the plugin and of the core world `world` under the script: the tool entity
+/// set for step `k` (1-based), the app updated, the core tool `ti` given the very pose and
+/// actions the plugin read, the core world stepped.
+fn step_both(
+    app: &mut App,
+    world: &mut SoftTissueWorld,
+    (tool, ti): (Entity, usize),
+    script: &Script,
+    k: usize,
+    dt: f64,
+) {
+    let (p, r, actions) = drive_tool(app, tool, script, k, dt);
+    app.update();
+    let t = &mut world.tools_mut()[ti];
+    t.set_pose_rotation(p, r).unwrap();
+    for act in actions {
+        act.apply(t).unwrap();
+    }
+    world.step_fixed().unwrap();
+}
+
+/// A tool of `shape`, idle: not holding, not burning, jaws closed, not cutting, a 1 mm
+/// electrode, the default friction.
+fn soft_tool(shape: ToolShape) -> SoftTool {
+    SoftTool {
+        shape,
         grab: false,
         cautery_watts: 0.0,
         electrode_radius: Some(1e-3),
         jaws: 0.0,
         cut: false,
         friction: Default::default(),
-    };
+    }
+}
+
+/// A tool entity with the script's shape, at the script's start.
+fn spawn_tool(app: &mut App, script: &Script) -> Entity {
     app.world_mut()
-        .spawn((tool, tool_transform(script, 0.0)))
+        .spawn((soft_tool(script.tool), tool_transform(script, 0.0)))
         .id()
+}
+
+/// The built-in script `name` for the scene of `world`, its tool spawned in `app` at its
+/// start, and the scene's step.
+fn scripted_tool(app: &mut App, world: &SoftTissueWorld, name: &str) -> (Script, Entity, f64) {
+    let script = Script::builtin(name, world).unwrap();
+    let tool = spawn_tool(app, &script);
+    (script, tool, world.config().dt)
 }
 
 fn level(app: &App, e: Entity) -> Level {
@@ -167,11 +202,34 @@ fn cylinder_asset(app: &mut App) -> Handle<TetMeshAsset> {
         .add(TetMeshAsset::from(m))
 }
 
-fn positions(app: &App, handle: &Handle<Mesh>) -> Vec<[f32; 3]> {
-    let mesh = app.world().resource::<Assets<Mesh>>().get(handle).unwrap();
+fn mesh_positions(mesh: &Mesh) -> Vec<[f32; 3]> {
     match mesh.attribute(Mesh::ATTRIBUTE_POSITION).unwrap() {
         VertexAttributeValues::Float32x3(v) => v.clone(),
         _ => panic!("positions are Float32x3"),
+    }
+}
+
+fn positions(app: &App, handle: &Handle<Mesh>) -> Vec<[f32; 3]> {
+    mesh_positions(app.world().resource::<Assets<Mesh>>().get(handle).unwrap())
+}
+
+/// The largest distance between matching points of `a` and `b`.
+fn max_distance(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| Vec3::from_array(*p).distance(Vec3::from_array(*q)))
+        .fold(0.0, f32::max)
+}
+
+/// The haptic thread's settings of the plugin's haptic tests: 30 s of recording and
+/// statistics, sleeping until 200 us before each deadline (gentler on a shared machine).
+#[cfg(feature = "haptics")]
+fn haptic_config() -> bevy_soft_tissue::core::haptics::HapticConfig {
+    bevy_soft_tissue::core::haptics::HapticConfig {
+        record_seconds: 30.0,
+        stats_seconds: 30.0,
+        spin_us: 200.0,
+        ..Default::default()
     }
 }
 

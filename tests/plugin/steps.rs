@@ -6,9 +6,7 @@ use super::*;
 #[test]
 fn a_tool_raises_a_body_its_release_returns_it_and_the_mesh_follows() {
     let (mut app, bodies, world) = scene_app(CYLINDERS);
-    let script = Script::builtin("poke-a", &world).unwrap();
-    let dt = world.config().dt;
-    let tool = spawn_tool(&mut app, &script);
+    let (script, tool, dt) = scripted_tool(&mut app, &world, "poke-a");
     let (a, b) = (bodies[0], bodies[1]);
     app.update();
     let handle = app.world().get::<Mesh3d>(a).unwrap().0.clone();
@@ -60,9 +58,7 @@ fn run_plugin_on(
     if let Some(n) = threads {
         app.world_mut().resource_mut::<SoftTissueConfig>().threads = n;
     }
-    let script = Script::builtin(script_name, &world).unwrap();
-    let dt = world.config().dt;
-    let tool = spawn_tool(&mut app, &script);
+    let (script, tool, dt) = scripted_tool(&mut app, &world, script_name);
     let mut out = Vec::new();
     app.update();
     for k in 1..=steps {
@@ -76,23 +72,14 @@ fn run_plugin_on(
 #[test]
 fn the_plugin_and_the_core_world_give_the_same_states() {
     let (mut app, bodies, mut world) = scene_app(CYLINDERS);
-    let script = Script::builtin("push-a-into-b", &world).unwrap();
-    let dt = world.config().dt;
-    let tool = spawn_tool(&mut app, &script);
+    let (script, tool, dt) = scripted_tool(&mut app, &world, "push-a-into-b");
     let ti = add_core_tool(&mut world, &script);
     // The first update builds the bodies (and steps once with the tool at its start).
     app.update();
     world.step_fixed().unwrap();
     let mut precise_steps = 0;
     for k in 1..=600 {
-        let (p, a, actions) = drive_tool(&mut app, tool, &script, k, dt);
-        app.update();
-        let t = &mut world.tools_mut()[ti];
-        t.set_pose_rotation(p, a).unwrap();
-        for act in actions {
-            act.apply(t).unwrap();
-        }
-        world.step_fixed().unwrap();
+        step_both(&mut app, &mut world, (tool, ti), &script, k, dt);
         for (e, b) in bodies.iter().zip(world.bodies()) {
             let plugin = app.world().get::<SoftBodyState>(*e).unwrap().body();
             assert_eq!(
@@ -284,9 +271,7 @@ fn the_clock_owns_pause_speed_and_the_step() {
 #[test]
 fn a_failed_stage_stops_the_step_there_and_no_nan_reaches_a_mesh() {
     let (mut app, bodies, world) = scene_app(CYLINDERS);
-    let script = Script::builtin("poke-a", &world).unwrap();
-    let dt = world.config().dt;
-    let tool = spawn_tool(&mut app, &script);
+    let (script, tool, dt) = scripted_tool(&mut app, &world, "poke-a");
     let a = bodies[0];
     app.update();
     let mut k = 0;

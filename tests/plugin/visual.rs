@@ -19,20 +19,6 @@ fn y_to_z() -> Quat {
     Quat::from_rotation_arc(Vec3::Y, Vec3::Z)
 }
 
-fn mesh_positions(mesh: &Mesh) -> Vec<[f32; 3]> {
-    match mesh.attribute(Mesh::ATTRIBUTE_POSITION).unwrap() {
-        VertexAttributeValues::Float32x3(v) => v.clone(),
-        _ => panic!("positions are Float32x3"),
-    }
-}
-
-fn max_distance(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
-    a.iter()
-        .zip(b)
-        .map(|(p, q)| Vec3::from_array(*p).distance(Vec3::from_array(*q)))
-        .fold(0.0, f32::max)
-}
-
 #[test]
 fn finer_visual_meshes_follow_the_simulation() {
     let (mut app, bodies, world) = scene_app(CYLINDERS);
@@ -52,9 +38,7 @@ fn finer_visual_meshes_follow_the_simulation() {
     app.world_mut()
         .entity_mut(b)
         .insert(VisualMesh::Subdivided { levels: 2 });
-    let script = Script::builtin("poke-a", &world).unwrap();
-    let dt = world.config().dt;
-    let tool = spawn_tool(&mut app, &script);
+    let (script, tool, dt) = scripted_tool(&mut app, &world, "poke-a");
     app.update();
     // Settled under gravity, the visual mesh is where it was given, up to the sag of the
     // simulated surface; the asset itself is not touched.
@@ -175,7 +159,7 @@ fn visual_meshes_are_placed_with_the_body_and_mismatched_ones_refused() {
 #[cfg(feature = "haptics")]
 #[test]
 fn a_haptic_device_pokes_through_the_haptic_thread_and_feels_the_tissue() {
-    use bevy_soft_tissue::core::haptics::{HapticConfig, VirtualDevice};
+    use bevy_soft_tissue::core::haptics::VirtualDevice;
     use bevy_soft_tissue::haptics::{HapticTool, SoftTissueHapticsPlugin};
     let (mut app, bodies, world) = scene_app(CYLINDERS);
     app.add_plugins(SoftTissueHapticsPlugin);
@@ -184,13 +168,7 @@ fn a_haptic_device_pokes_through_the_haptic_thread_and_feels_the_tissue() {
     let y = 0.5 * (lo[1] + hi[1]);
     let outside = bevy_soft_tissue::core::Vec3::new(lo[0] - 0.2, y, 0.5 * (lo[2] + hi[2]));
     let (device, handle) = VirtualDevice::new(outside, 8.0);
-    let config = HapticConfig {
-        record_seconds: 30.0,
-        stats_seconds: 30.0,
-        spin_us: 200.0,
-        ..HapticConfig::default()
-    };
-    let haptic = HapticTool::start(Box::new(device), config, 0.0).unwrap();
+    let haptic = HapticTool::start(Box::new(device), haptic_config(), 0.0).unwrap();
     let tool = app
         .world_mut()
         .spawn((SoftTool::sphere(0.05), Transform::default(), haptic))
@@ -240,9 +218,9 @@ fn a_haptic_device_pokes_through_the_haptic_thread_and_feels_the_tissue() {
 /// drawn mesh follows.
 #[test]
 fn a_non_manifold_mesh_simulates_and_draws_in_the_plugin() {
+    use bevy_soft_tissue::core::Vec3 as V;
     use bevy_soft_tissue::core::mesh::TetMesh;
     use bevy_soft_tissue::core::mesh::generate::block;
-    use bevy_soft_tissue::core::{Vec3 as V, contact::ToolShape};
     let a = block(V::zeros(), V::repeat(0.5), [3, 3, 3]).unwrap();
     let b = block(V::new(0.5, 0.5, 0.0), V::new(1.0, 1.0, 0.5), [3, 3, 3]).unwrap();
     let mut points: Vec<V> = Vec::new();
@@ -286,15 +264,7 @@ fn a_non_manifold_mesh_simulates_and_draws_in_the_plugin() {
     let tool = app
         .world_mut()
         .spawn((
-            SoftTool {
-                shape: ToolShape::Sphere { radius: r as f64 },
-                grab: false,
-                cautery_watts: 0.0,
-                electrode_radius: Some(1e-3),
-                jaws: 0.0,
-                cut: false,
-                friction: Default::default(),
-            },
+            soft_tool(ToolShape::Sphere { radius: r as f64 }),
             Transform::from_translation(start),
         ))
         .id();
@@ -347,9 +317,7 @@ fn a_cautery_burn_is_drawn_at_the_visual_vertices_not_over_elements() {
     app.world_mut()
         .entity_mut(liver)
         .insert(VisualMesh::Subdivided { levels: 3 });
-    let script = Script::builtin("cauterize-liver", &world).unwrap();
-    let tool = spawn_tool(&mut app, &script);
-    let dt = world.config().dt;
+    let (script, tool, dt) = scripted_tool(&mut app, &world, "cauterize-liver");
     for k in 1..=300 {
         drive_tool(&mut app, tool, &script, k, dt);
         app.update();
