@@ -463,23 +463,14 @@ mod tests {
         std::fs::write(&file, blade_script(1e-160)).unwrap();
         let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets");
         let command = HapticsBenchArgs::augment_args(clap::Command::new("haptics-bench"));
-        let matches = command
-            .try_get_matches_from([
-                "haptics-bench".as_ref(),
-                "--scene".as_ref(),
-                "cylinders".as_ref(),
-                "--script".as_ref(),
-                file.as_os_str(),
-                "--seconds".as_ref(),
-                "1".as_ref(),
-                "--spin-us".as_ref(),
-                "300".as_ref(),
-                "--priority".as_ref(),
-                "normal".as_ref(),
-                "--assets".as_ref(),
-                assets.as_os_str(),
-            ])
-            .unwrap();
+        let mut argv: Vec<std::ffi::OsString> = "haptics-bench --scene cylinders --seconds 1 \
+             --spin-us 300 --priority normal"
+            .split_whitespace()
+            .map(Into::into)
+            .collect();
+        argv.extend(["--script".into(), file.clone().into_os_string()]);
+        argv.extend(["--assets".into(), assets.into_os_string()]);
+        let matches = command.try_get_matches_from(argv).unwrap();
         let args = HapticsBenchArgs::from_arg_matches(&matches).unwrap();
         let e = haptics_bench(&args).expect_err("the bench ran with a blade it cannot render");
         let typed = e.downcast_ref::<HapticsBenchError>();
