@@ -23,6 +23,9 @@ pub struct WorldBody {
     pub(crate) pieces_made: usize,
     /// Balls of vaporized tissue whose carving was tried and did not land.
     pub(crate) vaporize_tried: Vec<crate::mesh::cut::Ball>,
+    /// The rest mesh's tetrahedra by place, for an electrode's tissue fraction (built when
+    /// the first spot starts; see [`super::burn::tissue_fraction_in`]).
+    pub(crate) occupancy: crate::mesh::occupancy::Occupancy,
     /// A piece that came loose in a cut (a world's reset removes it).
     pub(crate) loose: bool,
     pub(crate) rest_surface: Vec<Vec3>,
@@ -156,6 +159,7 @@ impl WorldBody {
             cut: None,
             pieces_made: 0,
             vaporize_tried: Vec::new(),
+            occupancy: Default::default(),
             loose: false,
             friction: Friction::default(),
             toughness: 0.0,

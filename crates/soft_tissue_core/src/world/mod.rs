@@ -445,9 +445,12 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
             }
             let fraction = match h.spot_fraction_at(&center, radius) {
                 Some(f) => f,
-                None => {
-                    burn::tissue_fraction(&b.mesh, &center, radius / h.params().meters_per_unit)
-                }
+                None => burn::tissue_fraction_in(
+                    &mut b.occupancy,
+                    &b.mesh,
+                    &center,
+                    radius / h.params().meters_per_unit,
+                ),
             };
             (center, nodes, fraction, part)
         } else {
