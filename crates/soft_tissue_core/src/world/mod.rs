@@ -343,9 +343,6 @@ pub fn step_solvers<B: BorrowMut<WorldBody> + Send, T: Borrow<Tool>>(
                 && r.is_contact()
                 && r.force.x > 0.0
         };
-        // Rows on a body a cut or a carve replaced this step name the old body's nodes: an
-        // electrode goes on at the spot it powered (carried through a carve), nodal
-        // heating skips that body for the step.
         let total = state.solved_rows().iter().filter(pressing).count();
         if total == 0 {
             continue;
@@ -354,24 +351,27 @@ pub fn step_solvers<B: BorrowMut<WorldBody> + Send, T: Borrow<Tool>>(
             electrode_power(bodies, state, &pressing, watts, radius)?;
             continue;
         }
+        // Rows on a body a cut or a carve replaced this step name the old body's nodes:
+        // nodal heating skips that body for the step.
         let share = watts / total as f64;
-        for r in state.solved_rows().iter().filter(pressing) {
-            let b = bodies[r.a.body as usize].borrow_mut();
-            if !state.rows_fit(r.a.body as usize, b.collider.id()) {
-                continue;
-            }
-            let label = || BodyName {
-                name: b.name.clone(),
-                id: Some(b.collider.id()),
-            };
+        for (i, b) in bodies.iter_mut().enumerate() {
+            let b = b.borrow_mut();
             let Some(h) = b.heat.as_mut() else { continue };
-            for (v, w) in r.a.terms() {
-                let node = b.collider.nodes()[v as usize] as usize;
-                h.add_power(node, share * w)
-                    .map_err(|source| WorldError::Heat {
-                        body: label(),
-                        source,
-                    })?;
+            for r in state
+                .fitting_rows(i as u32, b.collider.id())
+                .filter(pressing)
+            {
+                for (v, w) in r.a.terms() {
+                    let node = b.collider.nodes()[v as usize] as usize;
+                    h.add_power(node, share * w)
+                        .map_err(|source| WorldError::Heat {
+                            body: BodyName {
+                                name: b.name.clone(),
+                                id: Some(b.collider.id()),
+                            },
+                            source,
+                        })?;
+                }
             }
         }
     }
@@ -399,7 +399,9 @@ pub fn step_solvers<B: BorrowMut<WorldBody> + Send, T: Borrow<Tool>>(
 /// An electrode's power into the bodies it presses, each body's share by its part of the
 /// normal force, at the force-weighted centre of its pressed points on the rest mesh (see
 /// [`HeatField::add_electrode`]; a new spot's tissue fraction is the share of the rest mesh
-/// around that centre, [`burn::tissue_fraction`]).
+/// around that centre, [`burn::tissue_fraction`]). On a body replaced this step (its rows
+/// name the old mesh's nodes) the power goes to the spot the electrode powered last
+/// (carried through a carve), if any.
 fn electrode_power<B: BorrowMut<WorldBody>>(
     bodies: &mut [B],
     state: &ContactState,
@@ -407,41 +409,42 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
     watts: f64,
     radius: f64,
 ) -> Result<(), WorldError> {
-    let rows: Vec<&crate::contact::ContactRow> =
-        state.solved_rows().iter().filter(pressing).collect();
-    let force: f64 = rows.iter().map(|r| r.force.x).sum();
-    let mut done: Vec<u32> = Vec::new();
-    for r in &rows {
-        let body = r.a.body;
-        if done.contains(&body) {
+    let force: f64 = state
+        .solved_rows()
+        .iter()
+        .filter(pressing)
+        .map(|r| r.force.x)
+        .sum();
+    for (i, b) in bodies.iter_mut().enumerate() {
+        let body = i as u32;
+        let part: f64 = state
+            .solved_rows()
+            .iter()
+            .filter(|r| r.a.body == body && pressing(r))
+            .map(|r| r.force.x)
+            .sum();
+        if part <= 0.0 {
             continue;
         }
-        done.push(body);
-        let b = bodies[body as usize].borrow_mut();
-        let fits = state.rows_fit(body as usize, b.collider.id());
+        let b = b.borrow_mut();
         let Some(h) = b.heat.as_mut() else { continue };
-        // On a body replaced this step the rows name the old mesh's nodes: the power goes
-        // to the spot the electrode powered last (carried through a carve), if any.
-        let (center, nodes, tissue_fraction, part) = if fits {
-            let rest = b.mesh.positions();
-            let mut center = Vec3::zeros();
-            let mut nodes: Vec<(usize, f64)> = Vec::new();
-            let mut part = 0.0;
-            for q in rows.iter().filter(|q| q.a.body == body) {
-                let f = q.force.x;
-                part += f;
-                for (v, w) in q.a.terms() {
-                    let node = b.collider.nodes()[v as usize] as usize;
-                    center += rest[node] * (f * w);
-                    nodes.push((node, f * w));
-                }
+        let rest = b.mesh.positions();
+        let mut center = Vec3::zeros();
+        let mut nodes: Vec<(usize, f64)> = Vec::new();
+        let mut fitted = 0.0;
+        for q in state.fitting_rows(body, b.collider.id()).filter(pressing) {
+            let f = q.force.x;
+            fitted += f;
+            for (v, w) in q.a.terms() {
+                let node = b.collider.nodes()[v as usize] as usize;
+                center += rest[node] * (f * w);
+                nodes.push((node, f * w));
             }
-            if part <= 0.0 {
-                continue;
-            }
-            center /= part;
+        }
+        let (center, nodes, tissue_fraction) = if fitted > 0.0 {
+            center /= fitted;
             for n in &mut nodes {
-                n.1 /= part;
+                n.1 /= fitted;
             }
             let fraction = match h.spot_fraction_at(&center, radius) {
                 Some(f) => f,
@@ -452,13 +455,8 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
                     radius / h.params().meters_per_unit,
                 ),
             };
-            (center, nodes, fraction, part)
+            (center, nodes, fraction)
         } else {
-            let part: f64 = rows
-                .iter()
-                .filter(|q| q.a.body == body)
-                .map(|q| q.force.x)
-                .sum();
             let Some(spot) = h.powered_spot(radius) else {
                 log::debug!(
                     "body `{}`: its mesh changed this step and no spot had power: the electrode skips it for the step",
@@ -466,7 +464,7 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
                 );
                 continue;
             };
-            (spot.center, spot.nodes, spot.tissue_fraction, part)
+            (spot.center, spot.nodes, spot.tissue_fraction)
         };
         let source = crate::heat::ElectrodeSource {
             center,

@@ -205,10 +205,15 @@ impl ContactState {
         &self.solved
     }
 
-    /// Whether the last solve's rows on body `body` name the nodes of the body `id` (its
-    /// collider's [`SurfaceCollider::id`]): not once a cut or a carve replaced it since.
-    pub fn rows_fit(&self, body: usize, id: u64) -> bool {
-        self.previous_ids.get(body) == Some(&id)
+    /// The rows of the last solve on body `body` (its side `a`) while they name its nodes:
+    /// while it is the body whose collider's [`SurfaceCollider::id`] is `id`, the one they
+    /// were solved on. None once a cut or a carve replaced it since (in the step a carve
+    /// lands the rows still name the old mesh's nodes, and could index past a smaller
+    /// piece's).
+    pub fn fitting_rows(&self, body: u32, id: u64) -> impl Iterator<Item = &ContactRow> + '_ {
+        let fit = self.previous_ids.get(body as usize) == Some(&id);
+        let rows = if fit { &self.solved[..] } else { &[] };
+        rows.iter().filter(move |r| r.a.body == body)
     }
 
     /// What the last contact solve did.
