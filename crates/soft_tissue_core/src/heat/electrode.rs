@@ -16,6 +16,29 @@ impl HeatField {
         source: &ElectrodeSource,
         nodes: &[(usize, f64)],
     ) -> Result<(), HeatError> {
+        self.heat_at_electrode(source, nodes, 0)
+    }
+
+    /// [`HeatField::add_electrode`] by electrode `electrode` (a world's tool index): the
+    /// spot it heats remembers it, so [`HeatField::powered_spot`] finds each electrode's own
+    /// spot (two electrodes of one radius on a body each theirs).
+    pub fn add_electrode_of(
+        &mut self,
+        electrode: u32,
+        source: &ElectrodeSource,
+        nodes: &[(usize, f64)],
+    ) -> Result<(), HeatError> {
+        self.heat_at_electrode(source, nodes, super::spot::electrode_bit(electrode))
+    }
+
+    /// [`HeatField::add_electrode`], the spot marked with `electrodes` (bits of
+    /// [`super::spot::electrode_bit`]; 0 for an electrode without a number).
+    fn heat_at_electrode(
+        &mut self,
+        source: &ElectrodeSource,
+        nodes: &[(usize, f64)],
+        electrodes: u64,
+    ) -> Result<(), HeatError> {
         let n = self.temperature.len();
         let first = nodes.first().map_or(0, |x| x.0);
         let bad = |what: &'static str, value: f64| HeatError::NonFinite {
@@ -107,6 +130,7 @@ impl HeatField {
             }
         };
         self.spots[k].power += source.watts;
+        self.spots[k].electrodes |= electrodes;
         Ok(())
     }
 
@@ -127,14 +151,17 @@ impl HeatField {
             .map(|k| self.spots[k].fraction)
     }
 
-    /// The newest spot of electrode `radius` (m) that had power in the last step: its
-    /// centre, coarse nodes and tissue fraction (where an electrode goes on heating in a step
-    /// whose contact rows no longer fit the mesh: a carve just landed).
-    pub fn powered_spot(&self, radius: f64) -> Option<SpotPlace> {
+    /// The newest spot of `radius` (m) that electrode `electrode` (a world's tool index, as
+    /// given to [`HeatField::add_electrode_of`]) powered in the last step: its centre, coarse
+    /// nodes and tissue fraction (where the electrode goes on heating in a step whose
+    /// contact rows no longer fit the mesh: a carve just landed). Electrodes 64 apart in
+    /// number are not told apart.
+    pub fn powered_spot(&self, electrode: u32, radius: f64) -> Option<SpotPlace> {
+        let bit = super::spot::electrode_bit(electrode);
         self.spots
             .iter()
             .rev()
-            .find(|p| p.powered && p.grid.radius == radius)
+            .find(|p| p.powered && p.powered_by & bit != 0 && p.grid.radius == radius)
             .map(|p| SpotPlace {
                 center: p.center,
                 nodes: p.nodes.iter().map(|&(i, w)| (i as usize, w)).collect(),

@@ -225,6 +225,12 @@ pub struct ElectrodeSource {
     pub tissue_fraction: f64,
 }
 
+/// Electrode `electrode`'s mark in a spot's set of the electrodes that power it (electrodes
+/// 64 apart in number share one).
+pub(crate) fn electrode_bit(electrode: u32) -> u64 {
+    1 << (electrode % 64)
+}
+
 /// Where a spot heats: its centre (rest, scene units), the coarse nodes and weights that
 /// stand for it, and its tissue fraction (see [`crate::heat::HeatField::powered_spot`]).
 #[derive(Debug, Clone, PartialEq)]
@@ -286,6 +292,10 @@ pub(crate) struct Spot {
     pub(crate) power: f64,
     /// Whether the last committed step had power.
     pub(crate) powered: bool,
+    /// The electrodes whose power is queued ([`electrode_bit`] of each), and those that
+    /// powered the last committed step.
+    pub(crate) electrodes: u64,
+    pub(crate) powered_by: u64,
     /// Heat that crosses the outer radius in the solved step (tissue share), J.
     pub(crate) outflow: f64,
     /// Heat the perfusion carried away in the solved step (tissue share), J.
@@ -323,6 +333,8 @@ impl Spot {
             scratch: vec![0.0; CELLS],
             power: 0.0,
             powered: false,
+            electrodes: 0,
+            powered_by: 0,
             outflow: 0.0,
             perfused: 0.0,
         }
@@ -439,7 +451,9 @@ impl Spot {
         std::mem::swap(&mut self.base, &mut self.next_base);
         self.update_moments();
         self.powered = self.power > 0.0;
+        self.powered_by = if self.powered { self.electrodes } else { 0 };
         self.power = 0.0;
+        self.electrodes = 0;
         for i in 0..CELLS {
             let t = self.base[i] + self.u[i];
             if t > self.peak[i] {

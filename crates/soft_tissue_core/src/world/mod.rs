@@ -348,7 +348,7 @@ pub fn step_solvers<B: BorrowMut<WorldBody> + Send, T: Borrow<Tool>>(
             continue;
         }
         if let Some(radius) = tool.electrode_radius() {
-            electrode_power(bodies, state, &pressing, watts, radius)?;
+            electrode_power(bodies, state, it as u32, &pressing, watts, radius)?;
             continue;
         }
         // Rows on a body a cut or a carve replaced this step name the old body's nodes:
@@ -400,11 +400,12 @@ pub fn step_solvers<B: BorrowMut<WorldBody> + Send, T: Borrow<Tool>>(
 /// normal force, at the force-weighted centre of its pressed points on the rest mesh (see
 /// [`HeatField::add_electrode`]; a new spot's tissue fraction is the share of the rest mesh
 /// around that centre, [`burn::tissue_fraction`]). On a body replaced this step (its rows
-/// name the old mesh's nodes) the power goes to the spot the electrode powered last
-/// (carried through a carve), if any.
+/// name the old mesh's nodes) the power goes to the spot this electrode, tool `tool`,
+/// powered last (carried through a carve), if any.
 fn electrode_power<B: BorrowMut<WorldBody>>(
     bodies: &mut [B],
     state: &ContactState,
+    tool: u32,
     pressing: &dyn Fn(&&crate::contact::ContactRow) -> bool,
     watts: f64,
     radius: f64,
@@ -457,9 +458,9 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
             };
             (center, nodes, fraction)
         } else {
-            let Some(spot) = h.powered_spot(radius) else {
+            let Some(spot) = h.powered_spot(tool, radius) else {
                 log::debug!(
-                    "body `{}`: its mesh changed this step and no spot had power: the electrode skips it for the step",
+                    "body `{}`: its mesh changed this step and the electrode had powered no spot on it: it skips the body for the step",
                     b.name
                 );
                 continue;
@@ -472,7 +473,7 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
             radius,
             tissue_fraction,
         };
-        h.add_electrode(&source, &nodes)
+        h.add_electrode_of(tool, &source, &nodes)
             .map_err(|source| WorldError::Heat {
                 body: BodyName {
                     name: b.name.clone(),
