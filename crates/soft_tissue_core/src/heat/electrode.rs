@@ -386,10 +386,12 @@ impl HeatField {
 
     /// Takes `other`'s burn history and its spots, which go on in this field: a body's field
     /// after a carve that left it one piece (the rest shape about the spots is the one they
-    /// burnt, less the carved balls they vaporized). `nearest(centre)`: this field's coarse
-    /// nodes and weights to stand for a spot's centre (its own nodes were carved away). This
-    /// field's temperatures must be `other`'s coarse field without the spots
-    /// ([`HeatField::temperatures`]), so the spots' heat is neither lost nor counted twice.
+    /// burnt, less the carved balls they vaporized). A spot stands at this field's node
+    /// nearest its centre (its own nodes were carved away): the nearest of the nodes within
+    /// its reach, found for its shells' bases anyway (a node without tissue about it is
+    /// none), else `nearest(centre)`'s nodes and weights. This field's temperatures must be
+    /// `other`'s coarse field without the spots ([`HeatField::temperatures`]), so the
+    /// spots' heat is neither lost nor counted twice.
     pub fn carry_spots_from(
         &mut self,
         other: &HeatField,
@@ -401,8 +403,19 @@ impl HeatField {
         self.departed = other.departed;
         for spot in &other.spots {
             let mut p = spot.clone();
-            let nodes = nearest(&p.center);
             let near = self.near_nodes(&p.center, p.grid.outer);
+            // Every node with tissue closer than the reach is in `near`, in node order (the
+            // first of equally near ones wins, as in a scan of all nodes).
+            let distance = |i: u32| (self.positions[i as usize] - p.center).norm();
+            let closest = near
+                .iter()
+                .filter(|n| n.1 < p.grid.outer)
+                .map(|n| n.0)
+                .min_by(|&a, &b| distance(a).total_cmp(&distance(b)));
+            let nodes = match closest {
+                Some(i) => vec![(i, 1.0)],
+                None => nearest(&p.center),
+            };
             p.rebind(nodes, &near);
             if !self.grids.iter().any(|g| Arc::ptr_eq(g, &p.grid)) {
                 self.grids.push(p.grid.clone());

@@ -13,6 +13,8 @@ use crate::mesh::cut::Ball;
 /// caller), so a crater is carved again only once it has grown by [`CARVE_GROWTH`].
 pub(super) fn carry_spots(field: &mut HeatField, mesh: &TetMesh, old: &HeatField) {
     let x = mesh.positions();
+    // The field finds the nearest node among those about the spot; a scan of every node
+    // only for a spot with none within its reach.
     field.carry_spots_from(old, |centre| {
         let nearest = (0..x.len())
             .min_by(|&a, &b| (x[a] - centre).norm().total_cmp(&(x[b] - centre).norm()))
