@@ -21,7 +21,9 @@ pub struct WorldBody {
     pub(crate) cut: Option<super::cut::CutRecord>,
     /// Pieces this body gave off in cuts (their names count on from it).
     pub(crate) pieces_made: usize,
-    /// Balls of vaporized tissue whose carving was tried and did not land.
+    /// Balls of vaporized tissue whose carving was tried (refused, or carved: a crater is
+    /// carved again once it has grown by [`super::CARVE_GROWTH`]); only the largest at each
+    /// crater there is now is kept ([`WorldBody::prune_vaporize_tried`]).
     pub(crate) vaporize_tried: Vec<crate::mesh::cut::Ball>,
     /// The rest mesh's tetrahedra by place, for an electrode's tissue fraction (built when
     /// the first spot starts; see [`super::burn::tissue_fraction_in`]).

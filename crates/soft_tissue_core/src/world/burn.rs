@@ -102,5 +102,166 @@ impl WorldBody {
     /// has grown by [`CARVE_GROWTH`]).
     pub fn vaporize_refused(&mut self, balls: &[Ball]) {
         self.vaporize_tried.extend_from_slice(balls);
+        self.prune_vaporize_tried();
+    }
+
+    /// Keeps of the balls tried (refused, or carved: a carve that landed adds its balls)
+    /// only what [`WorldBody::vaporized`] still compares with: the largest at the centre of
+    /// each crater there is now. A crater whose spot ended matches no ball any more, and a
+    /// smaller ball tried at a centre is outgrown by the larger one. In place, without
+    /// allocating; the list stays as long as the craters are many.
+    pub(crate) fn prune_vaporize_tried(&mut self) {
+        let tried = &mut self.vaporize_tried;
+        if tried.is_empty() {
+            return;
+        }
+        let heat = self.heat.as_ref();
+        let crater_at = |c: &Vec3| {
+            heat.is_some_and(|h| h.vaporized_balls_iter().any(|(centre, _, _)| centre == *c))
+        };
+        let mut kept = 0;
+        for k in 0..tried.len() {
+            let ball = tried[k];
+            if !crater_at(&ball.centre) {
+                continue;
+            }
+            match tried[..kept].iter_mut().find(|t| t.centre == ball.centre) {
+                Some(t) => t.radius = t.radius.max(ball.radius),
+                None => {
+                    tried[kept] = ball;
+                    kept += 1;
+                }
+            }
+        }
+        tried.truncate(kept);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::boundary::Boundary;
+    use crate::contact::ToolShape;
+    use crate::material::{FemParams, MsdParams};
+    use crate::mesh::generate::block;
+
+    const DT: f64 = 1.0 / 64.0;
+    const RADIUS: f64 = 1e-3;
+
+    /// A block of liver 8 mm across meshed at 1 mm, fixed below, with a 1 mm spherical
+    /// electrode at 30 W pressed 0.3 mm into the middle of its top.
+    fn pressed_block() -> SoftTissueWorld {
+        let side = 0.008;
+        let mesh = block(Vec3::zeros(), Vec3::repeat(side), [8, 8, 8]).unwrap();
+        let fem = FemParams {
+            young_modulus: 2.0e4,
+            poisson_ratio: 0.45,
+            mass: 1079.0 * mesh.volume(),
+            damping: 1.0,
+        };
+        let msd = MsdParams {
+            stiffness: 100.0,
+            mass: fem.mass,
+            damping: 0.1,
+        };
+        let mut s = BodySettings::new(fem, msd, DT);
+        s.boundary = Boundary::fixed_below(mesh.positions(), 1, 0.01);
+        let heat = HeatParams {
+            meters_per_unit: 1.0,
+            ..HeatParams::liver()
+        };
+        let body = WorldBody::new(
+            "block",
+            Arc::new(mesh),
+            s,
+            Some((heat, HeatBoundary::insulated())),
+        )
+        .unwrap();
+        let mut w = SoftTissueWorld::new(WorldConfig {
+            dt: DT,
+            contact: crate::contact::ContactConfig::for_scale(side),
+        })
+        .unwrap();
+        w.add_body(body).unwrap();
+        let t = w.add_tool(Tool::new("electrode", ToolShape::Sphere { radius: RADIUS }).unwrap());
+        let tool = &mut w.tools_mut()[t];
+        tool.set_electrode_radius(Some(RADIUS)).unwrap();
+        tool.set_position(Vec3::new(0.5 * side, side + 0.7 * RADIUS, 0.5 * side))
+            .unwrap();
+        tool.set_cautery(30.0).unwrap();
+        w
+    }
+
+    /// The centres of the body's craters now.
+    fn craters(b: &WorldBody) -> Vec<Vec3> {
+        b.heat()
+            .map(|h| h.vaporized_balls_iter().map(|c| c.0).collect())
+            .unwrap_or_default()
+    }
+
+    /// The balls tried are kept for the craters there are, one (the largest) at each, while
+    /// an electrode sinking 1 mm/s into a block carves its craters; a refused ball is
+    /// carved once it has grown by `CARVE_GROWTH`. Before, every carve and every refusal
+    /// added a ball for good.
+    #[test]
+    fn the_balls_tried_stay_one_per_crater() {
+        let mut w = pressed_block();
+        let start = w.tools()[0].position();
+        let mut carves = 0;
+        for k in 0..128 {
+            let sunk = start - Vec3::y() * 1e-3 * (k as f64 * DT);
+            w.tools_mut()[0].set_position(sunk).unwrap();
+            let mesh = Arc::as_ptr(w.bodies()[0].mesh());
+            w.step_fixed().unwrap();
+            carves += usize::from(Arc::as_ptr(w.bodies()[0].mesh()) != mesh);
+            let b = &w.bodies()[0];
+            let at = craters(b);
+            let tried = &b.vaporize_tried;
+            for (i, t) in tried.iter().enumerate() {
+                assert!(at.contains(&t.centre), "step {k}: {t:?} matches no crater");
+                assert!(
+                    tried[..i].iter().all(|u| u.centre != t.centre),
+                    "step {k}: two balls tried at one crater: {tried:?}"
+                );
+            }
+        }
+        let b = &mut w.bodies_mut()[0];
+        println!(
+            "{carves} carves; {} craters, {} balls tried",
+            craters(b).len(),
+            b.vaporize_tried.len()
+        );
+        assert!(carves >= 2, "{carves} carves");
+        // Refusals, again and again: one ball at the crater, the largest (the rule compares
+        // with it, whichever came last), and none where no crater is.
+        let (centre, now, electrode) = b
+            .heat()
+            .unwrap()
+            .vaporized_balls_iter()
+            .max_by(|x, y| x.1.total_cmp(&y.1))
+            .expect("a crater");
+        assert!(now >= electrode);
+        let big = Ball {
+            centre,
+            radius: now / CARVE_GROWTH * 1.01,
+        };
+        let small = Ball {
+            centre,
+            radius: now / CARVE_GROWTH * 0.99,
+        };
+        let gone = Ball {
+            centre: centre + Vec3::x(),
+            radius: now,
+        };
+        b.vaporize_tried.clear();
+        for _ in 0..10 {
+            b.vaporize_refused(&[big, gone]);
+            b.vaporize_refused(&[small]);
+        }
+        assert_eq!(b.vaporize_tried, vec![big]);
+        let here = |b: &WorldBody| b.vaporized().into_iter().find(|v| v.centre == centre);
+        assert_eq!(here(b), None, "carved before it grew by CARVE_GROWTH");
+        b.vaporize_tried = vec![small];
+        assert_eq!(here(b).map(|v| v.radius), Some(now));
     }
 }

@@ -428,6 +428,8 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
             continue;
         }
         let b = b.borrow_mut();
+        // Where the craters grow: the balls tried that no crater matches any more go.
+        b.prune_vaporize_tried();
         let Some(h) = b.heat.as_mut() else { continue };
         let rest = b.mesh.positions();
         let mut center = Vec3::zeros();
