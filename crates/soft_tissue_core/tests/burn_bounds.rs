@@ -318,7 +318,6 @@ fn the_liver_cauterized_through_carves_burns_no_more_than_its_energy_can_heat() 
     };
     let q0 = held(&w);
     let dt = w.config().dt;
-    let (mut ids, mut meshes) = (Vec::new(), 0);
     let steps = (3.3 / dt).round() as usize;
     for k in 0..steps {
         let t = (k + 1) as f64 * dt;
@@ -329,17 +328,15 @@ fn the_liver_cauterized_through_carves_burns_no_more_than_its_energy_can_heat() 
             e.action.apply(tool).unwrap();
         }
         w.step_fixed().unwrap();
-        let mesh = Arc::as_ptr(w.bodies()[liver].mesh());
-        if !ids.contains(&mesh) {
-            ids.push(mesh);
-            meshes += 1;
-        }
     }
+    // The body's record counts its topology changes (a freed mesh's address may be reused,
+    // so addresses do not count them).
+    let carves = w.bodies()[liver].cut_record().map_or(0, |r| r.cuts);
     // At most 30 W for the 2 s the script heats (only while the electrode presses).
     let joules = 30.0 * 2.0;
     let delivered = held(&w) - q0;
-    println!("{} carves, {delivered:.2} J delivered", meshes - 1);
-    assert!(meshes >= 3, "only {} carves landed", meshes - 1);
+    println!("{carves} carves, {delivered:.2} J delivered");
+    assert!(carves >= 2, "only {carves} carves landed");
     assert!(
         delivered > 0.5 * joules && delivered <= joules * (1.0 + 1e-9),
         "{delivered} J"

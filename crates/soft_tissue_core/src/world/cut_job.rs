@@ -526,6 +526,7 @@ impl WorldBody {
                     source,
                 })?;
             }
+            body.prune_vaporize_tried();
             body.friction = self.friction;
             body.toughness = self.toughness;
             // What was set at run time beyond the settings.
