@@ -232,5 +232,9 @@ fn a_stroke_through_held_tissue_is_never_held_back_by_more_than_j_l() {
         println!(
             "{young:e} Pa, {speed} m/s: resistance along x / J L (N){seen}; turned in {turned}"
         );
+        // A stiff block barely moves: the blade's motion relative to it keeps its way.
+        if young > 1e6 {
+            assert_eq!(turned, 0, "{young:e} Pa, {speed} m/s");
+        }
     }
 }
