@@ -399,7 +399,7 @@ pub fn step_solvers<B: BorrowMut<WorldBody> + Send, T: Borrow<Tool>>(
 /// An electrode's power into the bodies it presses, each body's share by its part of the
 /// normal force, at the force-weighted centre of its pressed points on the rest mesh (see
 /// [`HeatField::add_electrode`]; a new spot's tissue fraction is the share of the rest mesh
-/// around that centre, [`burn::tissue_fraction`]). On a body replaced this step (its rows
+/// around that centre, [`burn::tissue_fraction_in`]). On a body replaced this step (its rows
 /// name the old mesh's nodes) the power goes to the spot this electrode, tool `tool`,
 /// powered last (carried through a carve), if any.
 fn electrode_power<B: BorrowMut<WorldBody>>(

@@ -583,6 +583,20 @@ fn solve_all<B: BorrowMut<WorldBody> + Sync, T: BorrowMut<Tool>>(
                 {
                     failure = Some(e);
                 }
+                // A compliance that is not finite fails the step here: the sweeps take a row
+                // whose diagonal is NaN as one that nothing moves, and skip rows without
+                // force, so it would otherwise be dropped silently. (A failed solve leaves
+                // NaN in a node's columns, its diagonal block among them.)
+                let n = vertices.len();
+                if failure.is_none()
+                    && let Some(k) = (0..n).find(|&k| !out[k * n + k].iter().all(|v| v.is_finite()))
+                {
+                    failure = Some(WorldError::NonFinite {
+                        body: b.label(),
+                        node: b.collider.nodes()[vertices[k] as usize] as usize,
+                        stage: "contact compliance",
+                    });
+                }
             };
             state.solver.assemble(&state.rows, &mut compliance);
         }
