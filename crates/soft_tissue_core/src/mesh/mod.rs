@@ -18,6 +18,7 @@ pub mod pieces;
 mod quality;
 pub mod subdivide;
 pub mod surface_tree;
+mod tet_grid;
 pub mod tetrahedralize;
 mod topology;
 

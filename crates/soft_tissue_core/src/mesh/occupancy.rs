@@ -11,15 +11,12 @@ use std::sync::{Arc, Weak};
 use nalgebra::Matrix3;
 
 use super::TetMesh;
+use super::tet_grid::{TetGrid, grid_cells};
 use crate::Vec3;
 
 /// Directions sampled on each sphere (a Fibonacci lattice: nearly even areas, so the share
 /// of a half-space comes out within about `1 / DIRECTIONS` of 1/2).
 pub const DIRECTIONS: usize = 256;
-
-/// The grid has at most this many cells per tetrahedron (a flat or very uneven mesh gets
-/// coarser cells).
-const CELLS_PER_TET: f64 = 4.0;
 
 /// A tetrahedron near the sphere: its first corner and the inverse of its edge matrix (what
 /// the barycentric test needs).
@@ -35,7 +32,14 @@ pub fn sphere_share_inside(mesh: &TetMesh, centre: &Vec3, radii: &[f64]) -> f64 
         return 0.0;
     };
     let (mut found, mut near) = (Vec::new(), Vec::new());
-    TetGrid::new(mesh).near(mesh, centre, reach, &mut found, &mut near);
+    near_tets(
+        &TetGrid::new(mesh),
+        mesh,
+        centre,
+        reach,
+        &mut found,
+        &mut near,
+    );
     share(centre, radii, &near)
 }
 
@@ -70,8 +74,14 @@ impl Occupancy {
             self.grid = TetGrid::new(mesh);
             self.mesh = Arc::downgrade(mesh);
         }
-        self.grid
-            .near(mesh, centre, reach, &mut self.found, &mut self.near);
+        near_tets(
+            &self.grid,
+            mesh,
+            centre,
+            reach,
+            &mut self.found,
+            &mut self.near,
+        );
         share(centre, radii, &self.near)
     }
 }
@@ -127,137 +137,32 @@ fn share(centre: &Vec3, radii: &[f64], near: &[NearTet]) -> f64 {
     inside as f64 / (DIRECTIONS * radii.len()) as f64
 }
 
-/// A mesh's tetrahedra in a uniform grid: each in every cell its bounding box meets.
-#[derive(Debug, Default)]
-struct TetGrid {
-    origin: Vec3,
-    cell: f64,
-    dims: [usize; 3],
-    /// Cell `c`'s tetrahedra are `items[starts[c]..starts[c + 1]]`.
-    starts: Vec<u32>,
-    items: Vec<u32>,
-}
-
-impl TetGrid {
-    fn new(mesh: &TetMesh) -> Self {
-        let n = mesh.tet_count();
-        let bbox = mesh.bbox();
-        let extent = bbox.extent();
-        // Cells about the size of the tetrahedra's boxes, but no more than CELLS_PER_TET per
-        // tetrahedron over the mesh's box.
-        let mean = mesh
-            .tets()
+/// Into `near`, in the order of the mesh, every tetrahedron of `mesh` (`grid`'s) whose
+/// bounding box comes within `reach` of `centre` ([`near_tet`]); `found` is room.
+fn near_tets(
+    grid: &TetGrid,
+    mesh: &TetMesh,
+    centre: &Vec3,
+    reach: f64,
+    found: &mut Vec<u32>,
+    near: &mut Vec<NearTet>,
+) {
+    found.clear();
+    near.clear();
+    // The cube about the sphere, a little larger (a box within reach by the test below
+    // meets it whatever the rounding).
+    let grow = reach * (1.0 + 1e-6) + centre.amax() * 1e-12;
+    let r = grid.cells_of(&centre.add_scalar(-grow), &centre.add_scalar(grow));
+    grid_cells(grid.dims, &r, |c| {
+        found.extend_from_slice(grid.cell_items(c))
+    });
+    found.sort_unstable();
+    found.dedup();
+    let tets = mesh.tets();
+    near.extend(
+        found
             .iter()
-            .map(|t| {
-                let (lo, hi) = bounds(&corners(mesh, t));
-                (hi - lo).max()
-            })
-            .sum::<f64>()
-            / n.max(1) as f64;
-        let most = CELLS_PER_TET * n as f64 + 8.0;
-        let coarsest = (extent.x * extent.y * extent.z / most).cbrt();
-        let mut cell = mean.max(coarsest);
-        if !(cell.is_finite() && cell > 0.0) {
-            cell = extent.max();
-        }
-        let count = |cell: f64| extent.map(|e| (e / cell).ceil().max(1.0));
-        // One cell for a box that is not finite; a flat mesh's box has no volume: coarser
-        // cells until they are few enough.
-        let mut dims = [1; 3];
-        if extent.iter().all(|e| e.is_finite()) && cell.is_finite() && cell > 0.0 {
-            for _ in 0..64 {
-                let c = count(cell);
-                if c.product() <= most {
-                    dims = [0, 1, 2].map(|a| c[a] as usize);
-                    break;
-                }
-                cell *= 2.0;
-            }
-        }
-        let mut grid = TetGrid {
-            origin: bbox.min,
-            cell,
-            dims,
-            starts: vec![0; dims[0] * dims[1] * dims[2] + 1],
-            items: Vec::new(),
-        };
-        // Counting sort into the cells.
-        for t in mesh.tets() {
-            let r = grid.cells_of(&bounds(&corners(mesh, t)));
-            grid_cells(dims, &r, |c| grid.starts[c + 1] += 1);
-        }
-        for c in 0..grid.starts.len() - 1 {
-            grid.starts[c + 1] += grid.starts[c];
-        }
-        let mut fill = grid.starts.clone();
-        grid.items = vec![0; grid.starts.last().map_or(0, |&k| k as usize)];
-        for (k, t) in mesh.tets().iter().enumerate() {
-            let r = grid.cells_of(&bounds(&corners(mesh, t)));
-            let items = &mut grid.items;
-            grid_cells(dims, &r, |c| {
-                items[fill[c] as usize] = k as u32;
-                fill[c] += 1;
-            });
-        }
-        grid
-    }
-
-    /// The cell along `axis` that holds coordinate `x` (the first or last one beyond the
-    /// grid).
-    fn index(&self, x: f64, axis: usize) -> usize {
-        let i = ((x - self.origin[axis]) / self.cell).floor();
-        (i.max(0.0) as usize).min(self.dims[axis].saturating_sub(1))
-    }
-
-    /// The cells a box meets, as index ranges per axis.
-    fn cells_of(&self, (lo, hi): &(Vec3, Vec3)) -> [[usize; 2]; 3] {
-        [0, 1, 2].map(|a| [self.index(lo[a], a), self.index(hi[a], a)])
-    }
-
-    /// Into `near`, in the order of the mesh, every tetrahedron of `mesh` (the grid's)
-    /// whose bounding box comes within `reach` of `centre` ([`near_tet`]); `found` is room.
-    fn near(
-        &self,
-        mesh: &TetMesh,
-        centre: &Vec3,
-        reach: f64,
-        found: &mut Vec<u32>,
-        near: &mut Vec<NearTet>,
-    ) {
-        found.clear();
-        near.clear();
-        if self.starts.len() < 2 {
-            return;
-        }
-        // The cube about the sphere, a little larger (a box within reach by the test below
-        // meets it whatever the rounding).
-        let grow = reach * (1.0 + 1e-6) + centre.amax() * 1e-12;
-        let cube = (centre.add_scalar(-grow), centre.add_scalar(grow));
-        let r = self.cells_of(&cube);
-        grid_cells(self.dims, &r, |c| {
-            found.extend_from_slice(
-                &self.items[self.starts[c] as usize..self.starts[c + 1] as usize],
-            );
-        });
-        found.sort_unstable();
-        found.dedup();
-        let tets = mesh.tets();
-        near.extend(
-            found
-                .iter()
-                .filter_map(|&t| tets.get(t as usize))
-                .filter_map(|t| near_tet(&corners(mesh, t), centre, reach)),
-        );
-    }
-}
-
-/// Calls `f` with the linear index of every cell in the index ranges `r`.
-fn grid_cells(dims: [usize; 3], r: &[[usize; 2]; 3], mut f: impl FnMut(usize)) {
-    for k in r[2][0]..=r[2][1] {
-        for j in r[1][0]..=r[1][1] {
-            for i in r[0][0]..=r[0][1] {
-                f(i + dims[0] * (j + dims[1] * k));
-            }
-        }
-    }
+            .filter_map(|&t| tets.get(t as usize))
+            .filter_map(|t| near_tet(&corners(mesh, t), centre, reach)),
+    );
 }
