@@ -197,14 +197,19 @@ fn a_haptic_blade_hands_its_cut_to_the_haptic_thread_and_the_hand_is_held_back()
         }
     }
     assert!(!held.is_empty(), "the blade never cut A");
-    let (strength, force) = *held.last().unwrap();
+    let (last, force) = *held.last().unwrap();
+    let strength = held.iter().map(|h| h.0).fold(0.0, f64::max);
     println!(
-        "haptic blade in A: breakaway {strength:.4} (toughness times A's height {expected:.4}), \
-         hand force {force:.4} at the end of the stroke; held in {} steps, the physics found \
-         no edge in A in {dropped} steps of the stroke's last 70 %",
+        "haptic blade in A: breakaway {last:.4} at the end of the stroke, {strength:.4} at \
+         most (toughness times A's height {expected:.4}), hand force {force:.4} at the end; \
+         held in {} steps, the physics found no edge in A in {dropped} steps of the stroke's \
+         last 70 %",
         held.len()
     );
-    // The length in A is its height, as the tissue deforms a little under the pull.
+    // Where the edge crosses A whole the length in A is its height, as the tissue deforms a
+    // little under the pull. (At the end of the stroke the edge may stand partly outside the
+    // tissue it dragged: the proxy the physics steps follows the hand through the haptic
+    // thread, whose ticks between two steps depend on the machine's load.)
     assert!((strength - expected).abs() < 0.05 * expected, "{strength}");
     for (strength, force) in &held {
         assert!(force.z < -0.5 * strength, "{force} vs {strength}");
