@@ -257,7 +257,7 @@ fn a_kept_occupancy_asked_again_does_not_allocate() {
     let cratered = Arc::new(cratered);
     let mut kept = Occupancy::default();
     let radii = FRACTION_RADII.map(|k| k * 0.2);
-    // The first question builds the grid; one about a larger sphere grows the lists.
+    // The first question builds the grid (and the inverses of the tetrahedra it meets).
     let (first, _) = allocations(|| kept.sphere_share_inside(&cratered, &top, &[1.0]));
     assert!(first > 0);
     // An electrode dragged across the crater: a spot every half radius.

@@ -79,11 +79,6 @@ impl TetGrid {
         grid_cells(self.dims, r, |c| f(c, starts));
     }
 
-    /// The cells a box from `lo` to `hi` meets, as index ranges per axis.
-    pub(crate) fn cells_of(&self, lo: &Vec3, hi: &Vec3) -> [[usize; 2]; 3] {
-        [0, 1, 2].map(|a| [self.index(lo[a], a), self.index(hi[a], a)])
-    }
-
     /// The tetrahedra of cell `c` (none in a grid of no cells).
     pub(crate) fn cell_items(&self, c: usize) -> &[u32] {
         if c + 1 >= self.starts.len() {

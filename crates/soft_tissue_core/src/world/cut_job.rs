@@ -777,6 +777,11 @@ fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
             log::warn!("body `{name}`: no contact columns computed for a piece: {e}");
             0
         });
+        // An electrode's next spot on the piece asks what share of its surroundings is
+        // tissue: the grid that answers is built here, not in the step that asks.
+        if body.heat.is_some() {
+            body.occupancy.prepare(&body.mesh);
+        }
         build_us += building.elapsed().as_secs_f64() * 1e6;
         let history = CutHistory {
             sides: part
