@@ -282,7 +282,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     let mut contact_rounds = (0u64, 0u32, 0u64, 0u32);
     // Each cut that changed a body: (mesh change, bodies built, landing), microseconds.
     let mut seen: Vec<u64> = world.bodies().iter().map(|b| b.id()).collect();
-    let mut cut_costs: Vec<(f64, f64, f64)> = Vec::new();
+    let mut cut_costs: Vec<(f64, f64, f64, f64)> = Vec::new();
     // Whole steps while a blade cuts or a cut is being prepared.
     let mut cutting_steps: Vec<f64> = Vec::new();
     let period = std::time::Duration::from_secs_f64(dt);
@@ -314,11 +314,11 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
         }
         // A cut may have changed bodies and added some (the pieces that came loose).
         {
-            let mut this_step: Vec<(f64, f64, f64)> = Vec::new();
+            let mut this_step: Vec<(f64, f64, f64, f64)> = Vec::new();
             for b in world.bodies() {
                 if let (false, Some(r)) = (seen.contains(&b.id()), b.cut_record()) {
                     seen.push(b.id());
-                    let c = (r.mesh_us, r.build_us, r.land_us);
+                    let c = (r.mesh_us, r.build_us, r.land_us, r.wait_us);
                     if !this_step.contains(&c) {
                         this_step.push(c);
                     }
@@ -514,6 +514,9 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "cut_land_us": soft_tissue_core::timing::TimeStats::of(
                     &cut_costs.iter().map(|c| c.2).collect::<Vec<_>>()
                 ),
+                "cut_wait_us": soft_tissue_core::timing::TimeStats::of(
+                    &cut_costs.iter().map(|c| c.3).collect::<Vec<_>>()
+                ),
                 "cut_background_steps": args.cut_background_steps,
                 "real_time": args.real_time,
                 "steps_while_cutting": cutting_steps.len(),
@@ -623,8 +626,9 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
             let mesh: Vec<f64> = cut_costs.iter().map(|c| c.0).collect();
             let build: Vec<f64> = cut_costs.iter().map(|c| c.1).collect();
             let land: Vec<f64> = cut_costs.iter().map(|c| c.2).collect();
+            let wait: Vec<f64> = cut_costs.iter().map(|c| c.3).collect();
             println!(
-                "cuts that changed a body: {}; per cut, median / p99 / max us: mesh change {}, bodies built {} ({}), landing in its step {}",
+                "cuts that changed a body: {}; per cut, median / p99 / max us: mesh change {}, bodies built {} ({}), landing in its step {} (of it waiting for the thread {})",
                 cut_costs.len(),
                 triple(&soft_tissue_core::timing::TimeStats::of(&mesh)),
                 triple(&soft_tissue_core::timing::TimeStats::of(&build)),
@@ -637,6 +641,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                     "within the step".to_string()
                 },
                 triple(&soft_tissue_core::timing::TimeStats::of(&land)),
+                triple(&soft_tissue_core::timing::TimeStats::of(&wait)),
             );
             println!(
                 "steps while cutting ({}{}): {}, median / p99 / max us {}",

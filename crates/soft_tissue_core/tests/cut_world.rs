@@ -157,6 +157,8 @@ fn a_hanging_bar_cut_through_falls_in_two_the_lower_piece_at_g() {
         for b in w.bodies() {
             let r = b.cut_record().unwrap();
             assert!(r.closed, "{method:?}: {} has a closed surface", b.name());
+            // Made within the step: nothing waited for.
+            assert_eq!(r.wait_us, 0.0);
             assert!(
                 r.area > 0.9 * 0.02 * 0.02,
                 "{method:?}: cut area {}",
@@ -540,6 +542,8 @@ fn a_cut_prepared_in_the_background_lands_steps_later_in_the_state_then() {
     assert!(((m - mass) / mass).abs() < 1e-9 && ((v - volume) / volume).abs() < 1e-9);
     let r = lower.cut_record().unwrap();
     assert!(r.closed && r.mesh_us > 0.0 && r.build_us > 0.0, "{r:?}");
+    // Whatever the landing waited for its thread is part of what it spent.
+    assert!(r.wait_us >= 0.0 && r.wait_us <= r.land_us, "{r:?}");
     let a = acceleration(&mut w, 1);
     assert!(
         (a.y - G).abs() < 0.02 * G && a.x.abs() < 0.02 * G && a.z.abs() < 0.02 * G,

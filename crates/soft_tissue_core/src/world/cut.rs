@@ -56,6 +56,10 @@ pub struct CutRecord {
     /// that prepared it (0 when it was ready, or when it was prepared in the step) and
     /// handing the body's state now to its pieces.
     pub land_us: f64,
+    /// Of [`CutRecord::land_us`], the time spent waiting for the thread that prepared the
+    /// cut (0 when it was ready): more than a little says the cut needs more
+    /// [`crate::mesh::cut::CutOptions::background_steps`] on this machine.
+    pub wait_us: f64,
 }
 
 /// What one blade sweep did to one body ([`WorldBody::cut_within`]).

@@ -390,6 +390,7 @@ impl WorldBody {
     /// cut again).
     pub fn finish_cut(&mut self, job: CutJob) -> Result<BladeOutcome, WorldError> {
         let started = std::time::Instant::now();
+        let ready = job.is_ready();
         let prepared = match job.work {
             Work::Ready(p) => p,
             Work::Thread(h) => match h.join() {
@@ -416,6 +417,11 @@ impl WorldBody {
                     }
                 },
             },
+        };
+        let wait_us = if ready {
+            0.0
+        } else {
+            started.elapsed().as_secs_f64() * 1e6
         };
         let cut = match prepared {
             Prepared::Missed => return Ok(BladeOutcome::Missed),
@@ -556,6 +562,7 @@ impl WorldBody {
         for b in &mut built {
             if let Some(r) = b.cut.as_mut() {
                 r.land_us = land_us;
+                r.wait_us = wait_us;
             }
         }
         // The parts take the frame the body was moved to before anything is swapped (a no-op

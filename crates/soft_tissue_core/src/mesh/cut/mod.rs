@@ -80,9 +80,10 @@ pub struct CutOptions {
 /// background lands this many times [`CutOptions::background_steps`] after it began: its
 /// preparation also computes the compliance columns of the crater's nodes the tool presses
 /// on (so the landing step's contact solves for none), which on the organs' liver doubles
-/// it (about 50 ms), and a crater that appears a few tens of milliseconds later is not seen
-/// (it grew over seconds).
-pub const CARVE_STEPS_FACTOR: u32 = 2;
+/// it (75-82 ms on this project's 2-core VM: with 4 background steps of 10 ms, twice as
+/// many steps left one landing of three waiting about 3 ms for the thread), and a crater
+/// that appears a few tens of milliseconds later is not seen (it grew over seconds).
+pub const CARVE_STEPS_FACTOR: u32 = 3;
 
 /// A piece a cut would make of fewer tetrahedra than this, or one element thick along the
 /// cut, and under 2 % of the mesh's tetrahedra, is a crumb: it is not cut off.
