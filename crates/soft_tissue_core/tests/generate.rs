@@ -290,3 +290,65 @@ fn a_placed_mesh_keeps_its_topology_and_a_mirror_is_refused() {
         .to_string();
     assert!(e.contains("tetrahedron 0"), "{e}");
 }
+
+/// A deformed state of a mesh (`TetMesh::moved_to`) is what building its nodes there anew
+/// gives, topology and volumes; it is refused where `TetMesh::new` would refuse or turn an
+/// element over (one node pushed through its opposite face, one flattened onto it), and for
+/// positions of another count, each by name.
+#[test]
+fn a_deformed_state_keeps_the_topology_and_is_refused_where_new_would_refuse_it() {
+    let mesh =
+        soft_tissue_core::mesh::generate::block(Vec3::zeros(), Vec3::new(1.0, 2.0, 0.5), [3, 4, 2])
+            .unwrap();
+    // A smooth bend and twist that keeps every element upright.
+    let bend = |p: &Vec3| {
+        Vec3::new(
+            p.x + 0.1 * (p.y * 1.3).sin(),
+            p.y + 0.05 * p.x * p.z,
+            p.z + 0.08 * (p.x - 0.5) * p.y,
+        )
+    };
+    let positions: Vec<Vec3> = mesh.positions().iter().map(bend).collect();
+    let moved = mesh.moved_to(positions.clone()).unwrap();
+    let tets = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
+    let anew = TetMesh::new(positions, tets).unwrap();
+    assert_eq!(moved.tets(), anew.tets());
+    assert_eq!(moved.edges(), anew.edges());
+    assert_eq!(moved.surface().triangles(), anew.surface().triangles());
+    assert_eq!(moved.tet_neighbors(), anew.tet_neighbors());
+    for (a, b) in moved.tet_volumes().iter().zip(anew.tet_volumes()) {
+        assert!(
+            (a - b).abs() <= 1e-15 * b.abs().max(1e-300),
+            "{a} against {b}"
+        );
+    }
+    assert!((moved.bbox().min - anew.bbox().min).norm() < 1e-15);
+    // Element 0's first corner pushed through the opposite face, then onto it.
+    let t = mesh.tets()[0].map(|i| i as usize);
+    let p = mesh.positions();
+    let (a, b, c, d) = (p[t[0]], p[t[1]], p[t[2]], p[t[3]]);
+    let normal = (c - b).cross(&(d - b)).normalize();
+    let height = (a - b).dot(&normal);
+    for (depth, what) in [(2.0, "inverted"), (1.0, "flat")] {
+        let mut x = mesh.positions().to_vec();
+        x[t[0]] = a - normal * (height * depth);
+        let e = mesh.moved_to(x.clone()).unwrap_err();
+        assert!(e.to_string().contains("tetrahedron 0"), "{what}: {e}");
+        let tets: Vec<[usize; 4]> = mesh.tets().iter().map(|t| t.map(|i| i as usize)).collect();
+        match TetMesh::new(x, tets) {
+            Err(_) => {}
+            Ok(m) => assert!(
+                !m.warnings().is_empty(),
+                "{what}: new takes it without turning anything over"
+            ),
+        }
+    }
+    let e = mesh.moved_to(vec![Vec3::zeros(); 3]).unwrap_err();
+    assert_eq!(
+        e,
+        soft_tissue_core::mesh::MeshError::NodeCount {
+            given: 3,
+            nodes: mesh.node_count()
+        }
+    );
+}

@@ -107,6 +107,15 @@ pub enum MeshError {
         /// The first tetrahedra found sharing it (at most three).
         tets: Vec<usize>,
     },
+    /// Positions given for another number of nodes than the mesh has
+    /// ([`TetMesh::moved_to`]).
+    #[error("positions for {given} nodes given to a mesh of {nodes}")]
+    NodeCount {
+        /// Positions given.
+        given: usize,
+        /// Nodes of the mesh.
+        nodes: usize,
+    },
     /// More nodes or tetrahedra than 32-bit indices can address.
     #[error("too many {what}: {count} (at most {max})")]
     TooLarge {
@@ -463,6 +472,28 @@ impl TetMesh {
     /// it inside out or flattened it: [`TetMesh::new`] builds such a mesh anew).
     pub fn mapped(&self, map: impl Fn(&Vec3) -> Vec3) -> Result<TetMesh, MeshError> {
         let positions: Vec<Vec3> = self.positions.iter().map(map).collect();
+        self.relocated(positions, 0.0)
+    }
+
+    /// This mesh with its nodes at `positions` (one per node, in order; a deformed state of
+    /// it, say): the topology is kept and only the volumes and the bounds are computed again,
+    /// in time linear in the mesh, where [`TetMesh::new`] would derive the faces, edges and
+    /// neighbours anew. Refused as [`TetMesh::new`] would refuse or turn over an element:
+    /// an error where a coordinate is not finite, an element is inverted or flat, or flatter
+    /// than [`ValidationOptions::default`]'s `degenerate_ratio`.
+    pub fn moved_to(&self, positions: Vec<Vec3>) -> Result<TetMesh, MeshError> {
+        if positions.len() != self.positions.len() {
+            return Err(MeshError::NodeCount {
+                given: positions.len(),
+                nodes: self.positions.len(),
+            });
+        }
+        self.relocated(positions, ValidationOptions::default().degenerate_ratio)
+    }
+
+    /// This mesh's topology at `positions` (as many as its nodes); an element whose volume
+    /// is not positive, or whose volume ratio is below `min_ratio`, is an error.
+    fn relocated(&self, positions: Vec<Vec3>, min_ratio: f64) -> Result<TetMesh, MeshError> {
         for (node, p) in positions.iter().enumerate() {
             for (axis, name) in ['x', 'y', 'z'].into_iter().enumerate() {
                 if !p[axis].is_finite() {
@@ -478,7 +509,7 @@ impl TetMesh {
         for (tet, t) in self.tets.iter().enumerate() {
             let corners = t.map(|i| positions[i as usize]);
             let volume = tet_signed_volume(&corners);
-            if volume.is_nan() || volume <= 0.0 {
+            if volume.is_nan() || volume <= 0.0 || volume_ratio(&corners, volume) < min_ratio {
                 let mut sum = 0.0;
                 for a in 0..4 {
                     for b in a + 1..4 {
@@ -491,7 +522,7 @@ impl TetMesh {
                     nodes: t.map(|i| i as usize),
                     volume,
                     ratio: volume / (edge.powi(3) / (6.0 * std::f64::consts::SQRT_2)),
-                    threshold: 0.0,
+                    threshold: min_ratio,
                 });
             }
             volumes.push(volume);

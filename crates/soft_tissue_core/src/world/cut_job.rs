@@ -670,8 +670,12 @@ fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
     let started = std::time::Instant::now();
     let name = input.name.clone();
     let fail = |why: String| (name.clone(), why);
-    // Where its elements are turned inside out the body has no shape to cut along.
-    let now = upright(input.x, input.mesh.tets(), "its shape now").map_err(fail)?;
+    // Where its elements are turned inside out the body has no shape to cut along (the
+    // rest mesh's topology at the positions now: the faces and edges are not derived again).
+    let now = input
+        .mesh
+        .moved_to(input.x)
+        .map_err(|e| fail(format!("its shape now: {e}")))?;
     let cut = match &input.change {
         Change::Blade {
             blade,
