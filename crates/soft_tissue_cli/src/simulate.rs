@@ -61,6 +61,12 @@ pub struct SimulateArgs {
     /// step the blade crossed the body; see `CutOptions::background_steps`).
     #[arg(long, default_value_t = 0)]
     cut_background_steps: u32,
+    /// A cut prepared in the background lands at the first step its thread is done by, once
+    /// due, instead of that step waiting for it (`CutOptions::land_when_ready`: no step
+    /// waits, but the run depends on the machine's speed; `state_hash` may differ from run
+    /// to run).
+    #[arg(long)]
+    cut_land_when_ready: bool,
     /// Step in real time: each step starts one step's time after the last (as an app's
     /// fixed step does; a cut prepared in the background then has that time); a step more
     /// than a step late starts the schedule again from then (no catching up back to back).
@@ -264,6 +270,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     };
     world.set_cut_options(soft_tissue_core::mesh::cut::CutOptions {
         background_steps: args.cut_background_steps,
+        land_when_ready: args.cut_land_when_ready,
         ..Default::default()
     })?;
     let dt = world.config().dt;
@@ -518,6 +525,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                     &cut_costs.iter().map(|c| c.3).collect::<Vec<_>>()
                 ),
                 "cut_background_steps": args.cut_background_steps,
+                "cut_land_when_ready": args.cut_land_when_ready,
                 "real_time": args.real_time,
                 "steps_while_cutting": cutting_steps.len(),
                 "step_while_cutting_us": soft_tissue_core::timing::TimeStats::of(&cutting_steps),

@@ -551,6 +551,38 @@ fn a_cut_prepared_in_the_background_lands_steps_later_in_the_state_then() {
     );
 }
 
+/// With `land_when_ready` a cut due before its thread is done lands in a later step instead
+/// of the due step waiting for it: no landing waits, however early it is due, and the cut
+/// still separates the bar (mass and volume kept).
+#[test]
+fn a_cut_that_lands_when_ready_never_waits_for_its_thread() {
+    let body = hanging_bar(PreciseMethod::CorotationalFem, 0.0);
+    let (mass, volume) = (total_mass(&body), body.mesh().volume());
+    let mut w = world_with(body);
+    w.set_cut_options(CutOptions {
+        background_steps: 1,
+        land_when_ready: true,
+        ..CutOptions::default()
+    })
+    .unwrap();
+    sweep_blade(&mut w, 0.055);
+    let mut steps = 0;
+    while w.cuts_in_flight() > 0 {
+        w.step_fixed().unwrap();
+        steps += 1;
+        assert!(steps < 100_000, "the cut never landed");
+    }
+    assert_eq!(w.bodies().len(), 2, "landed after {steps} more steps");
+    for b in w.bodies() {
+        let r = b.cut_record().unwrap();
+        assert_eq!(r.wait_us, 0.0, "a landing waited {} us", r.wait_us);
+        assert!(r.closed);
+    }
+    let m = total_mass(&w.bodies()[0]) + total_mass(&w.bodies()[1]);
+    let v = w.bodies()[0].mesh().volume() + w.bodies()[1].mesh().volume();
+    assert!(((m - mass) / mass).abs() < 1e-9 && ((v - volume) / volume).abs() < 1e-9);
+}
+
 /// A blade that nicks the bar (crossing it without separating anything), withdraws and
 /// goes around it with cutting still on cuts nothing it did not pass through: the strips
 /// swept step by step bisect, not a straight sweep from the nick to where the blade is.

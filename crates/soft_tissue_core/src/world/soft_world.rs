@@ -198,10 +198,12 @@ impl SoftTissueWorld {
             let incision = self.incisions[t].get_or_insert_with(|| super::cut::Incision::new(from));
             strokes.push(Some(incision.advance(to)));
         }
-        // Cuts due land first.
+        // Cuts due land first (those not ready yet wait for a later step where the options
+        // say so).
         let mut k = 0;
         while k < self.in_flight.len() {
-            if self.in_flight[k].due > self.steps {
+            let f = &self.in_flight[k];
+            if f.due > self.steps || (self.cut_options.land_when_ready && !f.job.is_ready()) {
                 k += 1;
                 continue;
             }

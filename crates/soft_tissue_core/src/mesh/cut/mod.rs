@@ -74,6 +74,14 @@ pub struct CutOptions {
     /// which keeps runs the same whatever the machine's speed). Meshes ignore it. A carve of
     /// vaporized tissue is prepared for [`CARVE_STEPS_FACTOR`] times as many steps.
     pub background_steps: u32,
+    /// A cut prepared in the background whose thread is not done when it is due lands at the
+    /// first step after that in which it is done, instead of that step waiting for it (false,
+    /// the default). No step then waits for a cut, whatever the machine's speed, but the step
+    /// a cut lands in, and so the run, depend on how fast its thread was: runs are no longer
+    /// the same from one to the next or across thread counts. For an app in real time on a
+    /// machine too slow for `background_steps` (`CutRecord::wait_us` says how long landings
+    /// waited).
+    pub land_when_ready: bool,
 }
 
 /// A carve of vaporized tissue ([`crate::world::WorldBody::begin_vaporize`]) in the
@@ -105,6 +113,7 @@ impl Default for CutOptions {
         CutOptions {
             snap: 0.3,
             background_steps: 0,
+            land_when_ready: false,
         }
     }
 }
