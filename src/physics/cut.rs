@@ -145,12 +145,14 @@ pub(super) fn cut_stage(
             )
         };
     }
-    // Cuts due land first, in the order they began; a body gone since drops its cut. A
+    // Cuts due land first, in the order they began (one not done yet waits for a later step
+    // where `CutOptions::land_when_ready` says so); a body gone since drops its cut. A
     // failure stops the stage (the pieces cut before it are still spawned).
     let mut failed = false;
     let mut k = 0;
     while k < jobs.0.len() {
-        if jobs.0[k].due > steps {
+        let pending = &jobs.0[k];
+        if pending.due > steps || (options.land_when_ready && !pending.job.is_ready()) {
             k += 1;
             continue;
         }

@@ -4,6 +4,7 @@
 //! puts the whole body back.
 
 use super::*;
+use bevy_soft_tissue::core::mesh::cut::CutOptions;
 use bevy_soft_tissue::core::world::{ScriptEvent, Waypoint};
 use bevy_soft_tissue::{CutPiece, RenderedSurface, ResetSimulation, SoftBodyDiagnostics};
 
@@ -132,6 +133,45 @@ fn a_blade_cuts_a_body_in_two_like_the_core_world_and_a_reset_makes_it_whole() {
     let sim = app.world().get::<SoftBodyState>(a).unwrap();
     assert_eq!(sim.body().mesh().node_count(), nodes);
     assert!(sim.body().cut_record().is_none());
+}
+
+/// With `CutOptions::land_when_ready` the plugin lands a cut due before its thread is done
+/// in a later step, as the core world does: the body is still cut in two, and no landing
+/// waited for its thread.
+#[test]
+fn a_cut_that_lands_when_ready_never_waits_in_the_plugin() {
+    let (mut app, bodies, world) = scene_app(CYLINDERS);
+    app.world_mut().resource_mut::<SoftTissueConfig>().cut = CutOptions {
+        background_steps: 1,
+        land_when_ready: true,
+        ..CutOptions::default()
+    };
+    // The blade through the whole body in one step (one cut, prepared while the frames,
+    // here much faster than real time, go on).
+    let mut script = through_cut(&world, "Model A");
+    let dt = world.config().dt;
+    script.waypoints[2].t = 0.2 + dt;
+    script.events[1].t = 0.2 + 2.0 * dt;
+    let tool = spawn_tool(&mut app, &script);
+    app.update();
+    let a = bodies[0];
+    let mut piece = None;
+    for k in 1..=5000 {
+        drive_tool(&mut app, tool, &script, k, dt);
+        app.update();
+        let mut q = app.world_mut().query::<(Entity, &CutPiece)>();
+        piece = q.iter(app.world()).next().map(|(e, _)| e);
+        if piece.is_some() {
+            break;
+        }
+    }
+    let piece = piece.expect("the cut made a piece");
+    for e in [a, piece] {
+        let sim = app.world().get::<SoftBodyState>(e).unwrap();
+        let r = sim.body().cut_record().expect("a cut body");
+        assert_eq!(r.wait_us, 0.0, "a landing waited {} us", r.wait_us);
+        assert!(r.closed);
+    }
 }
 
 /// A blade driven by a haptic device through the haptic thread, cutting tissue with a
