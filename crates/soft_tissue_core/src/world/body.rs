@@ -28,6 +28,9 @@ pub struct WorldBody {
     /// The rest mesh's tetrahedra by place, for an electrode's tissue fraction (built when
     /// the first spot starts; see [`super::burn::tissue_fraction_in`]).
     pub(crate) occupancy: crate::mesh::occupancy::Occupancy,
+    /// Room for the coarse nodes an electrode heats on this body and their weights (kept
+    /// between steps: a pressed electrode allocates nothing).
+    pub(crate) electrode_nodes: Vec<(usize, f64)>,
     /// A piece that came loose in a cut (a world's reset removes it).
     pub(crate) loose: bool,
     pub(crate) rest_surface: Vec<Vec3>,
@@ -162,6 +165,7 @@ impl WorldBody {
             pieces_made: 0,
             vaporize_tried: Vec::new(),
             occupancy: Default::default(),
+            electrode_nodes: Vec::new(),
             loose: false,
             friction: Friction::default(),
             toughness: 0.0,

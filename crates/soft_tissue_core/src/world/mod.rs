@@ -433,7 +433,8 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
         let Some(h) = b.heat.as_mut() else { continue };
         let rest = b.mesh.positions();
         let mut center = Vec3::zeros();
-        let mut nodes: Vec<(usize, f64)> = Vec::new();
+        let nodes = &mut b.electrode_nodes;
+        nodes.clear();
         let mut fitted = 0.0;
         for q in state.fitting_rows(body, b.collider.id()).filter(pressing) {
             let f = q.force.x;
@@ -444,9 +445,9 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
                 nodes.push((node, f * w));
             }
         }
-        let (center, nodes, tissue_fraction) = if fitted > 0.0 {
+        let (center, tissue_fraction) = if fitted > 0.0 {
             center /= fitted;
-            for n in &mut nodes {
+            for n in nodes.iter_mut() {
                 n.1 /= fitted;
             }
             let fraction = match h.spot_fraction_at(&center, radius) {
@@ -458,7 +459,7 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
                     radius / h.params().meters_per_unit,
                 ),
             };
-            (center, nodes, fraction)
+            (center, fraction)
         } else {
             let Some(spot) = h.powered_spot(tool, radius) else {
                 log::debug!(
@@ -467,7 +468,8 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
                 );
                 continue;
             };
-            (spot.center, spot.nodes, spot.tissue_fraction)
+            nodes.extend_from_slice(&spot.nodes);
+            (spot.center, spot.tissue_fraction)
         };
         let source = crate::heat::ElectrodeSource {
             center,
@@ -475,7 +477,7 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
             radius,
             tissue_fraction,
         };
-        h.add_electrode_of(tool, &source, &nodes)
+        h.add_electrode_of(tool, &source, nodes)
             .map_err(|source| WorldError::Heat {
                 body: BodyName {
                     name: b.name.clone(),
