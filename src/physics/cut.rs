@@ -120,6 +120,7 @@ pub(super) fn cut_stage(
         .any(|(_, _, sim, ..)| sim.body.heat().is_some_and(|h| h.has_craters()));
     if blades.is_empty() && jobs.0.is_empty() && !craters {
         status.times.cut_us = 0.0;
+        status.times.cut_wait_us = 0.0;
         return;
     }
     let mut list: Vec<BodyItem> = bodies.iter_mut().collect();
@@ -145,10 +146,11 @@ pub(super) fn cut_stage(
             )
         };
     }
-    // Cuts due land first, in the order they began (one not done yet waits for a later step
-    // where `CutOptions::land_when_ready` says so); a body gone since drops its cut. A
+    // Cuts due land first, in the order they began, except that with
+    // `CutOptions::land_when_ready` one not done yet waits for a later step; a body gone since drops its cut. A
     // failure stops the stage (the pieces cut before it are still spawned).
     let mut failed = false;
+    let mut waited = 0.0;
     let mut k = 0;
     while k < jobs.0.len() {
         let pending = &jobs.0[k];
@@ -161,6 +163,7 @@ pub(super) fn cut_stage(
             continue;
         };
         let outcome = list[i].2.body.finish_cut(job.job);
+        waited += list[i].2.body.landing_wait_us();
         // Refused by the mesh: tried again once its balls have grown by `CARVE_GROWTH`
         // (dropped for now: next step).
         if !job.vaporized.is_empty() && matches!(outcome, Ok(BladeOutcome::Missed)) {
@@ -319,6 +322,7 @@ pub(super) fn cut_stage(
         }
     }
     status.times.cut_us = t.elapsed().as_secs_f64() * 1e6;
+    status.times.cut_wait_us = waited;
 }
 
 /// Loop subdivision rounds of the visual mesh of a piece cut off a body drawn with a mesh of

@@ -159,6 +159,8 @@ fn a_cut_that_lands_when_ready_never_waits_in_the_plugin() {
     for k in 1..=5000 {
         drive_tool(&mut app, tool, &script, k, dt);
         app.update();
+        let waited = app.world().resource::<SoftTissueStatus>().times.cut_wait_us;
+        assert_eq!(waited, 0.0, "frame {k} waited for the cut");
         let mut q = app.world_mut().query::<(Entity, &CutPiece)>();
         piece = q.iter(app.world()).next().map(|(e, _)| e);
         if piece.is_some() {

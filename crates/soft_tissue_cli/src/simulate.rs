@@ -289,7 +289,10 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
     let mut contact_rounds = (0u64, 0u32, 0u64, 0u32);
     // Each cut that changed a body: (mesh change, bodies built, landing), microseconds.
     let mut seen: Vec<u64> = world.bodies().iter().map(|b| b.id()).collect();
-    let mut cut_costs: Vec<(f64, f64, f64, f64)> = Vec::new();
+    let mut cut_costs: Vec<(f64, f64, f64)> = Vec::new();
+    // Steps that waited for a cut prepared in the background (its landing, whatever it came
+    // to), and how long.
+    let mut cut_waits: Vec<f64> = Vec::new();
     // Whole steps while a blade cuts or a cut is being prepared.
     let mut cutting_steps: Vec<f64> = Vec::new();
     let period = std::time::Duration::from_secs_f64(dt);
@@ -319,13 +322,16 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
         if cutting {
             cutting_steps.push(st.total_us());
         }
+        if st.cut_wait_us > 0.0 {
+            cut_waits.push(st.cut_wait_us);
+        }
         // A cut may have changed bodies and added some (the pieces that came loose).
         {
-            let mut this_step: Vec<(f64, f64, f64, f64)> = Vec::new();
+            let mut this_step: Vec<(f64, f64, f64)> = Vec::new();
             for b in world.bodies() {
                 if let (false, Some(r)) = (seen.contains(&b.id()), b.cut_record()) {
                     seen.push(b.id());
-                    let c = (r.mesh_us, r.build_us, r.land_us, r.wait_us);
+                    let c = (r.mesh_us, r.build_us, r.land_us);
                     if !this_step.contains(&c) {
                         this_step.push(c);
                     }
@@ -521,9 +527,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
                 "cut_land_us": soft_tissue_core::timing::TimeStats::of(
                     &cut_costs.iter().map(|c| c.2).collect::<Vec<_>>()
                 ),
-                "cut_wait_us": soft_tissue_core::timing::TimeStats::of(
-                    &cut_costs.iter().map(|c| c.3).collect::<Vec<_>>()
-                ),
+                "cut_wait_us": soft_tissue_core::timing::TimeStats::of(&cut_waits),
                 "cut_background_steps": args.cut_background_steps,
                 "cut_land_when_ready": args.cut_land_when_ready,
                 "real_time": args.real_time,
@@ -634,22 +638,29 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), Box<dyn std::error::Error>> {
             let mesh: Vec<f64> = cut_costs.iter().map(|c| c.0).collect();
             let build: Vec<f64> = cut_costs.iter().map(|c| c.1).collect();
             let land: Vec<f64> = cut_costs.iter().map(|c| c.2).collect();
-            let wait: Vec<f64> = cut_costs.iter().map(|c| c.3).collect();
             println!(
-                "cuts that changed a body: {}; per cut, median / p99 / max us: mesh change {}, bodies built {} ({}), landing in its step {} (of it waiting for the thread {})",
+                "cuts that changed a body: {}; per cut, median / p99 / max us: mesh change {}, bodies built {} ({}), landing in its step {}; steps that waited for a cut's thread (any landing): {}, median / p99 / max us {}",
                 cut_costs.len(),
                 triple(&soft_tissue_core::timing::TimeStats::of(&mesh)),
                 triple(&soft_tissue_core::timing::TimeStats::of(&build)),
                 if args.cut_background_steps > 0 {
                     format!(
-                        "on a thread of their own, landing {} steps later",
+                        "on a thread of their own, landing {} steps later ({} for a carve){}",
+                        args.cut_background_steps,
                         args.cut_background_steps
+                            .saturating_mul(soft_tissue_core::mesh::cut::CARVE_STEPS_FACTOR),
+                        if args.cut_land_when_ready {
+                            ", or once ready"
+                        } else {
+                            ""
+                        }
                     )
                 } else {
                     "within the step".to_string()
                 },
                 triple(&soft_tissue_core::timing::TimeStats::of(&land)),
-                triple(&soft_tissue_core::timing::TimeStats::of(&wait)),
+                cut_waits.len(),
+                triple(&soft_tissue_core::timing::TimeStats::of(&cut_waits)),
             );
             println!(
                 "steps while cutting ({}{}): {}, median / p99 / max us {}",

@@ -31,6 +31,11 @@ pub struct StageTimes {
     pub correct_us: f64,
     /// `writeback`.
     pub writeback_us: f64,
+    /// Of `cut_us`, the time the step waited for cuts prepared in the background to be done
+    /// (or prepared them, where their thread had not started), all landings of the step,
+    /// whatever they came to. Not a stage of its own: not in [`StageTimes::values`].
+    #[serde(default)]
+    pub cut_wait_us: f64,
 }
 
 impl StageTimes {

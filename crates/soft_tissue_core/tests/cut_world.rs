@@ -512,6 +512,10 @@ fn a_cut_prepared_in_the_background_lands_steps_later_in_the_state_then() {
     };
     w.step_fixed().unwrap();
     assert_eq!(w.bodies().len(), 2, "landed 4 steps after the sweep");
+    // The step's wait is the landing's (one landing).
+    let waited = w.stage_times().cut_wait_us;
+    assert_eq!(waited, w.bodies()[0].cut_record().unwrap().wait_us);
+    assert_eq!(waited, w.bodies()[0].landing_wait_us());
     // The pieces hold the state of the step the cut landed in: each node of the loose piece
     // that was a node of the bar moved by one step from where it was, not by four.
     let lower = &w.bodies()[1];
@@ -569,6 +573,11 @@ fn a_cut_that_lands_when_ready_never_waits_for_its_thread() {
     let mut steps = 0;
     while w.cuts_in_flight() > 0 {
         w.step_fixed().unwrap();
+        assert_eq!(
+            w.stage_times().cut_wait_us,
+            0.0,
+            "a step waited for the cut"
+        );
         steps += 1;
         assert!(steps < 100_000, "the cut never landed");
     }

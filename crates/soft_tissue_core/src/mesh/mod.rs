@@ -509,7 +509,10 @@ impl TetMesh {
         for (tet, t) in self.tets.iter().enumerate() {
             let corners = t.map(|i| positions[i as usize]);
             let volume = tet_signed_volume(&corners);
-            if volume.is_nan() || volume <= 0.0 || volume_ratio(&corners, volume) < min_ratio {
+            // (A ratio that is not a number, from coordinates whose volume overflows, is
+            // refused as `new` refuses it.)
+            let ratio = volume_ratio(&corners, volume);
+            if volume.is_nan() || volume <= 0.0 || ratio.is_nan() || ratio < min_ratio {
                 let mut sum = 0.0;
                 for a in 0..4 {
                     for b in a + 1..4 {
@@ -541,7 +544,14 @@ impl TetMesh {
             node_component: self.node_component.clone(),
             component_count: self.component_count,
             bbox,
-            warnings: self.warnings.clone(),
+            // The topology's warnings hold; elements turned over when the mesh was built
+            // are not turned over at these positions.
+            warnings: self
+                .warnings
+                .iter()
+                .filter(|w| !matches!(w, MeshWarning::Reoriented { .. }))
+                .cloned()
+                .collect(),
         })
     }
 

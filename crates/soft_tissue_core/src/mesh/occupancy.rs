@@ -43,8 +43,8 @@ struct Room {
     /// The sphere cube's cells: cell `c` holds `items[starts[c]..starts[c + 1]]`.
     starts: Vec<u32>,
     items: Vec<u32>,
-    /// Each tetrahedron within reach: its index and its range of cube cells.
-    near: Vec<(u32, [[usize; 2]; 3])>,
+    /// Each tetrahedron within reach: its index and its (slightly grown) bounding box.
+    near: Vec<(u32, Vec3, Vec3)>,
 }
 
 /// The share of the spheres of `radii` (scene units) about `centre` that lies inside the
@@ -202,31 +202,34 @@ fn share(
     });
     found.sort_unstable();
     found.dedup();
-    // Those within reach, sorted into the cube's cells (about one tetrahedron per cell).
-    let k = ((found.len() as f64).cbrt().ceil() as usize).clamp(1, 24);
+    // Those within reach (their boxes grown by a hair: a point the test takes inside lies
+    // at most a rounding outside the box), sorted into the cube's cells, about one
+    // tetrahedron per cell.
+    near.clear();
+    for &t in found.iter() {
+        let Some(x) = corners(mesh, t) else { continue };
+        let (tlo, thi) = bounds(&x);
+        let pad = 1e-9 * (thi - tlo).amax();
+        let (tlo, thi) = (tlo.add_scalar(-pad), thi.add_scalar(pad));
+        let gap = (tlo - centre).sup(&(centre - thi)).sup(&Vec3::zeros());
+        if gap.norm() > reach {
+            continue;
+        }
+        near.push((t, tlo, thi));
+    }
+    let k = ((near.len() as f64).cbrt().ceil() as usize).clamp(1, 24);
     let cube = Cube {
         lo,
         cell: 2.0 * grow / k as f64,
         k,
     };
-    near.clear();
-    for &t in found.iter() {
-        let Some(x) = corners(mesh, t) else { continue };
-        let (tlo, thi) = bounds(&x);
-        let gap = (tlo - centre).sup(&(centre - thi)).sup(&Vec3::zeros());
-        if gap.norm() > reach {
-            continue;
-        }
-        near.push((
-            t,
-            [0, 1, 2].map(|a| [cube.index(tlo[a], a), cube.index(thi[a], a)]),
-        ));
-    }
+    let cells =
+        |tlo: &Vec3, thi: &Vec3| [0, 1, 2].map(|a| [cube.index(tlo[a], a), cube.index(thi[a], a)]);
     let dims = [k; 3];
     starts.clear();
     starts.resize(k * k * k + 1, 0);
-    for (_, r) in near.iter() {
-        grid_cells(dims, r, |c| starts[c + 1] += 1);
+    for (_, tlo, thi) in near.iter() {
+        grid_cells(dims, &cells(tlo, thi), |c| starts[c + 1] += 1);
     }
     for c in 0..k * k * k {
         starts[c + 1] += starts[c];
@@ -234,8 +237,9 @@ fn share(
     items.clear();
     items.resize(starts[k * k * k] as usize, 0);
     // Filled back to front so `starts` ends as each cell's first item again.
-    for &(t, r) in near.iter().rev() {
-        grid_cells(dims, &r, |c| {
+    for (t, tlo, thi) in near.iter().rev() {
+        let t = *t;
+        grid_cells(dims, &cells(tlo, thi), |c| {
             starts[c + 1] -= 1;
             items[starts[c + 1] as usize] = t;
         });

@@ -31,6 +31,9 @@ pub struct WorldBody {
     /// Room for the coarse nodes an electrode heats on this body and their weights (kept
     /// between steps: a pressed electrode allocates nothing).
     pub(crate) electrode_nodes: Vec<(usize, f64)>,
+    /// How long the last landing of a cut on this body waited for its preparation,
+    /// microseconds, whatever it came to ([`WorldBody::landing_wait_us`]).
+    pub(crate) landing_wait_us: f64,
     /// A piece that came loose in a cut (a world's reset removes it).
     pub(crate) loose: bool,
     pub(crate) rest_surface: Vec<Vec3>,
@@ -166,6 +169,7 @@ impl WorldBody {
             vaporize_tried: Vec::new(),
             occupancy: Default::default(),
             electrode_nodes: Vec::new(),
+            landing_wait_us: 0.0,
             loose: false,
             friction: Friction::default(),
             toughness: 0.0,

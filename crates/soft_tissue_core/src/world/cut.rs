@@ -57,8 +57,11 @@ pub struct CutRecord {
     /// handing the body's state now to its pieces.
     pub land_us: f64,
     /// Of [`CutRecord::land_us`], the time spent waiting for the thread that prepared the
-    /// cut (0 when it was ready): more than a little says the cut needs more
-    /// [`crate::mesh::cut::CutOptions::background_steps`] on this machine.
+    /// cut, or preparing it where its pool thread had not started it (0 when it was ready):
+    /// more than a little says the cut needs more
+    /// [`crate::mesh::cut::CutOptions::background_steps`] on this machine. Landings that
+    /// cut nothing wait too: see [`WorldBody::landing_wait_us`] and
+    /// [`crate::timing::StageTimes::cut_wait_us`].
     pub wait_us: f64,
 }
 
@@ -253,6 +256,14 @@ impl WorldBody {
     /// The cuts this body came from, if any.
     pub fn cut_record(&self) -> Option<&CutRecord> {
         self.cut.as_ref()
+    }
+
+    /// How long the last landing of a cut prepared for this body waited for its thread (or
+    /// spent preparing it, where its pool thread had not started it), microseconds: also for
+    /// a cut that came to nothing (crossed, missed, dropped), which leaves no
+    /// [`CutRecord`]. 0 when it was ready, or before any landing.
+    pub fn landing_wait_us(&self) -> f64 {
+        self.landing_wait_us
     }
 }
 

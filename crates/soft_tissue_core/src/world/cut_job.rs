@@ -392,36 +392,27 @@ impl WorldBody {
         let started = std::time::Instant::now();
         let ready = job.is_ready();
         let prepared = match job.work {
-            Work::Ready(p) => p,
-            Work::Thread(h) => match h.join() {
-                Ok(p) => p,
-                Err(_) => {
-                    log::warn!(
-                        "body `{}`: not cut: the thread preparing the cut failed",
-                        self.name
-                    );
-                    return Ok(BladeOutcome::Missed);
-                }
-            },
+            Work::Ready(p) => Some(p),
+            Work::Thread(h) => h.join().ok(),
             Work::Pool { slot, rx, .. } => match slot.take() {
                 // Not started yet: prepared here, now.
-                Some(input) => prepare(input),
-                None => match rx.into_inner().ok().and_then(|rx| rx.recv().ok()) {
-                    Some(p) => p,
-                    None => {
-                        log::warn!(
-                            "body `{}`: not cut: the pool thread preparing the cut failed",
-                            self.name
-                        );
-                        return Ok(BladeOutcome::Missed);
-                    }
-                },
+                Some(input) => Some(prepare(input)),
+                None => rx.into_inner().ok().and_then(|rx| rx.recv().ok()),
             },
         };
+        // Whatever the outcome, the step waited this long for the preparation (or made it).
         let wait_us = if ready {
             0.0
         } else {
             started.elapsed().as_secs_f64() * 1e6
+        };
+        self.landing_wait_us = wait_us;
+        let Some(prepared) = prepared else {
+            log::warn!(
+                "body `{}`: not cut: the thread preparing the cut failed",
+                self.name
+            );
+            return Ok(BladeOutcome::Missed);
         };
         let cut = match prepared {
             Prepared::Missed => return Ok(BladeOutcome::Missed),
@@ -788,9 +779,9 @@ fn try_prepare(input: Input) -> Result<Prepared, (String, String)> {
             log::warn!("body `{name}`: no contact columns computed for a piece: {e}");
             0
         });
-        // An electrode's next spot on the piece asks what share of its surroundings is
+        // An electrode's next spot in a crater asks what share of its surroundings is
         // tissue: the grid that answers is built here, not in the step that asks.
-        if body.heat.is_some() {
+        if body.heat.is_some() && matches!(input.change, Change::Carve(_)) {
             body.occupancy.prepare(&body.mesh);
         }
         build_us += building.elapsed().as_secs_f64() * 1e6;

@@ -468,6 +468,7 @@ fn electrode_power<B: BorrowMut<WorldBody>>(
                 );
                 continue;
             };
+            nodes.clear();
             nodes.extend_from_slice(&spot.nodes);
             (spot.center, spot.tissue_fraction)
         };

@@ -36,7 +36,9 @@ struct InFlight {
     incision: u64,
     /// The incision's mark of the strips it cuts with.
     mark: u64,
-    /// The step it lands in.
+    /// The step it is due in: it lands then, or with
+    /// [`crate::mesh::cut::CutOptions::land_when_ready`] at the first step after that in which
+    /// its preparation is done.
     due: u64,
     job: super::CutJob,
     /// Balls of vaporized tissue it carves out (none: a blade's cut).
@@ -171,7 +173,8 @@ impl SoftTissueWorld {
     /// The cut stage: every blade with cutting on cuts the bodies its edge crossed since the
     /// last step. With [`crate::mesh::cut::CutOptions::background_steps`] above 0, a cut is
     /// prepared on a thread of its own and lands that many steps later (in the order the
-    /// cuts began); a body being cut is not cut again before its cut lands.
+    /// cuts began; with `land_when_ready`, once due and done); a body being cut is not cut
+    /// again before its cut lands.
     fn cut_stage(&mut self) -> Result<(), WorldError> {
         self.incisions.resize(self.tools.len(), None);
         let cutting = |t: &Tool| t.cutting() && t.blade_sweep().is_some();
@@ -208,7 +211,9 @@ impl SoftTissueWorld {
                 continue;
             }
             let f = self.in_flight.remove(k);
-            let outcome = self.bodies[f.body].finish_cut(f.job)?;
+            let outcome = self.bodies[f.body].finish_cut(f.job);
+            self.times.cut_wait_us += self.bodies[f.body].landing_wait_us;
+            let outcome = outcome?;
             if !f.vaporized.is_empty() {
                 self.vaporize_landed(f.body, &f.vaporized, outcome)?;
             } else {
@@ -542,6 +547,7 @@ impl SoftTissueWorld {
         };
         // A blade's resistance on the bodies as the step began; its pull on them after the
         // cut stage (a cut landing now replaced the body).
+        self.times.cut_wait_us = 0.0;
         let mut loads = std::mem::take(&mut self.cut_loads);
         super::cut_force::cutting_resistance(&mut self.tools, &self.bodies, &mut loads);
         self.cut_stage()?;
