@@ -15,6 +15,8 @@ use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::generate::block;
 use std::sync::Arc;
 
+mod support;
+
 const DT: f64 = 1.0 / 64.0;
 const RADIUS: f64 = 1e-3;
 const WATTS: f64 = 30.0;
@@ -168,40 +170,9 @@ fn a_spot_on_a_few_hot_nodes_burns_no_more_than_their_heat_can() {
 /// nodes, and the electrode goes on in a new spot on the crater's floor.
 #[test]
 fn an_electrode_sinking_through_carves_burns_no_more_than_its_energy_can_heat() {
-    use soft_tissue_core::boundary::Boundary;
-    use soft_tissue_core::contact::ContactConfig;
-    use soft_tissue_core::material::{FemParams, MsdParams};
-    use soft_tissue_core::precision::BodySettings;
-    use soft_tissue_core::world::{SoftTissueWorld, WorldBody, WorldConfig};
     let side = 0.008;
     let mesh = block(Vec3::zeros(), Vec3::new(side, 2.0 * side, side), [8, 16, 8]).unwrap();
-    let density = 1079.0;
-    let fem = FemParams {
-        young_modulus: 2.0e4,
-        poisson_ratio: 0.45,
-        mass: density * mesh.volume(),
-        damping: 1.0,
-    };
-    let msd = MsdParams {
-        stiffness: 100.0,
-        mass: fem.mass,
-        damping: 0.1,
-    };
-    let mut s = BodySettings::new(fem, msd, DT);
-    s.boundary = Boundary::fixed_below(mesh.positions(), 1, 0.01);
-    let body = WorldBody::new(
-        "cube",
-        Arc::new(mesh),
-        s,
-        Some((params(), HeatBoundary::insulated())),
-    )
-    .unwrap();
-    let mut w = SoftTissueWorld::new(WorldConfig {
-        dt: DT,
-        contact: ContactConfig::for_scale(side),
-    })
-    .unwrap();
-    w.add_body(body).unwrap();
+    let mut w = support::tissue::heated_block("cube", mesh, params(), DT, side);
     let q0 = w.bodies()[0].heat().unwrap().heat_content();
     let start = Vec3::new(0.5 * side, 2.0 * side, 0.5 * side);
     let steps = 128;

@@ -15,6 +15,8 @@ use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::scenario::Scene;
 use soft_tissue_core::world::SoftTissueWorld;
 
+mod support;
+
 const DT: f64 = 1.0 / 64.0;
 const RADIUS: f64 = 1e-3;
 
@@ -368,48 +370,16 @@ fn surface_on_axis(mesh: &TetMesh, start: Vec3) -> Option<(Vec3, Vec<(usize, f64
 /// delivered can vaporize, and tissue farther than 4 mm from the electrode stays.
 #[test]
 fn vaporized_tissue_leaves_the_mesh_and_the_electrode_sinks_in() {
-    use soft_tissue_core::boundary::Boundary;
-    use soft_tissue_core::contact::ContactConfig;
-    use soft_tissue_core::material::{FemParams, MsdParams};
     use soft_tissue_core::mesh::generate::block;
-    use soft_tissue_core::precision::BodySettings;
-    use soft_tissue_core::world::{WorldBody, WorldConfig};
-    use std::sync::Arc;
     let side = 0.008;
     let mesh = block(Vec3::zeros(), Vec3::new(side, 2.0 * side, side), [8, 16, 8]).unwrap();
-    let density = 1079.0;
-    let fem = FemParams {
-        young_modulus: 2.0e4,
-        poisson_ratio: 0.45,
-        mass: density * mesh.volume(),
-        damping: 1.0,
-    };
-    let msd = MsdParams {
-        stiffness: 100.0,
-        mass: fem.mass,
-        damping: 0.1,
-    };
-    let mut s = BodySettings::new(fem, msd, DT);
-    s.boundary = Boundary::fixed_below(mesh.positions(), 1, 0.01);
     let heat = HeatParams {
         meters_per_unit: 1.0,
         ..HeatParams::liver()
     };
     let original: Vec<Vec3> = mesh.positions().to_vec();
     let volume0 = mesh.volume();
-    let body = WorldBody::new(
-        "cube",
-        Arc::new(mesh),
-        s,
-        Some((heat, HeatBoundary::insulated())),
-    )
-    .unwrap();
-    let mut w = SoftTissueWorld::new(WorldConfig {
-        dt: DT,
-        contact: ContactConfig::for_scale(side),
-    })
-    .unwrap();
-    w.add_body(body).unwrap();
+    let mut w = support::tissue::heated_block("cube", mesh, heat, DT, side);
     let start = Vec3::new(0.5 * side, 2.0 * side, 0.5 * side);
     let mut centres = vec![start];
     let mut removed_at = Vec::new();
@@ -487,9 +457,9 @@ fn vaporized_tissue_leaves_the_mesh_and_the_electrode_sinks_in() {
         .sum();
     let volume: f64 = w.bodies().iter().map(|b| b.mesh().volume()).sum();
     assert!(
-        (mass - density * volume).abs() < 1e-9 * mass,
+        (mass - support::tissue::LIVER_DENSITY * volume).abs() < 1e-9 * mass,
         "{mass} {}",
-        density * volume
+        support::tissue::LIVER_DENSITY * volume
     );
     // Tissue 4 mm or more from every place the electrode sat is all there.
     let kept = w.bodies()[0].mesh().positions();

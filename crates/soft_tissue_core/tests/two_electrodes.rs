@@ -6,14 +6,13 @@
 use std::sync::Arc;
 
 use soft_tissue_core::Vec3;
-use soft_tissue_core::boundary::Boundary;
-use soft_tissue_core::contact::{ContactConfig, Counterpart, Tool, ToolShape};
+use soft_tissue_core::contact::{Counterpart, Tool, ToolShape};
 use soft_tissue_core::heat::{ElectrodeSource, HeatBoundary, HeatField, HeatParams};
-use soft_tissue_core::material::{FemParams, MsdParams};
 use soft_tissue_core::mesh::TetMesh;
 use soft_tissue_core::mesh::generate::block;
-use soft_tissue_core::precision::BodySettings;
-use soft_tissue_core::world::{SoftTissueWorld, WorldBody, WorldConfig};
+use soft_tissue_core::world::SoftTissueWorld;
+
+mod support;
 
 const DT: f64 = 1.0 / 64.0;
 const RADIUS: f64 = 1e-3;
@@ -99,33 +98,7 @@ fn each_electrode_finds_the_spot_it_powered() {
 fn two_electrodes_go_on_at_their_own_spots_as_a_carve_lands() {
     let size = Vec3::new(0.012, 0.008, 0.008);
     let mesh = block(Vec3::zeros(), size, [12, 8, 8]).unwrap();
-    let density = 1079.0;
-    let fem = FemParams {
-        young_modulus: 2.0e4,
-        poisson_ratio: 0.45,
-        mass: density * mesh.volume(),
-        damping: 1.0,
-    };
-    let msd = MsdParams {
-        stiffness: 100.0,
-        mass: fem.mass,
-        damping: 0.1,
-    };
-    let mut s = BodySettings::new(fem, msd, DT);
-    s.boundary = Boundary::fixed_below(mesh.positions(), 1, 0.01);
-    let body = WorldBody::new(
-        "block",
-        Arc::new(mesh),
-        s,
-        Some((params(), HeatBoundary::insulated())),
-    )
-    .unwrap();
-    let mut w = SoftTissueWorld::new(WorldConfig {
-        dt: DT,
-        contact: ContactConfig::for_scale(size.y),
-    })
-    .unwrap();
-    w.add_body(body).unwrap();
+    let mut w = support::tissue::heated_block("block", mesh, params(), DT, size.y);
     let q0 = w.bodies()[0].heat().unwrap().heat_content();
     let places = [0.0035, 0.0085].map(|x| Vec3::new(x, size.y + 0.7 * RADIUS, 0.004));
     for (k, p) in places.iter().enumerate() {

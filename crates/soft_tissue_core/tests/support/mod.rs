@@ -1,9 +1,12 @@
 //! Seeded, reproducible mutations of input files for the no-panic sweeps (`formats.rs`,
 //! `mutation.rs`): truncations, bit flips, byte replacements and declared counts replaced by
 //! zero, negative and huge values. Every mutation prints as what it did, so a failure names
-//! the exact input to rebuild.
+//! the exact input to rebuild. [`tissue`] holds the heated tissue block the burn tests
+//! share.
 
 #![allow(dead_code)] // Each test file uses part of it.
+
+pub mod tissue;
 
 use std::fmt;
 use std::path::Path;
