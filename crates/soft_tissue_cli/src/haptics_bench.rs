@@ -328,6 +328,8 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
             "max_force_step_on_new_model": run.max_force_step_on_model,
             "force_step_p99": run.force_step_quantile(0.99),
             "max_force": run.max_force,
+            "passivity_ticks": run.passivity_ticks,
+            "passivity_dissipated": run.passivity_dissipated,
             "physics_steps": k,
             "physics_dt": dt,
             "physics_step_median_us": physics_median,
@@ -364,6 +366,11 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
             run.force_step_quantile(0.99).unwrap_or(f64::NAN),
             run.max_force_step,
             run.max_force_step_on_model
+        );
+        println!(
+            "passivity controller: damping added in {} ticks, {:.3e} taken from the hand \
+             (scene units)",
+            run.passivity_ticks, run.passivity_dissipated
         );
         println!(
             "physics: {k} steps of {dt} s in real time, median {physics_median:.0} us, max {physics_max:.0} us, \

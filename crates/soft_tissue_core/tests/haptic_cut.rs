@@ -14,7 +14,7 @@ use soft_tissue_core::boundary::Boundary;
 use soft_tissue_core::contact::{ContactConfig, Tool, ToolShape};
 use soft_tissue_core::haptics::coupling::Coupling;
 use soft_tissue_core::haptics::{
-    ContactModel, CouplingParams, CutModel, HapticConfig, HapticError, HapticThread,
+    ContactModel, CouplingParams, CutModel, DevicePort, HapticConfig, HapticError, HapticThread,
     RecordedSample, Recording, ReplayDevice, cut_model,
 };
 use soft_tissue_core::material::{FemParams, MsdParams};
@@ -50,56 +50,58 @@ fn cut() -> CutModel {
     .unwrap()
 }
 
-/// The haptic loop's tick without its thread: the device velocity from finite differences
-/// through the loop's low-pass filter (the default cut-off), then the coupling's step.
+/// The haptic loop's tick without its thread: its device port (the device velocity from
+/// finite differences through the loop's low-pass filter, and the passivity controller
+/// where the loop's default has it), then the coupling's step.
 struct Loop {
     coupling: Coupling,
-    last: Option<Vec3>,
-    velocity: Vec3,
-    alpha: f64,
+    port: DevicePort,
 }
 
 impl Loop {
     fn new(params: CouplingParams, at: Vec3, cut: CutModel) -> Self {
-        Self::filtered(params, at, cut, HapticConfig::default().velocity_cutoff_hz)
+        let d = HapticConfig::default();
+        Self::filtered(params, at, cut, d.velocity_cutoff_hz, d.passivity)
     }
 
-    /// With the device velocity's filter at `cutoff` Hz.
-    fn filtered(params: CouplingParams, at: Vec3, cut: CutModel, cutoff: f64) -> Self {
+    /// With the device velocity's filter at `cutoff` Hz, the controller on or off.
+    fn filtered(
+        params: CouplingParams,
+        at: Vec3,
+        cut: CutModel,
+        cutoff: f64,
+        passivity: bool,
+    ) -> Self {
         let mut coupling = Coupling::new(params, at);
         coupling.set_cut(cut);
-        let rc = 1.0 / (2.0 * std::f64::consts::PI * cutoff);
         Loop {
             coupling,
-            last: None,
-            velocity: Vec3::zeros(),
-            alpha: H / (H + rc),
+            port: DevicePort::new(1.0 / H, cutoff, passivity),
         }
     }
 
     /// One tick with the hand at `hand`: the force on it.
     fn tick(&mut self, hand: Vec3) -> Vec3 {
-        if let Some(last) = self.last {
-            self.velocity += ((hand - last) / H - self.velocity) * self.alpha;
-        }
-        self.last = Some(hand);
-        self.coupling.step(&hand, &self.velocity, H)
+        self.port.tick(&mut self.coupling, &hand, H)
     }
 }
 
 /// Forces on a hand that follows `hand(t)` for `ticks` ticks from rest at `hand(0)`.
 fn forces(cut: CutModel, ticks: usize, hand: impl Fn(f64) -> Vec3) -> Vec<Vec3> {
-    forces_filtered(cut, ticks, hand, HapticConfig::default().velocity_cutoff_hz)
+    let d = HapticConfig::default();
+    forces_filtered(cut, ticks, hand, d.velocity_cutoff_hz, d.passivity)
 }
 
-/// [`forces`] with the device velocity's filter at `cutoff` Hz.
+/// [`forces`] with the device velocity's filter at `cutoff` Hz, the passivity controller
+/// on or off.
 fn forces_filtered(
     cut: CutModel,
     ticks: usize,
     hand: impl Fn(f64) -> Vec3,
     cutoff: f64,
+    passivity: bool,
 ) -> Vec<Vec3> {
-    let mut l = Loop::filtered(params(), hand(0.0), cut, cutoff);
+    let mut l = Loop::filtered(params(), hand(0.0), cut, cutoff, passivity);
     (0..ticks).map(|k| l.tick(hand(k as f64 * H))).collect()
 }
 
@@ -173,18 +175,20 @@ fn a_steady_stroke_across_the_edge_is_held_back_by_the_breakaway_force() {
 /// (`(k_c + b_c w) A`, far below the breakaway force) and changes sign at most twice per
 /// tremor period (it follows the tremor, it does not flip every tick). The loop takes energy
 /// from the hand over each period, never gives it: as the virtual environment computes it
-/// (each tick's force over the motion that led to it) at every frequency, and as a device
-/// renders it (each tick's force held over the next tick, no damping of the device's own)
-/// at 50 and 100 Hz with the loop's default 40 Hz filter on the device velocity, and at 50 to
-/// 200 Hz with a 400 Hz filter. Above about 150 Hz the 40 Hz filter's lag makes the
-/// coupling's damper give energy with or without a cut (printed: the coupling alone
-/// beside it); the cut's bristle is passive on its own (a spring that stores at most
-/// `(J L)^2 / 2 k_b` and an anchor that only moves to release it).
+/// (each tick's force over the motion that led to it), and as a device renders it (each
+/// tick's force held over the next tick, no damping of the device's own), at every
+/// frequency with the loop's defaults (its 40 Hz filter on the device velocity and the
+/// passivity controller) and with a 400 Hz filter. Without the controller, above about
+/// 150 Hz the 40 Hz filter's lag makes the coupling's damper give energy with or without a
+/// cut (printed, with the coupling alone beside it); the cut's bristle is passive on its own
+/// (a spring that stores at most `(J L)^2 / 2 k_b` and an anchor that only moves to
+/// release it).
 #[test]
 fn a_trembling_hand_feels_a_bounded_spring_and_gets_no_energy() {
     let p = params();
     let amplitude = 1e-4;
-    let default_cutoff = HapticConfig::default().velocity_cutoff_hz;
+    let defaults = HapticConfig::default();
+    let cutoff = defaults.velocity_cutoff_hz;
     for hz in [50.0, 100.0, 150.0, 200.0] {
         let w = 2.0 * std::f64::consts::PI * hz;
         let hand = |t: f64| Vec3::new(amplitude * (w * t).sin(), 0.0, 0.0);
@@ -198,20 +202,28 @@ fn a_trembling_hand_feels_a_bounded_spring_and_gets_no_energy() {
         // The last ten periods (the first were the start from rest), and the whole run.
         let (held, environment) = work(&f, hand, ticks - 1, 10, period);
         let (all_held, _) = work(&f, hand, ticks - 1, (ticks - 2) / period, period);
-        let alone = work(
-            &forces(CutModel::NONE, ticks, hand),
+        let (bare, _) = work(
+            &forces_filtered(cut(), ticks, hand, cutoff, false),
             hand,
             ticks - 1,
             10,
             period,
         );
-        let fast = forces_filtered(cut(), ticks, hand, 400.0);
+        let alone = work(
+            &forces_filtered(CutModel::NONE, ticks, hand, cutoff, false),
+            hand,
+            ticks - 1,
+            10,
+            period,
+        );
+        let fast = forces_filtered(cut(), ticks, hand, 400.0, defaults.passivity);
         let (fast_held, _) = work(&fast, hand, ticks - 1, 10, period);
         println!(
             "{hz} Hz: peak force {peak:.4} N (bound {bound:.4} N, breakaway {STRENGTH:.2} N), \
              {flips} sign changes in {periods} periods; work on the hand per period: \
-             environment {environment:.2e} J, held {held:.2e} J (coupling alone {:.2e} J, \
-             whole run {all_held:.2e} J), held with a 400 Hz filter {fast_held:.2e} J",
+             environment {environment:.2e} J, held {held:.2e} J (whole run {all_held:.2e} J; \
+             without the controller {bare:.2e} J, the coupling alone {:.2e} J), held with a \
+             400 Hz filter {fast_held:.2e} J",
             alone.0
         );
         assert!(peak <= bound, "{hz} Hz: {peak} N");
@@ -222,14 +234,13 @@ fn a_trembling_hand_feels_a_bounded_spring_and_gets_no_energy() {
         );
         assert!(environment <= 0.0, "{hz} Hz: the hand got {environment} J");
         assert!(fast_held <= 0.0, "{hz} Hz, 400 Hz filter: {fast_held} J");
-        if hz <= 100.0 {
-            assert!(held <= 0.0, "{hz} Hz: the hand got {held} J a period");
-            assert!(
-                all_held <= 0.0,
-                "{hz} Hz: the hand got {all_held} J a period"
-            );
-        }
-        assert_eq!(default_cutoff, 40.0, "the filter these numbers are for");
+        assert!(held <= 0.0, "{hz} Hz: the hand got {held} J a period");
+        assert!(
+            all_held <= 0.0,
+            "{hz} Hz: the hand got {all_held} J a period"
+        );
+        assert_eq!(cutoff, 40.0, "the filter these numbers are for");
+        assert!(defaults.passivity);
     }
 }
 

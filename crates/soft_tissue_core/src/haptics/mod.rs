@@ -33,12 +33,14 @@ pub mod cutting;
 pub mod exchange;
 #[cfg(feature = "haply")]
 pub mod haply;
+pub mod passivity;
 pub(crate) mod priority;
 mod recording;
 mod thread;
 
 pub use coupling::{ContactModel, CouplingParams};
 pub use cutting::{CutModel, cut_model};
+pub use passivity::DevicePort;
 pub use priority::{DEFAULT_REALTIME_LEVEL, HapticPriority, PriorityOutcome, Scheduling};
 pub use recording::{
     CAUTERY_BUTTON, CUT_BUTTON, GRAB_BUTTON, JAWS_BUTTON, MAX_RECORDING_SAMPLES, RecordedSample,

@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 use super::coupling::{ContactModel, Coupling, CouplingParams, MODEL_WORDS, clamp};
 use super::cutting::{CUT_WORDS, CutModel};
 use super::exchange::SeqCell;
+use super::passivity::DevicePort;
 use super::priority::{self, HapticPriority, PriorityOutcome};
 use super::recording::{RecordedSample, Recording};
 use super::{HapticDevice, HapticError};
@@ -60,6 +61,10 @@ pub struct HapticConfig {
     pub stats_seconds: f64,
     /// Cut-off of the low-pass filter on the device velocity, Hz.
     pub velocity_cutoff_hz: f64,
+    /// Whether the passivity controller may add damping where the loop would give the hand
+    /// energy ([`super::passivity`]; on by default: the filter's lag gives energy to hand
+    /// motion above about 150 Hz without it).
+    pub passivity: bool,
     /// Scheduling the thread asks for as it starts (default: real time where the OS allows
     /// it). Only the haptic thread is raised; the thread that spawns it keeps its own. What
     /// it got is [`HapticThread::priority`].
@@ -76,6 +81,7 @@ impl Default for HapticConfig {
             record_seconds: 600.0,
             stats_seconds: 600.0,
             velocity_cutoff_hz: 40.0,
+            passivity: true,
             priority: HapticPriority::default(),
         }
     }
@@ -261,6 +267,11 @@ pub struct HapticRun {
     /// The spin the loop used before each deadline, microseconds: [`HapticConfig::spin_us`],
     /// at most half the period under real time.
     pub spin_us: f64,
+    /// Ticks the passivity controller added damping in.
+    pub passivity_ticks: u64,
+    /// Energy the passivity controller took from the hand, scene units (force times
+    /// length).
+    pub passivity_dissipated: f64,
 }
 
 impl HapticRun {
@@ -421,14 +432,11 @@ fn run(
         device_error: None,
         priority,
         spin_us: spin.as_secs_f64() * 1e6,
+        passivity_ticks: 0,
+        passivity_dissipated: 0.0,
     };
     let mut coupling = Coupling::new(config.coupling, start_position);
-    let alpha = {
-        let rc = 1.0 / (2.0 * std::f64::consts::PI * config.velocity_cutoff_hz);
-        h / (h + rc)
-    };
-    let mut previous_device = start_position;
-    let mut device_velocity = Vec3::zeros();
+    let mut port = DevicePort::new(config.rate_hz, config.velocity_cutoff_hz, config.passivity);
     let mut model_writes = 0u64;
     let mut last_force = Vec3::zeros();
     let start = Instant::now();
@@ -457,11 +465,6 @@ fn run(
             }
         };
         let x_device = mapping.offset + state.position * mapping.scale;
-        if k > 0 {
-            let raw = (x_device - previous_device) / h;
-            device_velocity += (raw - device_velocity) * alpha;
-        }
-        previous_device = x_device;
         let (words, writes) = shared.model.read();
         let new_model = writes != model_writes;
         if new_model {
@@ -470,7 +473,9 @@ fn run(
             coupling.set_model(contact);
             coupling.set_cut(cut);
         }
-        let f_scene = coupling.step(&x_device, &device_velocity, h);
+        let f_scene = port.tick(&mut coupling, &x_device, h);
+        out.passivity_ticks = port.active_ticks();
+        out.passivity_dissipated = port.dissipated();
         let force = clamp(f_scene * mapping.force_scale, limit);
         let change = (force - last_force).norm();
         out.max_force_step = out.max_force_step.max(change);
