@@ -72,6 +72,9 @@ pub struct HapticsBenchArgs {
     /// first button, as the plugin's haptic tool does).
     #[arg(long, default_value_t = 4)]
     cut_background_steps: u32,
+    /// Turn the loop's passivity controller off (`HapticConfig::passivity`), to compare.
+    #[arg(long)]
+    no_passivity: bool,
 }
 
 /// What `haptics-bench` refuses in the tool its `--script` gives.
@@ -203,6 +206,7 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
         stats_seconds: args.seconds + 1.0,
         spin_us: args.spin_us,
         priority: args.priority,
+        passivity: !args.no_passivity,
         ..HapticConfig::default()
     };
     let nominal = config.coupling.stiffness;
@@ -328,6 +332,7 @@ pub fn haptics_bench(args: &HapticsBenchArgs) -> Result<(), Box<dyn std::error::
             "max_force_step_on_new_model": run.max_force_step_on_model,
             "force_step_p99": run.force_step_quantile(0.99),
             "max_force": run.max_force,
+            "passivity": !args.no_passivity,
             "passivity_ticks": run.passivity_ticks,
             "passivity_dissipated": run.passivity_dissipated,
             "physics_steps": k,
