@@ -242,6 +242,28 @@ pub fn stuff_fn_sign(
     h: f64,
     bisections: usize,
 ) -> Result<TetMesh, GenerateError> {
+    stuff_fn_cut(f, |a, b| bisect(a, b, bisections, &inside), bounds, h)
+}
+
+/// The point `bisections` halvings of the segment from `a` (inside) to `b` (outside) find
+/// where `inside` changes: the midpoint of the last interval.
+pub fn bisect(a: &Vec3, b: &Vec3, bisections: usize, inside: impl Fn(&Vec3) -> bool) -> Vec3 {
+    let (mut pa, mut pb) = (*a, *b);
+    for _ in 0..bisections {
+        let m = (pa + pb) * 0.5;
+        if inside(&m) { pa = m } else { pb = m }
+    }
+    (pa + pb) * 0.5
+}
+
+/// [`stuff_fn_sign`] with each cut point given by `cut(inside end, outside end)` of a
+/// lattice edge whose ends `f` puts on the two sides.
+pub fn stuff_fn_cut(
+    f: impl Fn(&Vec3) -> f64 + Sync,
+    cut_point: impl Fn(&Vec3, &Vec3) -> Vec3 + Sync,
+    bounds: (Vec3, Vec3),
+    h: f64,
+) -> Result<TetMesh, GenerateError> {
     use rayon::prelude::*;
     if !(h.is_finite() && h > 0.0) {
         return Err(GenerateError::Spacing {
@@ -269,20 +291,8 @@ pub fn stuff_fn_sign(
     let mut pos: Vec<Vec3> = (0..total).map(|v| lat.position(v)).collect();
     let mut val: Vec<f64> = pos.par_iter().map(&f).collect();
 
-    // Cut points on edges with a sign change, found by bisection.
-    let cut = |a: usize, b: usize, pos: &[Vec3], val: &[f64]| -> Vec3 {
-        let (mut pa, mut pb) = (pos[a], pos[b]);
-        let (fa, _) = (val[a], val[b]);
-        for _ in 0..bisections {
-            let m = (pa + pb) * 0.5;
-            if inside(&m) == (fa < 0.0) {
-                pa = m;
-            } else {
-                pb = m;
-            }
-        }
-        (pa + pb) * 0.5
-    };
+    // Cut points on edges with a sign change (from the inside end: `a` has `f < 0`).
+    let cut = |a: usize, b: usize, pos: &[Vec3], _: &[f64]| cut_point(&pos[a], &pos[b]);
 
     // Warping: a vertex violated by a cut point on one of its edges moves onto the closest one.
     // Cut points are bisected from the inside end and kept: an edge whose two ends are not

@@ -344,3 +344,58 @@ fn the_surface_tree_agrees_with_the_sums_over_every_triangle() {
     }
     eprintln!("largest winding-number difference {worst:.2e}");
 }
+
+/// Along a segment the winding number changes only where the segment crosses a triangle
+/// (what the stuffing's bisections ask instead of a winding number per step): on random
+/// segments through a torus, the crossings found once give the side the hierarchy's winding
+/// number gives at every point tried (away from the crossings themselves); a segment in a
+/// triangle's plane or through one of its corners is refused (the bisection then asks the
+/// winding number).
+#[test]
+fn the_winding_number_along_a_segment_gives_the_trees_sides() {
+    let s = repair(&torus(1.0, 0.35)).unwrap();
+    let tree = soft_tissue_core::mesh::surface_tree::SurfaceTree::new(&s.positions, &s.triangles);
+    let mut seed = 777u64;
+    let mut next = || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let (mut along_count, mut crossings, mut points) = (0, 0, 0);
+    for _ in 0..300 {
+        let a = Vec3::new(3.0 * next() - 1.5, 3.0 * next() - 1.5, next() - 0.5);
+        let b = a + Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5) * 0.8;
+        let Some(along) = tree.winding_along(&a, &b) else {
+            continue;
+        };
+        along_count += 1;
+        let (wa, wb) = (tree.winding_number(&a), tree.winding_number(&b));
+        crossings += usize::from((wa > 0.5) != (wb > 0.5));
+        for k in 0..64 {
+            let t = (k as f64 + next()) / 64.0;
+            if let Some(w) = along.at(t) {
+                points += 1;
+                let direct = tree.winding_number(&(a + (b - a) * t));
+                assert_eq!(
+                    w > 0.5,
+                    direct > 0.5,
+                    "{w} against {direct} at {t} on {a:?} {b:?}"
+                );
+            }
+        }
+    }
+    eprintln!(
+        "{along_count} segments of 300 answered, {crossings} crossing the surface, {points} points"
+    );
+    assert!(along_count > 280, "{along_count}");
+    assert!(crossings > 30, "{crossings}");
+    // Through a corner of the surface, and along an edge (in the plane of its triangles).
+    let [p, q, _] = s.triangles[0].map(|v| s.positions[v as usize]);
+    let n = (q - p).cross(&Vec3::new(0.3, 0.2, 0.9)).normalize();
+    assert!(tree.winding_along(&(p - n * 0.1), &(p + n * 0.1)).is_none());
+    assert!(
+        tree.winding_along(&(p - (q - p) * 0.5), &(q + (q - p) * 0.5))
+            .is_none()
+    );
+}

@@ -12,8 +12,9 @@
 //!    inside a closed surface and zero outside, and still near those values where the
 //!    surface has small holes. The field the mesher reads is the distance to the surface,
 //!    negative where the winding number exceeds one half.
-//! 3. **Isosurface stuffing** of that field ([`stuff_fn_sign`](super::generate::stuff_fn_sign): its cut points bisected on the
-//!    winding number alone), the interior-node removal within the quality bound
+//! 3. **Isosurface stuffing** of that field ([`stuff_fn_cut`](super::generate::stuff_fn_cut): its cut points bisected on the
+//!    winding number alone, read along each cut edge from the triangles it crosses,
+//!    [`SurfaceTree::winding_along`](super::surface_tree::SurfaceTree::winding_along)), the interior-node removal within the quality bound
 //!    ([`coarsen_interior`](super::generate::coarsen_interior)), then every boundary node moved onto the input surface where the
 //!    move keeps its tetrahedra above the quality bound.
 //!

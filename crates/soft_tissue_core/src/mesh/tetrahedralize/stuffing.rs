@@ -4,7 +4,7 @@
 use super::TetrahedralizeError;
 use crate::Vec3;
 use crate::mesh::TetMesh;
-use crate::mesh::generate::{GenerateError, coarsen_interior, stuff_fn_sign};
+use crate::mesh::generate::{GenerateError, bisect, coarsen_interior, stuff_fn_cut};
 use crate::mesh::surface_tree::SurfaceTree;
 
 /// The signed field the mesher reads: the distance to the surface's boundary part (`near`),
@@ -36,13 +36,26 @@ impl Stuffing<'_> {
     pub(super) fn mesh_at(&self, h: f64) -> Result<TetMesh, TetrahedralizeError> {
         let (near, tree) = (self.near, self.whole);
         // 16 bisections (h / 65536): the boundary nodes are moved onto the surface after.
-        // The bisections need only the side (the winding number), not the distance.
-        let stuffed = stuff_fn_sign(
+        // The bisections need only the side (the winding number), not the distance, and
+        // along one lattice edge the winding number changes only where the edge crosses a
+        // triangle: the crossings found once answer every step (the same sides as a winding
+        // number per step, which stays for an edge that grazes a triangle or a surface
+        // that is not closed there).
+        let stuffed = stuff_fn_cut(
             |p| signed_distance(near, tree, p),
-            |p| inside(tree, p),
+            |a, b| match tree.winding_along(a, b) {
+                Some(along) => {
+                    let d = b - a;
+                    let t = |m: &Vec3| (m - a).dot(&d) / d.norm_squared();
+                    // A step that lands on a crossing asks the winding number there.
+                    bisect(a, b, 16, |m| {
+                        along.at(t(m)).map_or_else(|| inside(tree, m), |w| w > 0.5)
+                    })
+                }
+                None => bisect(a, b, 16, |m| inside(tree, m)),
+            },
             self.bounds,
             h,
-            16,
         )?;
         Ok(coarsen_interior(&stuffed, self.min_dihedral).map_err(GenerateError::from)?)
     }
