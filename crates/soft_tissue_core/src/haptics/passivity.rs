@@ -32,6 +32,11 @@ use crate::Vec3;
 /// Seconds over which energy the loop took from the hand is forgotten (time constant).
 pub const PASSIVITY_MEMORY_S: f64 = 0.02;
 
+/// The energy below which the controller's record counts for little, as a share of the
+/// energy the coupling's spring holds at the force limit: a controller that stood aside
+/// (its record faded with [`PASSIVITY_MEMORY_S`]) trusts itself again after some 0.3 s.
+const TRUST_PRIOR: f64 = 1e-9;
+
 /// Most damping the controller adds, as a multiple of the coupling's own (critical)
 /// damping: a hand that barely moves while the observer is short of energy would otherwise
 /// ask for an arbitrarily large damper (the shortfall is then carried to the next ticks).
@@ -62,7 +67,7 @@ pub struct DevicePort {
     trust: f64,
     /// Energy the loop has taken from the hand (observer), forgetting the past.
     energy: f64,
-    /// Energy the controller has taken, summed.
+    /// Energy the controller's damping took from the hand, summed (negative where it gave).
     dissipated: f64,
     /// Ticks the controller acted in.
     active_ticks: u64,
@@ -100,24 +105,25 @@ impl DevicePort {
             self.velocity += (moved / h - self.velocity) * self.alpha;
         }
         self.last = Some(*device);
-        // What the last force took from the hand over the motion it was held for.
-        self.energy -= self.force.dot(&moved);
+        // What the last force took from the hand over the motion it was held for; energy
+        // taken or given more than the memory ago fades (credit and debt alike).
         let forget = (-h / PASSIVITY_MEMORY_S).exp();
-        if self.energy > 0.0 {
-            self.energy *= forget;
-        }
+        self.energy = (self.energy - self.force.dot(&moved)) * forget;
         // How far the controller's last damping took what it expected to take (it does
         // not where the motion turned within the tick).
+        let took = -self.added.dot(&moved);
+        self.dissipated += took;
+        let p = coupling.params();
+        let prior = TRUST_PRIOR * p.max_force * p.max_force / p.stiffness;
         self.expected = self.expected * forget + self.expected_now;
-        self.realized = self.realized * forget - self.added.dot(&moved);
-        self.trust = if self.expected > 0.0 {
-            (self.realized / self.expected).clamp(0.0, 1.0)
-        } else {
-            1.0
-        };
+        self.realized = self.realized * forget + took;
+        self.trust = ((self.realized + prior) / (self.expected + prior)).clamp(0.0, 1.0);
+        if !self.trust.is_finite() {
+            self.trust = 0.0;
+        }
         self.expected_now = 0.0;
         self.added = Vec3::zeros();
-        let max_force = coupling.params().max_force;
+        let max_force = p.max_force;
         let mut f = coupling.step(device, &self.velocity, h);
         if self.passivity {
             // The next tick's motion, predicted as the last one's.
@@ -127,12 +133,13 @@ impl DevicePort {
             if predicted < 0.0 && vv > 0.0 {
                 let most = self.trust * PASSIVITY_MAX_DAMPING * coupling.params().damping();
                 let damping = (-predicted / (h * vv)).min(most);
-                let damped = clamp(f - v * damping, max_force);
-                self.dissipated += (damped - f).dot(&v).abs() * h;
-                self.active_ticks += 1;
-                self.added = damped - f;
-                self.expected_now = -(damped - f).dot(&v) * h;
-                f = damped;
+                if damping > 0.0 {
+                    let damped = clamp(f - v * damping, max_force);
+                    self.active_ticks += 1;
+                    self.added = damped - f;
+                    self.expected_now = -(damped - f).dot(&v) * h;
+                    f = damped;
+                }
             }
         }
         self.force = f;
@@ -151,21 +158,36 @@ impl DevicePort {
         self.energy
     }
 
-    /// Energy the controller's damper has taken (predicted over each tick it acted in).
+    /// Energy the controller's damping has taken from the hand over the motion each of its
+    /// forces was held for (negative where it gave: motion that turned within the tick).
     pub fn dissipated(&self) -> f64 {
         self.dissipated
     }
 
-    /// Ticks the controller acted in.
+    /// Ticks the controller added damping in.
     pub fn active_ticks(&self) -> u64 {
         self.active_ticks
     }
 
-    /// Starts again from a device at rest (the coupling moved elsewhere).
+    /// The force the device rendered this tick, scene units, where it is not the one
+    /// [`DevicePort::tick`] returned (clamped to a device limit below the coupling's): the
+    /// observer counts the energy of what the hand felt.
+    pub fn rendered(&mut self, force: Vec3) {
+        self.force = force;
+    }
+
+    /// Starts again from a device at rest (the coupling moved elsewhere): the filter, the
+    /// observer and the controller's record (the counts `dissipated` and `active_ticks`
+    /// go on).
     pub fn reset(&mut self) {
         self.last = None;
         self.velocity = Vec3::zeros();
         self.force = Vec3::zeros();
+        self.added = Vec3::zeros();
+        self.expected_now = 0.0;
+        self.expected = 0.0;
+        self.realized = 0.0;
+        self.trust = 1.0;
         self.energy = 0.0;
     }
 }
@@ -244,11 +266,13 @@ mod tests {
         assert!(f.iter().all(|f| f.iter().all(|c| c.is_finite())));
     }
 
-    /// Shaking with content up to 420 Hz (near the 500 Hz a 1 kHz loop can see), where a
-    /// tick's motion does not predict the next one's: a damper on it would give energy, so
-    /// the controller stands aside, and the hand gets no more than without it (0.1 %).
+    /// Shaking with content up to 250 and 420 Hz (near the 500 Hz a 1 kHz loop can see),
+    /// where a tick's motion does not predict the next one's: a damper on it would give
+    /// energy, so the controller stands aside but for the tries its record's fading allows,
+    /// and the hand gets at most 2 % more than without it (without the weighting by its
+    /// record: up to 27 times more).
     #[test]
-    fn near_the_loop_rate_the_controller_does_no_harm() {
+    fn near_the_loop_rate_the_controller_does_little_harm() {
         for frequencies in [
             &[60.0, 130.0, 190.0, 250.0][..],
             &[60.0, 130.0, 190.0, 250.0, 330.0, 420.0][..],
@@ -264,7 +288,7 @@ mod tests {
                 port.dissipated()
             );
             assert!(
-                with <= without + 1e-3 * without.abs(),
+                with <= without + 0.02 * without.abs(),
                 "{with} against {without}"
             );
         }

@@ -269,8 +269,8 @@ pub struct HapticRun {
     pub spin_us: f64,
     /// Ticks the passivity controller added damping in.
     pub passivity_ticks: u64,
-    /// Energy the passivity controller took from the hand, scene units (force times
-    /// length).
+    /// Energy the passivity controller's damping took from the hand over the motion each of
+    /// its forces was held for, scene units (force times length; negative where it gave).
     pub passivity_dissipated: f64,
 }
 
@@ -477,6 +477,7 @@ fn run(
         out.passivity_ticks = port.active_ticks();
         out.passivity_dissipated = port.dissipated();
         let force = clamp(f_scene * mapping.force_scale, limit);
+        port.rendered(force / mapping.force_scale);
         let change = (force - last_force).norm();
         out.max_force_step = out.max_force_step.max(change);
         if new_model {

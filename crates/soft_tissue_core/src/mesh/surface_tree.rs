@@ -201,14 +201,18 @@ impl<'a> SurfaceTree<'a> {
 
     /// The generalized winding number along the segment from `a` to `b`: its value at `a`
     /// and each crossing of a triangle (the parameter along the segment, 0 at `a` and 1 at
-    /// `b`, and the whole step of the winding number there: -1 through a triangle's front,
-    /// +1 through its back), sorted. `None` where that is not the winding number all along:
-    /// the segment touches a triangle's edge or corner, lies in its plane or ends on it
-    /// (within a relative 1e-9), or the steps do not lead to the winding number at `b`
-    /// within a quarter (the surface is not closed there). A bisection along the segment
+    /// `b`, and the whole step of the winding number there: -1 where the segment leaves
+    /// through the side the triangle's normal points to, +1 where it enters), sorted.
+    /// `None` where that is not the winding number all along: an end is not finite, the
+    /// segment touches a triangle's edge or corner, lies in its plane or ends on it (within
+    /// a relative 1e-9), or the steps do not lead to the winding number at `b` within a
+    /// quarter and on the same side of one half (the surface is not closed there). A bisection along the segment
     /// then asks one list instead of a winding number per step.
     pub fn winding_along(&self, a: &Vec3, b: &Vec3) -> Option<WindingAlong> {
         const EPS: f64 = 1e-9;
+        if !(a.iter().chain(b.iter()).all(|c| c.is_finite())) {
+            return None;
+        }
         let d = b - a;
         let mut steps = Vec::new();
         let (inv, mut stack) = (d.map(|c| 1.0 / c), vec![0u32]);
@@ -242,9 +246,13 @@ impl<'a> SurfaceTree<'a> {
                         let det = e1.dot(&pvec);
                         let w = a - p;
                         let scale = e1.norm() * e2.norm() * d.norm();
+                        let n = e1.cross(&e2);
+                        if n.norm_squared() == 0.0 {
+                            // No area: no crossing (nor winding number).
+                            continue;
+                        }
                         if det.abs() <= EPS * scale {
                             // Parallel: a crossing only where it lies in the plane.
-                            let n = e1.cross(&e2);
                             if w.dot(&n).abs() <= EPS * scale {
                                 return None;
                             }
@@ -270,7 +278,9 @@ impl<'a> SurfaceTree<'a> {
         steps.sort_by(|x, y| x.0.total_cmp(&y.0));
         let start = self.winding_number(a);
         let end = start + steps.iter().map(|s| s.1).sum::<f64>();
-        ((end - self.winding_number(b)).abs() < 0.25).then_some(WindingAlong { start, steps })
+        let at_b = self.winding_number(b);
+        ((end - at_b).abs() < 0.25 && (end > 0.5) == (at_b > 0.5))
+            .then_some(WindingAlong { start, steps })
     }
 }
 
