@@ -297,6 +297,16 @@ fn a_capsule_meshes_to_its_volume_and_surface() {
     );
 }
 
+/// Uniform numbers in [0, 1) from `seed` (xorshift64).
+fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
+    move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
 /// The hierarchy's answers against the sums over every triangle: the closest distance exact,
 /// the winding number within 2e-2 (the far clusters' dipoles; the mesher reads only whether
 /// it exceeds one half), at points inside, outside and
@@ -305,13 +315,7 @@ fn a_capsule_meshes_to_its_volume_and_surface() {
 fn the_surface_tree_agrees_with_the_sums_over_every_triangle() {
     let s = repair(&torus(1.0, 0.35)).unwrap();
     let tree = soft_tissue_core::mesh::surface_tree::SurfaceTree::new(&s.positions, &s.triangles);
-    let mut seed = 12345u64;
-    let mut next = || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        (seed >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut next = uniform(12345u64);
     let mut worst: f64 = 0.0;
     for _ in 0..400 {
         let p = Vec3::new(3.0 * next() - 1.5, 3.0 * next() - 1.5, next() - 0.5);
@@ -355,13 +359,7 @@ fn the_surface_tree_agrees_with_the_sums_over_every_triangle() {
 fn the_winding_number_along_a_segment_gives_the_trees_sides() {
     let s = repair(&torus(1.0, 0.35)).unwrap();
     let tree = soft_tissue_core::mesh::surface_tree::SurfaceTree::new(&s.positions, &s.triangles);
-    let mut seed = 777u64;
-    let mut next = || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        (seed >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut next = uniform(777u64);
     let (mut along_count, mut crossings, mut points) = (0, 0, 0);
     for _ in 0..300 {
         let a = Vec3::new(3.0 * next() - 1.5, 3.0 * next() - 1.5, next() - 0.5);
