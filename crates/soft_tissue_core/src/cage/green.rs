@@ -516,6 +516,11 @@ impl GreenCoordinates {
         self.faces[j].v
     }
 
+    /// The rest cage's vertices, as the coordinates were computed in.
+    pub fn rest_cage_vertices(&self) -> &[Vec3] {
+        &self.rest_vertices
+    }
+
     /// The face terms `t_j = s_j n'_j` of a deformed cage (as
     /// [`GreenCoordinates::face_terms`]) and their exact derivatives: `jac[j][k]` is
     /// `d t_j / d v'` for the `k`-th vertex of face `j` (row: component of `t_j`, column:

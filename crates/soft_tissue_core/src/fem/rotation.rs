@@ -13,6 +13,25 @@ use nalgebra::{Matrix3, Quaternion, UnitQuaternion};
 
 use crate::Vec3;
 
+/// The rotation of the rigid motion that best maps the points `rest` onto `moved`, paired by
+/// index (Kabsch: the rotation of the polar decomposition of their cross-covariance about
+/// their centroids, by [`extract_rotation`] from the identity).
+pub fn best_rotation(rest: &[Vec3], moved: &[Vec3]) -> UnitQuaternion<f64> {
+    let n = rest.len().max(1) as f64;
+    let (c0, c1) = (
+        rest.iter().sum::<Vec3>() / n,
+        moved.iter().sum::<Vec3>() / n,
+    );
+    let mut h = Matrix3::zeros();
+    for (x, x0) in moved.iter().zip(rest) {
+        h += (x - c1) * (x0 - c0).transpose();
+    }
+    let mut q = UnitQuaternion::identity();
+    let mut r = Matrix3::identity();
+    extract_rotation(&h, &mut q, &mut r, 100, 1e-12);
+    q
+}
+
 /// Updates `q` (and `r`, its rotation matrix, which the caller keeps with it) towards the
 /// rotation of `f`, for at most `max_iterations` updates or until the correction angle is
 /// below `tolerance` radians. Returns the updates made.

@@ -749,7 +749,7 @@ impl LeveledModel {
                 if self.rest_count >= p.rest_steps
                     && self.steps_at_level >= p.min_precise_steps as u64
                 {
-                    let residual = self.fit_cage(MAX_FIT_ITERATIONS)?;
+                    let residual = self.fit_cage(MAX_FIT_ITERATIONS, fit::STEP_NEWTON_STEPS)?;
                     self.residual = residual;
                     // A free body at rest on its supports keeps what its cage misses as a
                     // detail (see `lower_fitted`): it may drop whatever the residual.

@@ -107,7 +107,7 @@ impl LeveledModel {
         if self.level == Level::Cage || self.pin == Some(Level::Precise) {
             return Ok(None);
         }
-        let residual = self.fit_cage(MAX_FIT_ITERATIONS)?;
+        let residual = self.fit_cage(MAX_FIT_ITERATIONS, super::fit::STEP_NEWTON_STEPS)?;
         self.lower_fitted(residual).map(Some)
     }
 
