@@ -551,6 +551,8 @@ impl WorldBody {
         }
         let land_us = started.elapsed().as_secs_f64() * 1e6;
         for b in &mut built {
+            // The pieces replace this body: the step reads the wait from the one in its slot.
+            b.landing_wait_us = wait_us;
             if let Some(r) = b.cut.as_mut() {
                 r.land_us = land_us;
                 r.wait_us = wait_us;
