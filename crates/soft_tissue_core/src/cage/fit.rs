@@ -40,6 +40,8 @@ use crate::Vec3;
 
 mod fold;
 mod newton;
+#[cfg(test)]
+mod testing;
 
 /// Past iterates Anderson mixing combines.
 const WINDOW: usize = 5;

@@ -18,7 +18,7 @@
 //! every surface point `sqrt(WEIGHT) delta sqrt(a_j)` (twice the face's size) off. Cubic in
 //! the shortfall, so its Hessian is continuous where a face reaches the margin (a quadratic
 //! penalty's jumps there: 82 fits of the 500 missed with it, 71 with the cubic one, before
-//! the step limits of `fit::newton`); each `s_j` is quadratic in the
+//! the step limit, [`FoldGuard::step_limit`], that `fit::newton` uses); each `s_j` is quadratic in the
 //! cage, so the penalty's Gauss-Newton part and exact second derivatives are written out here.
 
 use crate::Vec3;
@@ -137,7 +137,7 @@ impl FoldGuard {
                     }
                 }
             }
-            // Half the penalty's second derivative beyond Gauss-Newton: -w short d2s, with
+            // Half the penalty's second derivative beyond Gauss-Newton: -1.5 w short^2 / MARGIN d2s, with
             // d2s/dv1 dv2 = -[m]x (and its transpose), v0 through e1 = v1 - v0, e2 = v2 - v0.
             let s12 = -m.cross_matrix() * (-cc);
             let mut full = [[Matrix3::zeros(); 3]; 3];
@@ -204,103 +204,49 @@ impl FoldGuard {
 
 #[cfg(test)]
 mod tests {
+    use super::super::testing::{add_face_blocks, assert_derivatives, liver_cage};
     use super::*;
-    use crate::cage::{FitOptions, fitted_cage};
-    use crate::mesh::generate::Organ;
     use nalgebra::UnitQuaternion;
 
     /// Half the penalty's gradient and Hessian against central differences of the penalty,
     /// on a cage squashed and turned so that some faces are below the margin and some turned
-    /// over; and a face above the margin costs nothing.
+    /// over; and a cage moved rigidly costs nothing.
     #[test]
     fn the_penalty_derivatives_match_finite_differences() {
-        let mesh = Organ::Liver.generate(1.0).unwrap();
-        let cage = fitted_cage(
-            mesh.positions(),
-            mesh.surface().triangles(),
-            &FitOptions::for_points(mesh.positions(), 40),
-        )
-        .unwrap();
-        let coords = GreenCoordinates::new(&cage, mesh.positions()).unwrap();
+        let (_, cage, coords) = liver_cage();
         let turn = UnitQuaternion::from_euler_angles(0.3, -0.2, 0.5);
+        let turned: Vec<Vec3> = cage.vertices().iter().map(|v| turn * v).collect();
         let mut guard = FoldGuard::new(coords.face_count());
-        guard.orient(
-            &coords,
-            &cage.vertices().iter().map(|v| turn * v).collect::<Vec<_>>(),
-            10,
-        );
-        assert_eq!(
-            guard.penalty(
-                &coords,
-                &cage.vertices().iter().map(|v| turn * v).collect::<Vec<_>>()
-            ),
-            0.0
-        );
+        guard.orient(&coords, &turned, 10);
+        assert_eq!(guard.penalty(&coords, &turned), 0.0);
         // Squashed along one axis (areas of faces across it shrink), a wobble turning some
         // faces over, then turned.
         let x: Vec<Vec3> = cage
             .vertices()
             .iter()
             .enumerate()
-            .map(|(i, v)| {
-                let w = Vec3::new(0.1 * v.x, v.y, v.z + 0.3 * (7.0 * i as f64).sin());
-                turn * w
-            })
+            .map(|(i, v)| turn * Vec3::new(0.1 * v.x, v.y, v.z + 0.3 * (7.0 * i as f64).sin()))
             .collect();
-        let below = (0..coords.face_count())
-            .filter(|&j| guard.ratio(&coords, &x, j) < MARGIN)
-            .count();
-        let over = (0..coords.face_count())
-            .filter(|&j| guard.ratio(&coords, &x, j) < 0.0)
-            .count();
+        let ratios: Vec<f64> = (0..coords.face_count())
+            .map(|j| guard.ratio(&coords, &x, j))
+            .collect();
+        let below = ratios.iter().filter(|&&r| r < MARGIN).count();
+        let over = ratios.iter().filter(|&&r| r < 0.0).count();
         assert!(
             below > 10 && over > 0,
             "{below} below the margin, {over} over"
         );
-        let d = 3 * x.len();
-        let nf = coords.face_count();
-        let (mut h, mut grad, mut curv) = (vec![0.0; d * d], vec![0.0; d], vec![[0.0; 81]; nf]);
-        guard.add(&coords, &x, &mut h, &mut grad, &mut curv);
-        for (j, o) in curv.iter().enumerate() {
-            let v = coords.face_vertices(j).map(|v| v as usize);
-            for r in 0..9 {
-                for c in 0..9 {
-                    h[(3 * v[r / 3] + r % 3) * d + 3 * v[c / 3] + c % 3] += o[r * 9 + c];
-                }
-            }
-        }
-        let eps = 1e-6;
-        let half = |y: &[Vec3]| 0.5 * guard.penalty(&coords, y);
-        let half_grad = |y: &[Vec3]| {
+        let (d, nf) = (3 * x.len(), coords.face_count());
+        let half = |y: &[Vec3]| {
             let (mut h, mut g, mut c) = (vec![0.0; d * d], vec![0.0; d], vec![[0.0; 81]; nf]);
             guard.add(&coords, y, &mut h, &mut g, &mut c);
-            g
+            add_face_blocks(&coords, &c, &mut h);
+            (0.5 * guard.penalty(&coords, y), g, h)
         };
-        let (mut worst_g, mut scale_g, mut worst_h, mut scale_h): (f64, f64, f64, f64) =
-            (0.0, 0.0, 0.0, 0.0);
-        for c in 0..d {
-            let mut y = x.clone();
-            y[c / 3][c % 3] += eps;
-            let (fp, gp) = (half(&y), half_grad(&y));
-            y[c / 3][c % 3] -= 2.0 * eps;
-            let (fm, gm) = (half(&y), half_grad(&y));
-            let fd = (fp - fm) / (2.0 * eps);
-            worst_g = worst_g.max((fd - grad[c]).abs());
-            scale_g = scale_g.max(fd.abs());
-            for r in 0..d {
-                let fd = (gp[r] - gm[r]) / (2.0 * eps);
-                worst_h = worst_h.max((fd - h[r * d + c]).abs());
-                scale_h = scale_h.max(fd.abs());
-            }
-        }
-        assert!(scale_g > 1e-3 && scale_h > 1e-3, "{scale_g} {scale_h}");
-        assert!(
-            worst_g < 1e-6 * scale_g,
-            "gradient off by {worst_g:e} of {scale_g:e}"
-        );
-        assert!(
-            worst_h < 1e-5 * scale_h,
-            "Hessian off by {worst_h:e} of {scale_h:e}"
-        );
+        let (_, grad, h) = half(&x);
+        assert_derivatives(&x, &grad, &h, |y| {
+            let (f, g, _) = half(y);
+            (f, g)
+        });
     }
 }
