@@ -39,6 +39,13 @@ pub(super) struct FoldGuard {
     weight: Vec<f64>,
 }
 
+/// The derivatives of `m . (e1 x e2)` by the face's three vertices (`e1`, `e2` its edges
+/// from the first): `e2 x m`, `m x e1` and minus their sum for the first.
+fn ratio_gradient(m: &Vec3, e1: &Vec3, e2: &Vec3) -> [Vec3; 3] {
+    let (g1, g2) = (e2.cross(m), m.cross(e1));
+    [-(g1 + g2), g1, g2]
+}
+
 /// `u' x v'` of face `j` in `cage` and its edges from the first vertex.
 fn cross(coords: &GreenCoordinates, cage: &[Vec3], j: usize) -> ([usize; 3], Vec3, Vec3, Vec3) {
     let v = coords.face_vertices(j).map(|v| v as usize);
@@ -113,16 +120,10 @@ impl FoldGuard {
             if w <= 0.0 || short <= 0.0 {
                 continue;
             }
-            // ds/dv1 = e2 x m, ds/dv2 = m x e1, ds/dv0 = -(both).
-            let (g1, g2) = (e2.cross(&m), m.cross(&e1));
-            let ds = [-(g1 + g2), g1, g2];
+            let ds = ratio_gradient(&m, &e1, &e2);
             // P = w short^3 / MARGIN: half its gradient -1.5 w short^2 / MARGIN ds, half its
             // Hessian 3 w short / MARGIN ds ds^T - 1.5 w short^2 / MARGIN d2s.
-            let (g, gg, cc) = (
-                1.5 * w * short * short / MARGIN,
-                3.0 * w * short / MARGIN,
-                1.5 * w * short * short / MARGIN,
-            );
+            let (g, gg) = (1.5 * w * short * short / MARGIN, 3.0 * w * short / MARGIN);
             for (k, dk) in ds.iter().enumerate() {
                 for a in 0..3 {
                     grad[3 * v[k] + a] -= g * dk[a];
@@ -139,7 +140,7 @@ impl FoldGuard {
             }
             // Half the penalty's second derivative beyond Gauss-Newton: -1.5 w short^2 / MARGIN d2s, with
             // d2s/dv1 dv2 = -[m]x (and its transpose), v0 through e1 = v1 - v0, e2 = v2 - v0.
-            let s12 = -m.cross_matrix() * (-cc);
+            let s12 = -m.cross_matrix() * (-g);
             let mut full = [[Matrix3::zeros(); 3]; 3];
             // In (e1, e2) the second derivative is [[0, s12], [s12^T, 0]]; with
             // e1 = v1 - v0, e2 = v2 - v0 the v0 rows and columns take minus the sums.
@@ -189,8 +190,11 @@ impl FoldGuard {
             let m = self.axis[j];
             let (v, e1, e2, c) = cross(coords, cage, j);
             let s = m.dot(&c);
-            let ds = (e2.cross(&m)).dot(&(at(v[1]) - at(v[0])))
-                + (m.cross(&e1)).dot(&(at(v[2]) - at(v[0])));
+            let ds: f64 = ratio_gradient(&m, &e1, &e2)
+                .iter()
+                .zip(v)
+                .map(|(g, v)| g.dot(&at(v)))
+                .sum();
             // A face the model sees (below the margin) may lose half its ratio; one it does
             // not see stops a tenth of the margin inside it.
             let floor = if s > MARGIN { 0.9 * MARGIN } else { 0.5 * s };

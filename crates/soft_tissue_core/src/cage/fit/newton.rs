@@ -479,24 +479,16 @@ impl SurfaceFit {
             let Some(n) = self.newton.as_mut() else {
                 return report;
             };
-            for (v, (t, x)) in n.trial.iter_mut().zip(cage.iter()).enumerate() {
-                *t = x + Vec3::new(n.step[3 * v], n.step[3 * v + 1], n.step[3 * v + 2]);
-            }
             report.change = change;
             let mut trial = std::mem::take(&mut n.trial);
-            let mut f_trial = self.objective(coords, &trial, points);
             // A step that raises the objective by no more than rounding is taken; one that
             // raises it more is halved up to [`HALVINGS`] times (an objective costs a pass
             // over the surface, a fresh damping a factorization).
-            let mut taken = f_trial <= f + ROUNDING * f;
-            let mut full = limit >= 1.0;
-            let mut alpha = 1.0;
-            for _ in 0..HALVINGS {
-                if taken {
-                    break;
+            let (mut f_trial, mut taken, mut alpha) = (f, false, 1.0);
+            for halving in 0..=HALVINGS {
+                if halving > 0 {
+                    alpha *= 0.5;
                 }
-                alpha *= 0.5;
-                full = false;
                 if let Some(n) = self.newton.as_ref() {
                     for (v, (t, x)) in trial.iter_mut().zip(cage.iter()).enumerate() {
                         *t = x + Vec3::new(n.step[3 * v], n.step[3 * v + 1], n.step[3 * v + 2])
@@ -505,7 +497,11 @@ impl SurfaceFit {
                 }
                 f_trial = self.objective(coords, &trial, points);
                 taken = f_trial <= f + ROUNDING * f;
+                if taken {
+                    break;
+                }
             }
+            let full = limit >= 1.0 && alpha >= 1.0;
             if taken {
                 cage.copy_from_slice(&trial);
                 f = f_trial;
