@@ -611,61 +611,70 @@ fn a_collision_between_two_bodies_gains_no_energy() {
     );
 }
 
+/// The paper's Fig. 5 protocol: the same poke on two copies of the cylinders (box cages),
+/// every body held at its cage level in one and at its precise level in the other. The cage
+/// level meets the tool with its precise model's compliance and keeps the dent its cage
+/// cannot show (`precision::contact`); it must respond (the poked body moves) and stay near
+/// the precise run over the first 150 steps: measured 9.45 % of the width with linear FEM,
+/// 4.67 % with corotational FEM; allowed the measured value plus 1 and 2 % of the width.
+/// With the cage's own compliance in the contact rows (measured by disabling the dent) they
+/// were 10.97 % and 27.23 %; before forces reached the cage at all it flew tens of widths
+/// away.
 #[test]
 fn a_body_held_at_its_cage_level_follows_its_precise_twin_under_a_poke() {
-    // The paper's Fig. 5 protocol: the same poke on two copies of the scene, every body held
-    // at its cage level in one and at its precise level in the other. The cage level takes
-    // the contact as forces on its cage; it must respond (the poked body moves) and stay
-    // within about the dent the precise body takes (the poke goes 15 % of the width deep, a
-    // dent a box cage cannot reproduce): 15.97 % of the width measured, 18 % allowed (the
-    // measured value plus 2 % of the width). Before the fix it flew tens of widths away.
-    let mut worlds: Vec<(SoftTissueWorld, Script, usize)> = [Level::Cage, Level::Precise]
-        .into_iter()
-        .map(|level| {
-            let mut w = cylinders();
-            for b in w.bodies_mut() {
-                b.model_mut().pin(Some(level)).unwrap();
+    for (method, allowed) in [
+        (PreciseMethod::LinearFem, 0.105),
+        (PreciseMethod::CorotationalFem, 0.067),
+    ] {
+        let scene = Scene::paper_cylinders(method, method);
+        let mut worlds: Vec<(SoftTissueWorld, Script, usize)> = [Level::Cage, Level::Precise]
+            .into_iter()
+            .map(|level| {
+                let mut w = SoftTissueWorld::from_scene(&scene, assets()).unwrap();
+                for b in w.bodies_mut() {
+                    b.model_mut().pin(Some(level)).unwrap();
+                }
+                let s = Script::builtin("poke-a", &w).unwrap();
+                let ti = w.add_tool(Tool::new("tool", s.tool).unwrap());
+                (w, s, ti)
+            })
+            .collect();
+        let dt = worlds[0].0.config().dt;
+        let width = worlds[1].0.bodies()[0].model().smallest_dimension();
+        let (mut worst, mut cage_moved, mut precise_moved) = (0.0f64, 0.0f64, 0.0f64);
+        for k in 0..150 {
+            let t = (k + 1) as f64 * dt;
+            for (w, s, ti) in &mut worlds {
+                let (p, a) = s.pose_at(t);
+                w.tools_mut()[*ti].set_pose(p, a).unwrap();
+                w.step_fixed().unwrap();
             }
-            let s = Script::builtin("poke-a", &w).unwrap();
-            let ti = w.add_tool(Tool::new("tool", s.tool).unwrap());
-            (w, s, ti)
-        })
-        .collect();
-    let dt = worlds[0].0.config().dt;
-    let width = worlds[1].0.bodies()[0].model().smallest_dimension();
-    let (mut worst, mut cage_moved, mut precise_moved) = (0.0f64, 0.0f64, 0.0f64);
-    for k in 0..150 {
-        let t = (k + 1) as f64 * dt;
-        for (w, s, ti) in &mut worlds {
-            let (p, a) = s.pose_at(t);
-            w.tools_mut()[*ti].set_pose(p, a).unwrap();
-            w.step_fixed().unwrap();
+            let (a, b) = (&worlds[0].0.bodies()[0], &worlds[1].0.bodies()[0]);
+            for (p, q) in a
+                .model()
+                .node_positions()
+                .iter()
+                .zip(b.model().node_positions())
+            {
+                worst = worst.max((p - q).norm() / width);
+            }
+            cage_moved = cage_moved.max(a.diagnostics().max_displacement);
+            precise_moved = precise_moved.max(b.diagnostics().max_displacement);
         }
-        let (a, b) = (&worlds[0].0.bodies()[0], &worlds[1].0.bodies()[0]);
-        for (p, q) in a
-            .model()
-            .node_positions()
-            .iter()
-            .zip(b.model().node_positions())
-        {
-            worst = worst.max((p - q).norm() / width);
-        }
-        cage_moved = cage_moved.max(a.diagnostics().max_displacement);
-        precise_moved = precise_moved.max(b.diagnostics().max_displacement);
+        eprintln!(
+            "{method:?}: cage level at most {:.2} % of the width from its precise twin",
+            100.0 * worst
+        );
+        assert!(
+            worst < allowed,
+            "{method:?}: cage level {:.2} % of the width away",
+            100.0 * worst
+        );
+        assert!(
+            cage_moved > 0.25 * precise_moved,
+            "{method:?}: the cage level did not respond: {cage_moved} against {precise_moved}"
+        );
     }
-    eprintln!(
-        "cage level at most {:.2} % of the width from its precise twin",
-        100.0 * worst
-    );
-    assert!(
-        worst < 0.18,
-        "cage level {:.1} % of the width away",
-        100.0 * worst
-    );
-    assert!(
-        cage_moved > 0.25 * precise_moved,
-        "the cage level did not respond: {cage_moved} against {precise_moved}"
-    );
 }
 
 /// Replays are exact: the organs scene poked twice from the same start ends in the same

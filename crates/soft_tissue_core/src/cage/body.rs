@@ -162,6 +162,11 @@ pub struct CageModel {
     /// The buffer of a detail cleared, reused by the next one (a switch down sets one; the
     /// steps do not allocate once warm).
     detail_spare: Vec<Vec3>,
+    /// A displacement of each point on top of the map and the detail (see
+    /// [`CageModel::add_dent`]).
+    dent: Option<Vec<Vec3>>,
+    /// The buffer of a dent cleared, reused by the next one.
+    dent_spare: Vec<Vec3>,
 }
 
 impl CageModel {
@@ -232,6 +237,8 @@ impl CageModel {
             contact: Default::default(),
             detail: None,
             detail_spare: Vec::new(),
+            dent: None,
+            dent_spare: Vec::new(),
         };
         body.update_points()?;
         Ok(body)
@@ -351,6 +358,11 @@ impl CageModel {
                 *p += d;
             }
         }
+        if let Some(d) = &self.dent {
+            for (p, d) in self.points.iter_mut().zip(d) {
+                *p += d;
+            }
+        }
         if let Some(index) = self
             .points
             .iter()
@@ -376,7 +388,8 @@ impl CageModel {
     /// Keeps a displacement of each embedded point on top of what the cage gives (`None`:
     /// none, the default): the shape a free body came to rest in on its supports, less what
     /// its cage reproduces, so the cage level holds that shape exactly. The length must be
-    /// the number of points.
+    /// the number of points. Drops the dent (see [`CageModel::add_dent`]): a detail is set
+    /// when the state is made anew (a down-switch, a reset).
     pub fn set_detail(&mut self, detail: Option<Vec<Vec3>>) -> Result<(), CageError> {
         if let Some(d) = &detail
             && d.len() != self.points.len()
@@ -390,11 +403,59 @@ impl CageModel {
         if let Some(old) = std::mem::replace(&mut self.detail, detail) {
             self.detail_spare = old;
         }
+        self.clear_dent();
         self.update_points()
     }
 
+    /// Adds `displacements` (one per point) to the dent: what a contact presses into the
+    /// surface beyond what the cage's shapes show (see
+    /// [`crate::precision::LeveledModel::contact_compliance`]), kept on top of the map and
+    /// the detail until [`CageModel::clear_dent`]. Call [`CageModel::update_points`] after.
+    /// Another length or a non-finite displacement is an error, and nothing is added.
+    pub fn add_dent(&mut self, displacements: &[Vec3]) -> Result<(), CageError> {
+        if displacements.len() != self.points.len() {
+            return Err(CageError::LengthMismatch {
+                what: "dent (one displacement per point)",
+                expected: self.points.len(),
+                found: displacements.len(),
+            });
+        }
+        if let Some(index) = displacements
+            .iter()
+            .position(|d| !d.iter().all(|c| c.is_finite()))
+        {
+            return Err(CageError::NonFinite {
+                what: "dent of point",
+                index,
+            });
+        }
+        let dent = self.dent.get_or_insert_with(|| {
+            let mut d = std::mem::take(&mut self.dent_spare);
+            d.clear();
+            d.resize(displacements.len(), Vec3::zeros());
+            d
+        });
+        for (d, a) in dent.iter_mut().zip(displacements) {
+            *d += a;
+        }
+        Ok(())
+    }
+
+    /// The dent (see [`CageModel::add_dent`]); `None` without one.
+    pub fn dent(&self) -> Option<&[Vec3]> {
+        self.dent.as_deref()
+    }
+
+    /// Drops the dent (see [`CageModel::add_dent`]). Call [`CageModel::update_points`] after.
+    pub fn clear_dent(&mut self) {
+        if let Some(d) = self.dent.take() {
+            self.dent_spare = d;
+        }
+    }
+
     /// Sets the detail to `exact - cage` point by point (the shape `exact` the cage's own
-    /// points `cage` miss), reusing the last detail's buffer.
+    /// points `cage` miss), reusing the last detail's buffer; drops the dent, as
+    /// [`CageModel::set_detail`] does.
     pub fn set_detail_between(&mut self, exact: &[Vec3], cage: &[Vec3]) -> Result<(), CageError> {
         for (what, found) in [("exact points", exact.len()), ("cage points", cage.len())] {
             if found != self.points.len() {
@@ -412,12 +473,19 @@ impl CageModel {
         d.clear();
         d.extend(exact.iter().zip(cage).map(|(x, c)| x - c));
         self.detail = Some(d);
+        self.clear_dent();
         self.update_points()
     }
 
-    /// Adds the detail displacement (if any) to points evaluated from the cage.
+    /// Adds the detail displacement (if any) and the dent to points evaluated from the
+    /// cage.
     pub fn add_detail(&self, points: &mut [Vec3]) {
         if let Some(d) = &self.detail {
+            for (p, d) in points.iter_mut().zip(d) {
+                *p += d;
+            }
+        }
+        if let Some(d) = &self.dent {
             for (p, d) in points.iter_mut().zip(d) {
                 *p += d;
             }
@@ -547,12 +615,16 @@ impl CageModel {
         for d in self.detail.iter_mut().flatten() {
             *d = m.rotation * *d;
         }
+        for d in self.dent.iter_mut().flatten() {
+            *d = m.rotation * *d;
+        }
         Ok(())
     }
 
     /// Puts the cage back at rest.
     pub fn reset(&mut self) -> Result<(), CageError> {
         self.msd.reset();
+        self.clear_dent();
         self.update_points()
     }
 }

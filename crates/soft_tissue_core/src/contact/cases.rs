@@ -165,6 +165,13 @@ pub const HERTZ_MESHES: [(f64, f64); 3] = [(0.5, 1.3), (0.35, 1.2), (0.25, 1.13)
 /// contact is what the far field's error follows). The sphere goes down in 20 steps and
 /// holds for 5; the step is long (1000 s) so that each is the static answer.
 pub fn hertz(spacing: f64, growth: f64) -> Result<HertzRun, WorldError> {
+    hertz_at(spacing, growth, Level::Precise)
+}
+
+/// [`hertz`] with the block held at `level`: at the cage level (a box cage) it meets the
+/// sphere with its precise model's compliance and keeps what its cage cannot show as a dent
+/// (see [`crate::precision::LeveledModel::contact_compliance`]).
+pub fn hertz_at(spacing: f64, growth: f64, level: Level) -> Result<HertzRun, WorldError> {
     let (radius, depth, e, nu): (f64, f64, f64, f64) = (1.0, 0.075, 1.0, 0.3);
     let a = (radius * depth).sqrt();
     let (half, height) = (16.0, 16.0);
@@ -238,7 +245,7 @@ pub fn hertz(spacing: f64, growth: f64) -> Result<HertzRun, WorldError> {
     let mut world = SoftTissueWorld::new(config)?;
     let mut body = WorldBody::new("block", Arc::new(mesh), s, None)?;
     body.model_mut()
-        .pin(Some(Level::Precise))
+        .pin(Some(level))
         .map_err(|e| mesh_error("Hertz block", e))?;
     world.add_body(body)?;
     let mut tool = Tool::new("sphere", ToolShape::Sphere { radius }).map_err(|source| {

@@ -257,6 +257,31 @@ impl FemBody {
     /// velocities (fixed components stay). A failed solve changes nothing; a non-finite
     /// result is applied (the caller checks the state, as the contact stage does).
     pub fn apply_contact_forces(&mut self, forces: &[(u32, Vec3)]) -> Result<(), FemError> {
+        self.contact_response(forces)?;
+        let n = self.nodes.x.len();
+        // A non-finite result is left for the contact stage's check, which puts every body
+        // back as it was.
+        for i in 0..n {
+            self.nodes.x[i] += self.contact.dx[i];
+            self.nodes.v[i] += self.contact.dv[i];
+        }
+        if self.config.integrator == FemIntegrator::Bdf2 {
+            self.bdf2.absorb(&self.contact.dx, &self.contact.dv);
+        }
+        Ok(())
+    }
+
+    /// The displacement of every node that contact forces `(node, force)` held over the
+    /// step just taken make (see [`FemBody::apply_contact_forces`], which applies the same),
+    /// without changing the state: a cage-level body's dent (see
+    /// [`crate::precision::LeveledModel::contact_compliance`]).
+    pub fn contact_displacement(&mut self, forces: &[(u32, Vec3)]) -> Result<&[Vec3], FemError> {
+        self.contact_response(forces)?;
+        Ok(&self.contact.dx)
+    }
+
+    /// The response to contact forces into `contact.dx` and `contact.dv`.
+    fn contact_response(&mut self, forces: &[(u32, Vec3)]) -> Result<(), FemError> {
         self.prepare_contact();
         let n = self.nodes.x.len();
         let h = self.config.system_dt();
@@ -370,15 +395,6 @@ impl FemBody {
                     contact.dv[i][a] = 0.0;
                 }
             }
-        }
-        // A non-finite result is left for the contact stage's check, which puts every body
-        // back as it was.
-        for i in 0..n {
-            nodes.x[i] += contact.dx[i];
-            nodes.v[i] += contact.dv[i];
-        }
-        if config.integrator == FemIntegrator::Bdf2 {
-            self.bdf2.absorb(&self.contact.dx, &self.contact.dv);
         }
         Ok(())
     }

@@ -124,6 +124,31 @@ impl MsdBody {
     /// nothing; a non-finite result is applied (the caller checks the state, as the contact
     /// stage does).
     pub fn apply_contact_forces(&mut self, forces: &[(u32, Vec3)]) -> Result<(), MsdError> {
+        self.contact_response(forces)?;
+        let c = &mut self.contact;
+        for i in 0..self.nodes.x.len() {
+            self.nodes.v[i] += c.dv[i];
+            // For BDF2's history the change is part of the step.
+            self.nodes.x[i] += c.rhs[i];
+        }
+        if self.config.integrator == MsdIntegrator::ImplicitBdf2 {
+            self.bdf2.absorb(&self.contact.rhs, &self.contact.dv);
+        }
+        Ok(())
+    }
+
+    /// The displacement of every node that contact forces `(node, force)` held over the
+    /// step just taken make (see [`MsdBody::apply_contact_forces`], which applies the same),
+    /// without changing the state: a cage-level body's dent (see
+    /// [`crate::precision::LeveledModel::contact_compliance`]).
+    pub fn contact_displacement(&mut self, forces: &[(u32, Vec3)]) -> Result<&[Vec3], MsdError> {
+        self.contact_response(forces)?;
+        Ok(&self.contact.rhs)
+    }
+
+    /// The response to contact forces: velocity changes into `contact.dv`, displacements
+    /// into `contact.rhs`.
+    fn contact_response(&mut self, forces: &[(u32, Vec3)]) -> Result<(), MsdError> {
         let n = self.nodes.x.len();
         let c = &mut self.contact;
         if c.rhs.len() != n {
@@ -186,13 +211,7 @@ impl MsdBody {
             }
         }
         for i in 0..n {
-            self.nodes.v[i] += c.dv[i];
-            self.nodes.x[i] += c.dv[i] * h;
-            // For BDF2's history the change is part of the step.
             c.rhs[i] = c.dv[i] * h;
-        }
-        if self.config.integrator == MsdIntegrator::ImplicitBdf2 {
-            self.bdf2.absorb(&self.contact.rhs, &self.contact.dv);
         }
         Ok(())
     }

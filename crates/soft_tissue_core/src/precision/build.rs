@@ -3,6 +3,24 @@
 
 use super::*;
 
+impl LeveledModel {
+    /// Replaces the cage: its fit and the workspaces sized by it follow.
+    pub(super) fn install_cage(&mut self, cage: CageModel) -> Result<(), PrecisionError> {
+        let nv = cage.cage().vertices().len();
+        let nf = cage.cage().triangles().len();
+        self.fit = SurfaceFit::new(cage.coordinates(), &self.surface)?;
+        self.fit_cage = cage.cage_positions().to_vec();
+        self.equilibrium = cage.cage().vertices().to_vec();
+        self.fit_velocity = vec![Vec3::zeros(); nv];
+        self.cage = cage;
+        self.dent.forget();
+        self.cage_work = vec![Vec3::zeros(); nv];
+        self.terms_work = vec![Vec3::zeros(); nf];
+        self.rate_work = vec![Vec3::zeros(); nf];
+        Ok(())
+    }
+}
+
 /// Node positions for the cage: nodes no tetrahedron uses (real meshes have them; they carry
 /// no physics) stand at a used node's place, so they neither stretch the cage nor fall
 /// outside it.

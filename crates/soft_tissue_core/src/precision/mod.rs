@@ -295,6 +295,8 @@ pub struct LeveledModel {
     residual: f64,
     shadow: Option<Box<Precise>>,
     shadow_error: Option<ShadowError>,
+    /// The cage level's contact dent (see the `contact` module).
+    dent: contact::ContactDent,
     /// See [`LeveledModel::set_precise_cg_must_converge`].
     cg_must_converge: bool,
     // Workspaces of the transfers.
@@ -363,6 +365,7 @@ impl LeveledModel {
             shadow: None,
             cg_must_converge: false,
             shadow_error: None,
+            dent: Default::default(),
             nodes_work: vec![Vec3::zeros(); n],
             nodes_work2: vec![Vec3::zeros(); n],
             cage_work: vec![Vec3::zeros(); nv],
@@ -373,21 +376,6 @@ impl LeveledModel {
             cage,
             settings,
         })
-    }
-
-    /// Replaces the cage: its fit and the workspaces sized by it follow.
-    fn install_cage(&mut self, cage: CageModel) -> Result<(), PrecisionError> {
-        let nv = cage.cage().vertices().len();
-        let nf = cage.cage().triangles().len();
-        self.fit = SurfaceFit::new(cage.coordinates(), &self.surface)?;
-        self.fit_cage = cage.cage_positions().to_vec();
-        self.equilibrium = cage.cage().vertices().to_vec();
-        self.fit_velocity = vec![Vec3::zeros(); nv];
-        self.cage = cage;
-        self.cage_work = vec![Vec3::zeros(); nv];
-        self.terms_work = vec![Vec3::zeros(); nf];
-        self.rate_work = vec![Vec3::zeros(); nf];
-        Ok(())
     }
 
     /// Whether the body sleeps: at the cage level, in its rest shape, at rest, with no load,
@@ -773,11 +761,17 @@ impl LeveledModel {
                     self.step_shadow()?;
                 } else {
                     self.cage.step()?;
-                    self.try_sleep()?;
+                    // Not while a contact dents it: the loads that hold its cage are on.
+                    if self.cage.dent().is_none() {
+                        self.try_sleep()?;
+                    }
                     self.step_shadow()?;
                 }
             }
             Level::Precise => self.precise.step()?,
+        }
+        if self.renew_dent() {
+            self.cage.update_points()?;
         }
         self.steps += 1;
         self.steps_at_level += 1;

@@ -69,6 +69,11 @@ impl LeveledModel {
             &self.nodes_work2,
             turned,
         );
+        // The dent is now the precise model's shape.
+        if self.cage.dent().is_some() {
+            self.cage.clear_dent();
+            self.cage.update_points()?;
+        }
         // The cage this state came from is the exact fit of it: the next fit starts there.
         self.fit_cage.copy_from_slice(self.cage.cage_positions());
         self.fit_velocity

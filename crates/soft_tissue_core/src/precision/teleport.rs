@@ -120,6 +120,7 @@ impl LeveledModel {
         for v in &mut self.fit_velocity {
             *v = m.rotation * *v;
         }
+        self.dent.forget();
         // The cage's rotation at the last down-switch, relative to its (now turned) rest.
         self.lowered_rotation = m.rotation * self.lowered_rotation * m.rotation.inverse();
         Ok(())

@@ -8,7 +8,8 @@ use crate::state::{NodalModel, Nodes};
 
 /// A body's state at its current level as the contact response may change it: positions,
 /// velocities and pending external forces of the level's nodes (the precise body's, or the
-/// cage's vertices'), and the shadow simulation's pending forces. Its buffers keep their room
+/// cage's vertices' and the cage's contact dent), and the shadow simulation's pending
+/// forces. Its buffers keep their room
 /// between uses, so saving does not allocate after the first time.
 #[derive(Debug, Default, Clone)]
 pub struct LevelSnapshot {
@@ -18,6 +19,8 @@ pub struct LevelSnapshot {
     v: Vec<Vec3>,
     f: Vec<Vec3>,
     shadow_f: Vec<Vec3>,
+    /// The cage's dent, if it had one.
+    dent: Option<Vec<Vec3>>,
 }
 
 fn copy(dst: &mut Vec<Vec3>, src: &[Vec3]) {
@@ -66,6 +69,14 @@ impl LeveledModel {
             Some(sh) => copy(&mut s.shadow_f, &sh.model().nodes().f_ext),
             None => s.shadow_f.clear(),
         }
+        match (self.level, self.cage.dent()) {
+            (Level::Cage, Some(d)) => copy(s.dent.get_or_insert_with(Vec::new), d),
+            _ => {
+                if let Some(d) = s.dent.as_mut() {
+                    d.clear();
+                }
+            }
+        }
         s.asleep = self.asleep;
         s.level = Some(self.level);
     }
@@ -89,6 +100,16 @@ impl LeveledModel {
                 .copy_from_slice(&s.shadow_f);
         }
         self.asleep = s.asleep;
+        if self.level == Level::Cage {
+            self.cage.clear_dent();
+            if let Some(d) = s.dent.as_deref().filter(|d| !d.is_empty()) {
+                // Saved from this cage: the length fits and the values are finite.
+                let _ = self.cage.add_dent(d);
+            }
+            // The points follow the restored cage (a failure is the caller's to find: it
+            // checks the state it puts back).
+            let _ = self.cage.update_points();
+        }
         true
     }
 

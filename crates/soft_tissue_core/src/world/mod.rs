@@ -500,7 +500,7 @@ impl WorldBody {
             let (v, f) = self.contact_load[k];
             let node = self.collider.nodes()[v as usize] as usize;
             self.model
-                .add_force(node, f)
+                .add_contact_load(node, f)
                 .map_err(|e| self.precision_err(e))?;
         }
         self.contact_load.clear();
