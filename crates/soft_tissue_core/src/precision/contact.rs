@@ -14,10 +14,10 @@
 //! the precise model's step puts it, and the cage moves by the force the precise model
 //! feels. The dent is the one-step response to the contact's whole force (under a held load
 //! it does not relax further toward the static response, as the precise model does): each
-//! correction adds to it, and it is
-//! kept while the contact's forces load the body's steps (held over the next step, they hold
-//! the cage where it is and the dent with it); a step with no contact load drops it. A body
-//! whose cage holds a resting shape is the exception (see `dents`).
+//! correction adds to it, and it is kept while the contact's forces load the body's steps
+//! (held over the next step, they hold the cage where it is and the dent with it); a step
+//! with no contact load drops it. A body whose cage holds a resting shape is the exception
+//! (see `dents`).
 
 use nalgebra::Matrix3;
 
