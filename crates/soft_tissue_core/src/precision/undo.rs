@@ -19,8 +19,8 @@ pub struct LevelSnapshot {
     v: Vec<Vec3>,
     f: Vec<Vec3>,
     shadow_f: Vec<Vec3>,
-    /// The cage's dent, if it had one.
-    dent: Option<Vec<Vec3>>,
+    /// The cage's dent (empty: none).
+    dent: Vec<Vec3>,
 }
 
 fn copy(dst: &mut Vec<Vec3>, src: &[Vec3]) {
@@ -70,12 +70,8 @@ impl LeveledModel {
             None => s.shadow_f.clear(),
         }
         match (self.level, self.cage.dent()) {
-            (Level::Cage, Some(d)) => copy(s.dent.get_or_insert_with(Vec::new), d),
-            _ => {
-                if let Some(d) = s.dent.as_mut() {
-                    d.clear();
-                }
-            }
+            (Level::Cage, Some(d)) => copy(&mut s.dent, d),
+            _ => s.dent.clear(),
         }
         s.asleep = self.asleep;
         s.level = Some(self.level);
@@ -102,9 +98,9 @@ impl LeveledModel {
         self.asleep = s.asleep;
         if self.level == Level::Cage {
             self.cage.clear_dent();
-            if let Some(d) = s.dent.as_deref().filter(|d| !d.is_empty()) {
+            if !s.dent.is_empty() {
                 // Saved from this cage: the length fits and the values are finite.
-                let _ = self.cage.add_dent(d);
+                let _ = self.cage.add_dent(&s.dent);
             }
             // The points follow the restored cage (a failure is the caller's to find: it
             // checks the state it puts back).
