@@ -283,7 +283,7 @@ fn area_ratios(cage: &Cage, x: &[Vec3]) -> Vec<f64> {
 /// cylinder cage's surface, deepened over ten fits as a tool's would be: the unguarded
 /// least-squares fit follows such a dent by turning cage faces over, where the face terms
 /// jump and no Newton step converges (measured on the poke of Fig. 5: 439 of 500 fits
-/// missed). Every depth's fit converges here within three fits of 40 Newton steps (as
+/// missed). Every depth's fit converges here in one fit of at most 100 Newton steps (as
 /// `LeveledModel::fit_cage_now` fits), and no face of the fitted cage falls below half the
 /// fold guard's margin of a fifth of its rest area, let alone turns over.
 #[test]
@@ -298,8 +298,8 @@ fn a_deep_narrow_dent_is_fitted_without_folding_the_cage() {
         .unwrap();
     let radius = 0.25 * size;
     let mut fit = SurfaceFit::new(&coords, &surface).unwrap();
-    // As `fit_cage_now` fits: up to 40 Newton steps a fit.
-    fit.set_newton_steps(40);
+    // As `fit_cage_now` fits: up to 100 Newton steps a fit.
+    fit.set_newton_steps(100);
     let mut x = cage.vertices().to_vec();
     let mut worst: f64 = 1.0;
     for k in 1..=10 {
@@ -313,17 +313,13 @@ fn a_deep_narrow_dent_is_fitted_without_folding_the_cage() {
                 p - Vec3::x() * (depth * fall)
             })
             .collect();
-        let mut report = fit.positions(&coords, &points, &mut x, 1e-10 * size, 100);
+        let report = fit.positions(&coords, &points, &mut x, 1e-10 * size, 100);
         if k == 1 {
             // The fixed point failed (its 100 iterations spent) and Newton steps took over.
             assert!(report.iterations > 100, "{report:?}");
         }
-        let mut tries = 1;
-        while !report.converged && tries < 3 {
-            report = fit.positions(&coords, &points, &mut x, 1e-10 * size, 100);
-            tries += 1;
-        }
-        assert!(report.converged, "depth {k}/10: {tries} fits: {report:?}");
+        assert!(report.converged, "depth {k}/10: {report:?}");
+        eprintln!("depth {k}/10: {} iterations", report.iterations);
         let smallest = area_ratios(&cage, &x).into_iter().fold(1.0, f64::min);
         worst = worst.min(smallest);
         // The fit follows the dent: no surface point is off by half its depth.

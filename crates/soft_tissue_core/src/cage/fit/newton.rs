@@ -30,8 +30,10 @@
 //! under `poke-a` (corotational FEM, 500 steps, `soft-tissue report --fig5-only`): the fixed
 //! point converged in none of the 500 fits; these steps without the guard converged in 61
 //! (439 stopped at their cap of 12: the fit followed the tool's dent by turning cage faces
-//! over, where the face terms jump); with the guard 494 converge within 40 steps
-//! ([`SurfaceFit::set_newton_steps`]). About 6 ms a step there (2-core EPYC VM).
+//! over, where the face terms jump); with the guard 494 converge within 40 steps and all
+//! 500 within 69 ([`SurfaceFit::set_newton_steps`]; the last ones creep down a slow valley,
+//! each step barely damped and lowering the objective by about 1e-5 of itself). About 6 ms a
+//! step there (2-core EPYC VM).
 
 use super::{FitReport, SurfaceFit};
 use crate::Vec3;
