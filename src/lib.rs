@@ -98,7 +98,7 @@ pub use physics::{
     BadSpeed, ContactPartner, ResetSimulation, SoftBodyError, SoftContact, SoftPhysics,
     SoftPhysicsTime, SoftTissueConfig, SoftTissueContacts, SoftTissueError, SoftTissueObstacles,
     SoftTissuePhysicsPlugin, SoftTissueSchedule, SoftTissueStage, SoftTissueStatus, SoftTissueStep,
-    SoftTissueSystems, SoftTissueThreads,
+    SoftTissueStepError, SoftTissueSystems, SoftTissueThreads,
 };
 pub use render::{
     EmbeddedVisual, INSIDE_COLOUR, RenderedSurface, SoftBodyMesh, SoftTissueMeshPlugin,

@@ -210,7 +210,7 @@ fn run_steps(world: &mut World) {
                 SoftTissueStage::Step,
                 "the step",
                 None,
-                "the fixed timestep is 0 s",
+                SoftTissueStepError::ZeroTimestep,
             ),
         );
         world.resource_mut::<Time<SoftPhysics>>().pause();
@@ -248,12 +248,12 @@ fn stage_error(
     stage: SoftTissueStage,
     what: &'static str,
     body: Option<Entity>,
-    message: impl ToString,
+    source: impl std::error::Error + Send + Sync + 'static,
 ) -> SoftTissueError {
     SoftTissueError {
         stage,
         what,
         body,
-        message: message.to_string(),
+        source: Arc::new(source),
     }
 }

@@ -251,18 +251,32 @@ pub enum SoftTissueStage {
 }
 
 /// Why a step failed: the stage, what it was doing, the body or tool when one is to blame,
-/// and the core's message.
-#[derive(Clone, Debug, PartialEq, thiserror::Error)]
-#[error("{what}{}: {message}", body.map(|e| format!(" ({e})")).unwrap_or_default())]
+/// and the error itself, typed: the core's (`WorldError`, `ContactError`, `PrecisionError`,
+/// `CutError`, ...) or the plugin's own ([`SoftTissueStepError`]), found with
+/// `error.source.downcast_ref::<WorldError>()` and matched on like any error of that type.
+#[derive(Clone, Debug, thiserror::Error)]
+#[error("{what}{}: {source}", body.map(|e| format!(" ({e})")).unwrap_or_default())]
 pub struct SoftTissueError {
     /// The stage that failed.
     pub stage: SoftTissueStage,
     /// What it was doing (`stepping the solvers`, `changing the material`, …).
     pub what: &'static str,
-    /// The body the error names, if it names one.
+    /// The body (or tool, obstacle) the error names, if it names one.
     pub body: Option<Entity>,
-    /// What went wrong.
-    pub message: String,
+    /// What went wrong (shared, so the status stays `Clone`).
+    #[source]
+    pub source: Arc<dyn std::error::Error + Send + Sync + 'static>,
+}
+
+/// What the plugin itself refuses in a step (the core's errors come as they are).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum SoftTissueStepError {
+    /// `Time<Fixed>`'s timestep is zero: no step can be taken.
+    #[error("the fixed timestep is 0 s")]
+    ZeroTimestep,
+    /// The thread pool could not be built; the steps go on on one thread.
+    #[error("{0}; stepping on one thread")]
+    ThreadPool(soft_tissue_core::parallel::ThreadsError),
 }
 
 /// Steps [`SoftTissueStatus::recent`] keeps.

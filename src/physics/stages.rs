@@ -552,7 +552,7 @@ pub(super) fn solve_stage(
                         SoftTissueStage::StepSolvers,
                         "thread pool",
                         None,
-                        format!("{e}; stepping on one thread"),
+                        SoftTissueStepError::ThreadPool(e),
                     ),
                 );
                 soft_tissue_core::parallel::Threads::single()

@@ -298,6 +298,22 @@ fn a_failed_stage_stops_the_step_there_and_no_nan_reaches_a_mesh() {
     assert!(error.to_string().contains("tool"), "{error}");
     assert_eq!(error.body, Some(tool), "the error names the tool's entity");
     assert_eq!(error.stage, bevy_soft_tissue::SoftTissueStage::Prepare);
+    // The core's error comes typed: the tool refused a position that is not finite.
+    use bevy_soft_tissue::core::contact::ContactError;
+    let source = error
+        .source
+        .downcast_ref::<ContactError>()
+        .unwrap_or_else(|| panic!("not a ContactError: {:?}", error.source));
+    assert!(
+        matches!(
+            source,
+            ContactError::BadTool {
+                what: "position (not finite)",
+                ..
+            }
+        ),
+        "{source:?}"
+    );
     assert!(
         app.world().resource::<Time<SoftPhysics>>().is_paused(),
         "the failure paused the clock"
