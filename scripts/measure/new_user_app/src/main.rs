@@ -6,7 +6,7 @@ use std::time::Duration;
 use bevy::prelude::*;
 use bevy::time::TimeUpdateStrategy;
 use bevy_soft_tissue::prelude::*;
-use bevy_soft_tissue::{SoftTissueAssetPlugin, SoftTissueConfig, SoftTissueStatus, TetMeshAsset};
+use bevy_soft_tissue::{SoftTissueAssetPlugin, SoftTissueStatus, TetMeshAsset};
 
 fn run(pinned: Option<Level>) -> (f64, f64, f64) {
     let dt = 0.01;
@@ -18,11 +18,8 @@ fn run(pinned: Option<Level>) -> (f64, f64, f64) {
         SoftTissueAssetPlugin,
         bevy_soft_tissue::SoftTissuePhysicsPlugin::default(),
     ));
+    // The physics steps at Bevy's fixed timestep.
     app.insert_resource(Time::<Fixed>::from_seconds(dt));
-    app.insert_resource(SoftTissueConfig {
-        dt: Some(dt),
-        ..default()
-    });
     app.insert_resource(TimeUpdateStrategy::ManualDuration(Duration::from_secs_f64(
         dt,
     )));
