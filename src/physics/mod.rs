@@ -248,12 +248,12 @@ fn stage_error(
     stage: SoftTissueStage,
     what: &'static str,
     body: Option<Entity>,
-    source: impl std::error::Error + Send + Sync + 'static,
+    error: impl std::error::Error + Send + Sync + 'static,
 ) -> SoftTissueError {
     SoftTissueError {
         stage,
         what,
         body,
-        source: Arc::new(source),
+        error: Arc::new(error),
     }
 }

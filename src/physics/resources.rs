@@ -253,9 +253,11 @@ pub enum SoftTissueStage {
 /// Why a step failed: the stage, what it was doing, the body or tool when one is to blame,
 /// and the error itself, typed: the core's (`WorldError`, `ContactError`, `PrecisionError`,
 /// `CutError`, ...) or the plugin's own ([`SoftTissueStepError`]), found with
-/// `error.source.downcast_ref::<WorldError>()` and matched on like any error of that type.
-#[derive(Clone, Debug, thiserror::Error)]
-#[error("{what}{}: {source}", body.map(|e| format!(" ({e})")).unwrap_or_default())]
+/// [`SoftTissueError::downcast_ref`] and matched on like any error of that type.
+///
+/// Its display ends with that error's, so [`std::error::Error::source`] goes on from that
+/// error's own source (a chain printed in full shows each message once).
+#[derive(Clone, Debug)]
 pub struct SoftTissueError {
     /// The stage that failed.
     pub stage: SoftTissueStage,
@@ -264,8 +266,31 @@ pub struct SoftTissueError {
     /// The body (or tool, obstacle) the error names, if it names one.
     pub body: Option<Entity>,
     /// What went wrong (shared, so the status stays `Clone`).
-    #[source]
-    pub source: Arc<dyn std::error::Error + Send + Sync + 'static>,
+    pub error: Arc<dyn std::error::Error + Send + Sync + 'static>,
+}
+
+impl SoftTissueError {
+    /// The error that failed the step as `E`, if it is one (`WorldError`, `ContactError`,
+    /// [`SoftTissueStepError`], ...).
+    pub fn downcast_ref<E: std::error::Error + 'static>(&self) -> Option<&E> {
+        self.error.downcast_ref::<E>()
+    }
+}
+
+impl std::fmt::Display for SoftTissueError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.what)?;
+        if let Some(e) = self.body {
+            write!(f, " ({e})")?;
+        }
+        write!(f, ": {}", self.error)
+    }
+}
+
+impl std::error::Error for SoftTissueError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        self.error.source()
+    }
 }
 
 /// What the plugin itself refuses in a step (the core's errors come as they are).

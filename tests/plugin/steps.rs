@@ -301,9 +301,8 @@ fn a_failed_stage_stops_the_step_there_and_no_nan_reaches_a_mesh() {
     // The core's error comes typed: the tool refused a position that is not finite.
     use bevy_soft_tissue::core::contact::ContactError;
     let source = error
-        .source
         .downcast_ref::<ContactError>()
-        .unwrap_or_else(|| panic!("not a ContactError: {:?}", error.source));
+        .unwrap_or_else(|| panic!("not a ContactError: {:?}", error.error));
     assert!(
         matches!(
             source,
@@ -314,6 +313,9 @@ fn a_failed_stage_stops_the_step_there_and_no_nan_reaches_a_mesh() {
         ),
         "{source:?}"
     );
+    // The display ends with that error's; the chain goes on from its own source (none).
+    assert!(error.to_string().ends_with(&source.to_string()), "{error}");
+    assert!(std::error::Error::source(&error).is_none());
     assert!(
         app.world().resource::<Time<SoftPhysics>>().is_paused(),
         "the failure paused the clock"
