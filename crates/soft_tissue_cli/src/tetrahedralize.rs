@@ -27,7 +27,9 @@ pub(crate) struct TetrahedralizeArgs {
     /// thickness, and the spacing and count that follow it, are printed first (seconds).
     #[arg(long, value_name = "PCT")]
     max_distance: Option<f64>,
-    /// The largest count --max-distance tries; where it is reached the command says so.
+    /// The largest count --max-distance asks for: a try whose count (asked, or estimated from
+    /// the walls or the last try) would pass it is not made, and the command says so; a try at
+    /// a spacing may make more than its estimate.
     #[arg(long, default_value_t = 100_000, requires = "max_distance")]
     max_tets: usize,
     /// Smallest dihedral angle kept, degrees.

@@ -9,8 +9,8 @@ pub(super) const STEP_NEWTON_STEPS: u32 = 12;
 
 /// Newton steps of a fit asked for outside the step ([`LeveledModel::fit_cage_now`]): on the
 /// cylinder's 128-vertex fitted cage under `poke-a` every one of the 500 fits converges
-/// (at most 69 iterations, warm-started; 494 and 492 of 500 within 40, against FEM and the
-/// MSD).
+/// (the slowest within 69 iterations, warm-started; 494 and 492 of 500 within 40 Newton
+/// steps, against FEM and the MSD).
 pub(super) const NOW_NEWTON_STEPS: u32 = 100;
 
 impl LeveledModel {

@@ -25,8 +25,9 @@ pub struct DistanceGoal {
     pub max_distance: f64,
     /// The smallest count tried (default 1500).
     pub start_tets: usize,
-    /// The largest count tried (default 100000): where it is reached the search stops and
-    /// says so.
+    /// The largest count asked for (default 100000): a try whose count, asked or estimated
+    /// (from the walls, or from the last try at a spacing), would pass it is not made, and the
+    /// search stops and says so. A try at a spacing may make more than its estimate.
     pub max_tets: usize,
     /// Smallest dihedral angle kept, degrees (default 8).
     pub min_dihedral_deg: f64,
